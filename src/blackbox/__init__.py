@@ -1,0 +1,3 @@
+"""Robot black box: non-intrusive fault detection, diagnosis and health recording for robots."""
+
+__version__ = "0.1.0"
