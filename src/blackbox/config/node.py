@@ -35,6 +35,13 @@ class ConfigError(Exception):
 
 
 _MAP, _SEQ, _SCALAR = "map", "seq", "scalar"
+_STR_TAG = "tag:yaml.org,2002:str"
+
+
+def _scalar_value(node: yaml.Node) -> Any:
+    if node.tag == _STR_TAG:
+        return node.value
+    return yaml.SafeLoader("").construct_object(node, deep=True)
 
 
 class ConfigNode:
@@ -85,8 +92,7 @@ class ConfigNode:
         if isinstance(node, yaml.MappingNode):
             children: dict[str, ConfigNode] = {}
             for knode, vnode in node.value:
-                key = str(yaml.safe_load(yaml.serialize(knode))) if knode.tag != "tag:yaml.org,2002:str" \
-                    else knode.value
+                key = str(_scalar_value(knode))
                 child_path = f"{path}.{key}" if path else key
                 if key in children:
                     raise ConfigError(f"duplicate key {key!r}", file, knode.start_mark.line + 1,
@@ -96,7 +102,7 @@ class ConfigNode:
         if isinstance(node, yaml.SequenceNode):
             items = [cls._from_yaml(v, file, f"{path}[{i}]") for i, v in enumerate(node.value)]
             return cls(_SEQ, items, file, line, col, path)
-        value = yaml.safe_load(yaml.serialize(node)) if node.tag != "tag:yaml.org,2002:str" else node.value
+        value = _scalar_value(node)
         return cls(_SCALAR, value, file, line, col, path)
 
     @classmethod
@@ -181,9 +187,10 @@ class ConfigNode:
         for key, child in self._need_map().items():
             if key not in allowed:
                 close = difflib.get_close_matches(key, allowed, n=1)
-                hint = f"; did you mean {close[0]!r}?" if close else f"; allowed: {', '.join(sorted(allowed))}"
-                raise ConfigError(f"unknown key {key!r}{hint}", child.file, child.line, child.column,
-                                  child.path)
+                hint = (f"; did you mean {close[0]!r}?" if close
+                        else f"; allowed: {', '.join(sorted(allowed))}")
+                raise ConfigError(f"unknown key {key!r}{hint}", child.file, child.line,
+                                  child.column, child.path)
 
     # ---- lists ------------------------------------------------------------------------------
 

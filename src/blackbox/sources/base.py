@@ -78,7 +78,8 @@ class MessageArrival:
         return self._raw() if self._raw is not None else None
 
     def __repr__(self) -> str:
-        return f"MessageArrival(t={self.time:.6f}, {self.topic} from {self.publisher}, {self.size} B)"
+        return (f"MessageArrival(t={self.time:.6f}, {self.topic} from {self.publisher}, "
+                f"{self.size} B)")
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,6 +101,21 @@ class NetworkSample:
     interface: str
     rx_bytes: int
     tx_bytes: int
+
+
+@dataclass(frozen=True, slots=True)
+class TopicSchema:
+    """How a topic's raw bytes are encoded, for writing them back out (bags, MCAP).
+
+    ``encoding`` is ``"ros1"`` (``definition`` is the ROS 1 ``message_definition`` text and
+    ``type`` like ``sensor_msgs/Image``) or ``"json"`` (``definition`` is a JSON schema).
+    """
+
+    topic: str
+    type: str
+    encoding: str
+    definition: str
+    md5sum: str = ""
 
 
 Event = GraphSnapshot | MessageArrival | ResourceSample | NetworkSample
@@ -137,6 +153,10 @@ class Source(Protocol):
     def now(self) -> float: ...
 
     def poll(self, until: float) -> list[Event]: ...
+
+    def schema(self, topic: str) -> TopicSchema | None:
+        """The encoding of ``topic``'s raw bytes, once known (``None`` before or if never)."""
+        ...
 
     def close(self) -> None: ...
 
