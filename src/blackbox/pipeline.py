@@ -1,0 +1,265 @@
+"""The black box's main loop: source events -> observers -> diagnosis -> sinks.
+
+One thread, one direction. The pipeline asks the source for every event up to the next
+evaluation time, hands each event to the observers interested in it, evaluates the
+observers that are due, passes the observations to the diagnosis engine and everything to
+the sinks. Nothing here reads a clock: the source's ``poll`` decides whether time is
+simulated or real.
+
+A failing observer or sink is isolated: the error becomes a black-box event and the loop
+goes on, because the black box must keep watching whatever else breaks.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import heapq
+import threading
+import traceback
+from collections import defaultdict
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource
+from blackbox.observe.base import Observer
+from blackbox.sinks import Sink
+from blackbox.sources.base import (
+    GraphSnapshot,
+    MessageArrival,
+    NetworkSample,
+    ResourceSample,
+    Source,
+    merge_interests,
+)
+
+
+class Diagnoser(Protocol):
+    """What the pipeline needs from a diagnosis engine."""
+
+    def update(self, now: float, observations: Sequence[Observation]) -> Diagnosis | None: ...
+
+
+@dataclass(slots=True)
+class RunStats:
+    """Counters of one run, for the closing summary and the benchmarks."""
+
+    started: float = 0.0
+    ended: float = 0.0
+    messages: int = 0
+    graphs: int = 0
+    samples: int = 0
+    evaluations: int = 0
+    observations: int = 0
+    faulty_observations: int = 0
+    diagnoses: int = 0
+    errors: int = 0
+
+
+class Pipeline:
+    """Runs observers over a source and fans the results out to sinks."""
+
+    def __init__(
+        self,
+        source: Source,
+        observers: Sequence[Observer],
+        sinks: Sequence[Sink] = (),
+        diagnoser: Diagnoser | None = None,
+        diagnoser_factory: Callable[[GraphSnapshot], Diagnoser | None] | None = None,
+    ) -> None:
+        self.source = source
+        self.observers = list(observers)
+        self.sinks = list(sinks)
+        self.diagnoser = diagnoser
+        self._diagnoser_factory = diagnoser_factory
+        self.stats = RunStats()
+        self._by_topic: dict[str, list[Callable[[MessageArrival], None]]] = defaultdict(list)
+        self._by_node_resources: dict[str, list[Observer]] = defaultdict(list)
+        self._network: list[Observer] = []
+        self._graph: list[Observer] = []
+        self._message_sinks = [s for s in self.sinks if getattr(s, "wants_messages", False)]
+        self._queue: list[tuple[float, int]] = []
+        self._reported: set[tuple[str, str]] = set()
+        self._started = False
+        self._closed = False
+        self.latest_graph: GraphSnapshot | None = None
+        self.lock = threading.Lock()
+        for obs in self.observers:
+            interest = obs.interest()
+            for topic in interest.topics | interest.decoded:
+                self._by_topic[topic].append(obs.on_message)
+            for node in interest.resources:
+                self._by_node_resources[node].append(obs)
+            if interest.network:
+                self._network.append(obs)
+            self._graph.append(obs)
+
+    # ---- lifecycle -------------------------------------------------------------------------
+
+    def start(self) -> None:
+        if self._started:
+            return
+        self._started = True
+        interest = merge_interests(o.interest() for o in self.observers)
+        self.source.start(interest)
+        now = self.source.now()
+        self.stats.started = now
+        self._queue = [(now + o.interval, i) for i, o in enumerate(self.observers)]
+        heapq.heapify(self._queue)
+        self._emit_event(BlackBoxEvent(now, "start", f"black box started on {self.source.name} "
+                                       f"with {len(self.observers)} observers"))
+
+    def run(self, duration: float | None = None, stop: threading.Event | None = None) -> RunStats:
+        """Run until ``duration`` seconds of source time have passed or ``stop`` is set."""
+        self.start()
+        end = None if duration is None else self.stats.started + duration
+        tick = 1.0
+        try:
+            while not (stop is not None and stop.is_set()):
+                until = self._queue[0][0] if self._queue else self.source.now() + tick
+                if end is not None and until > end:
+                    until = end
+                self.step(until)
+                if end is not None and until >= end:
+                    break
+        finally:
+            self.close()
+        return self.stats
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        now = self.source.now() if self._started else 0.0
+        self.stats.ended = now
+        self._emit_event(BlackBoxEvent(now, "stop", "black box stopped"))
+        for sink in self.sinks:
+            try:
+                sink.close()
+            except Exception as exc:
+                self._report_error("sink", type(sink).__name__, exc, now, emit=False)
+        try:
+            self.source.close()
+        except Exception as exc:
+            self._report_error("source", self.source.name, exc, now, emit=False)
+
+    # ---- one step --------------------------------------------------------------------------
+
+    def step(self, until: float) -> list[Observation]:
+        """Dispatch all events up to ``until`` and evaluate the observers due by then."""
+        events = self.source.poll(until)
+        self._dispatch(events)
+        observations: list[Observation] = []
+        while self._queue and self._queue[0][0] <= until:
+            due, index = heapq.heappop(self._queue)
+            observer = self.observers[index]
+            observations.extend(self._evaluate(observer, due))
+            heapq.heappush(self._queue, (due + observer.interval, index))
+        if observations:
+            self._publish(until, observations)
+        return observations
+
+    def evaluate_all(self, now: float | None = None) -> list[Observation]:
+        """Evaluate every observer now (initiated built-in test); does not reschedule."""
+        t = self.source.now() if now is None else now
+        with self.lock:
+            result: list[Observation] = []
+            for observer in self.observers:
+                result.extend(self._evaluate(observer, t))
+            return result
+
+    # ---- internals ---------------------------------------------------------------------------
+
+    def _dispatch(self, events: list) -> None:
+        by_topic = self._by_topic
+        message_sinks = self._message_sinks
+        stats = self.stats
+        i = 0
+        n = len(events)
+        while i < n:
+            try:
+                while i < n:
+                    event = events[i]
+                    i += 1
+                    if type(event) is MessageArrival:
+                        stats.messages += 1
+                        for handler in by_topic.get(event.topic, ()):
+                            handler(event)
+                        for sink in message_sinks:
+                            sink.on_message(event)
+                    elif type(event) is GraphSnapshot:
+                        stats.graphs += 1
+                        self._on_graph(event)
+                    elif type(event) is ResourceSample:
+                        stats.samples += 1
+                        for obs in self._by_node_resources.get(event.node, ()):
+                            obs.on_resources(event)
+                    elif type(event) is NetworkSample:
+                        stats.samples += 1
+                        for obs in self._network:
+                            obs.on_network(event)
+                    elif isinstance(event, BlackBoxEvent):
+                        self._emit_event(event)
+            except Exception as exc:
+                bad = events[i - 1]
+                where = (getattr(bad, "topic", None) or getattr(bad, "node", None)
+                         or type(bad).__name__)
+                self._report_error("event", str(where), exc, getattr(bad, "time", 0.0))
+
+    def _on_graph(self, graph: GraphSnapshot) -> None:
+        self.latest_graph = graph
+        for obs in self._graph:
+            obs.on_graph(graph)
+        if self.diagnoser is None and self._diagnoser_factory is not None:
+            self.diagnoser = self._diagnoser_factory(graph)
+
+    def _evaluate(self, observer: Observer, now: float) -> list[Observation]:
+        self.stats.evaluations += 1
+        try:
+            return observer.evaluate(now)
+        except Exception as exc:
+            self._report_error("observer", observer.describe(), exc, now)
+            return [Observation(now, observer.type_name, Resource(), Code.GENERAL_ERROR,
+                                message=f"observer failed: {exc}")]
+
+    def _publish(self, now: float, observations: list[Observation]) -> None:
+        self.stats.observations += len(observations)
+        self.stats.faulty_observations += sum(1 for o in observations if o.code < 0)
+        for sink in self.sinks:
+            self._call(sink, "on_observations", now, observations)
+        if self.diagnoser is not None:
+            try:
+                diagnosis = self.diagnoser.update(now, observations)
+            except Exception as exc:
+                self._report_error("diagnosis", type(self.diagnoser).__name__, exc, now)
+                diagnosis = None
+            if diagnosis is not None:
+                self.stats.diagnoses += 1
+                for sink in self.sinks:
+                    self._call(sink, "on_diagnosis", diagnosis)
+
+    def _emit_event(self, event: BlackBoxEvent) -> None:
+        for sink in self.sinks:
+            self._call(sink, "on_event", event)
+
+    def _call(self, sink: Sink, method: str, *args: object) -> None:
+        try:
+            getattr(sink, method)(*args)
+        except Exception as exc:
+            self._report_error("sink", type(sink).__name__, exc, self.source.now(), emit=False)
+
+    def _report_error(self, what: str, name: str, exc: BaseException, now: float,
+                      emit: bool = True) -> None:
+        self.stats.errors += 1
+        key = (what, name)
+        if key in self._reported:
+            return
+        self._reported.add(key)
+        detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
+        event = BlackBoxEvent(now, f"{what}_error", f"{what} {name} failed: {detail}")
+        if emit:
+            self._emit_event(event)
+        else:
+            for sink in self.sinks:
+                with contextlib.suppress(Exception):
+                    sink.on_event(event)
