@@ -1,0 +1,59 @@
+"""``blackbox run``: watch a robot with the configured observers."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from blackbox.app import DEFAULT_CONFIG, RunOptions, build, graceful_interrupts
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("run", help="watch a robot: observe, diagnose, record",
+                       description="Watch a robot with the observers of a configuration file.")
+    add_run_arguments(p)
+    p.set_defaults(func=run_command)
+
+
+def add_run_arguments(p: argparse.ArgumentParser, default_config: Path = DEFAULT_CONFIG) -> None:
+    p.add_argument("--config", type=Path, default=default_config,
+                   help="native or tug_observers YAML (default: the thesis robot's observers)")
+    p.add_argument("--source", default="sim:thesis",
+                   help="sim:thesis, sim:TOPOLOGY.yaml, ros1 or ros1://HOST:PORT")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop after S seconds of source time (default: until Ctrl-C)")
+    p.add_argument("--simulated-clock", action="store_true",
+                   help="run a simulated source as fast as possible instead of in real time")
+    p.add_argument("--faults", default=None, metavar="FILE|random",
+                   help="simulator only: a fault schedule YAML, or 'random' for a seeded campaign")
+    p.add_argument("--seed", type=int, default=1, help="seed of the simulator and its faults")
+    p.add_argument("--ground-truth", type=Path, default=None, metavar="FILE",
+                   help="simulator only: write injected faults as JSON lines")
+    p.add_argument("--observations", type=Path, default=None, metavar="FILE",
+                   help="write every observation as JSON lines (schema: docs/observations.md)")
+    p.add_argument("--diagnoses", type=Path, default=None, metavar="FILE",
+                   help="write every diagnosis as JSON lines (schema: docs/observations.md)")
+    p.add_argument("--events", type=Path, default=None, metavar="FILE",
+                   help="write the black box's own events as JSON lines")
+    p.add_argument("--quiet", action="store_true", help="no live status view")
+
+
+def options_from_args(args: argparse.Namespace) -> RunOptions:
+    return RunOptions(
+        config=args.config, source=args.source, duration=args.duration,
+        simulated_clock=args.simulated_clock, observations=args.observations,
+        diagnoses=args.diagnoses, events=args.events, live=not args.quiet,
+        faults=args.faults, seed=args.seed, ground_truth=args.ground_truth,
+    )
+
+
+def run_command(args: argparse.Namespace) -> int:
+    blackbox = build(options_from_args(args))
+    with graceful_interrupts() as stop:
+        stats = blackbox.run(stop)
+    span = stats.ended - stats.started
+    print(f"blackbox: {span:.1f} s observed, {stats.messages:,} messages, "
+          f"{stats.observations:,} observations ({stats.faulty_observations:,} faulty), "
+          f"{stats.diagnoses} diagnoses, {stats.errors} internal errors", file=sys.stderr)
+    return 0
