@@ -19,7 +19,8 @@ from types import SimpleNamespace
 from blackbox.config.node import ConfigNode
 from blackbox.observe.base import OBSERVERS
 from blackbox.pipeline import Pipeline
-from blackbox.sources.base import Event, Interest, MessageArrival, TopicSchema
+from blackbox.sources.base import Event, MessageArrival
+from blackbox.sources.memory import MemorySource
 
 TARGET = 250_000
 
@@ -38,40 +39,6 @@ def observer_config(topics: int) -> str:
             " std_deviation: 0.5}}}]}",
         ]
     return "\n".join(lines) + "\n"
-
-
-class ReplaySource:
-    """Hands out pre-generated events; no work of its own during the measurement."""
-
-    name = "replay"
-
-    def __init__(self, events: list[Event]) -> None:
-        self._events = events
-        self._pos = 0
-        self._now = 0.0
-
-    def start(self, interest: Interest) -> None:
-        return None
-
-    def now(self) -> float:
-        return self._now
-
-    def poll(self, until: float) -> list[Event]:
-        start = self._pos
-        events = self._events
-        n = len(events)
-        end = start
-        while end < n and events[end].time <= until:
-            end += 1
-        self._pos = end
-        self._now = until
-        return events[start:end]
-
-    def schema(self, topic: str) -> TopicSchema | None:
-        return None
-
-    def close(self) -> None:
-        return None
 
 
 def make_arrivals(topics: int, seconds: float, rate: float) -> list[Event]:
@@ -93,7 +60,7 @@ def run(topics: int, seconds: float, rate: float) -> dict[str, float]:
     root = ConfigNode.parse(observer_config(topics), "<benchmark>")
     observers = [OBSERVERS[e["type"].str()](e) for e in root["observers"].list()]
     events = make_arrivals(topics, seconds, rate)
-    pipeline = Pipeline(ReplaySource(events), observers)
+    pipeline = Pipeline(MemorySource(events), observers)
     pipeline.start()
     cpu0, wall0 = time.process_time(), time.perf_counter()
     t = 0.0
