@@ -1,0 +1,176 @@
+"""Reading a configuration file in either format and building its observers.
+
+``load_config`` detects the format (native ``observers``, tug_observers ``setup``), turns
+both into the same :class:`LoadedConfig` of native observer entries, and ``build_observers``
+hands each entry to the observer factory registered under its ``type``. Every problem with
+the file becomes a :class:`ConfigError` naming file, line, column and key path.
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Literal
+
+import yaml
+
+from blackbox.config.native import DEFAULT_ROBOT_ID, TOP_LEVEL_KEYS, read_native
+from blackbox.config.node import ConfigError, ConfigNode
+from blackbox.config.tug import translate_setup
+from blackbox.observe.base import OBSERVERS, Observer
+
+Format = Literal["native", "tug"]
+DocumentKind = Literal["native", "tug", "diagnosis"]
+
+_TUG_KEY = "setup"
+_DIAGNOSIS_KEYS = ("nodes", "observations")
+_WHAT_IS_EXPECTED = ("expected a top-level 'observers' list (native format), a 'setup' list "
+                     "(tug_observers format) or 'nodes' and 'observations' (diagnosis model)")
+
+
+@dataclass(frozen=True, slots=True)
+class LoadedConfig:
+    """A configuration file read into native observer entries and stage sections."""
+
+    file: str
+    format: Format
+    observers: tuple[ConfigNode, ...]
+    sections: Mapping[str, ConfigNode] = field(default_factory=lambda: MappingProxyType({}))
+    warnings: tuple[str, ...] = ()
+    robot_id: str = DEFAULT_ROBOT_ID
+
+
+def read_document(path: str | Path) -> ConfigNode:
+    """The YAML document of ``path`` as config nodes; an empty file is an error."""
+    p = Path(path)
+    if p.is_dir():
+        raise ConfigError("is a directory, not a configuration file", str(p))
+    try:
+        root = ConfigNode.load(p)
+    except yaml.MarkedYAMLError as exc:  # raised while building values, e.g. an unknown tag
+        mark = exc.problem_mark or exc.context_mark
+        line, col = (mark.line + 1, mark.column + 1) if mark else (0, 0)
+        raise ConfigError(f"invalid YAML: {exc.problem or exc.context or exc}", str(p), line,
+                          col) from None
+    except (yaml.YAMLError, ValueError, RecursionError) as exc:
+        raise ConfigError(f"invalid YAML: {exc}", str(p)) from None
+    if root.is_null:
+        raise root.error(f"the file is empty; {_WHAT_IS_EXPECTED}")
+    if not root.is_map:
+        raise root.error(f"not a configuration: {_WHAT_IS_EXPECTED}")
+    return root
+
+
+def document_kind(root: ConfigNode) -> DocumentKind:
+    """Which kind of file ``root`` is, or one error saying what was expected."""
+    keys = root.keys()
+    if _TUG_KEY in keys:
+        if "observers" in keys:
+            raise root["observers"].error(
+                "a file has either 'observers' (native format) or 'setup' "
+                "(tug_observers format), not both")
+        return "tug"
+    if all(k in keys for k in _DIAGNOSIS_KEYS) and "observers" not in keys:
+        return "diagnosis"
+    if any(k in TOP_LEVEL_KEYS for k in keys):
+        return "native"
+    for key in keys:
+        close = difflib.get_close_matches(key, [*TOP_LEVEL_KEYS, _TUG_KEY, *_DIAGNOSIS_KEYS], n=1)
+        if close:
+            raise root[key].error(f"unknown top-level key {key!r}; did you mean {close[0]!r}?")
+    raise root.error(f"not a black box configuration: {_WHAT_IS_EXPECTED}")
+
+
+def load_config(path: str | Path) -> LoadedConfig:
+    """Read an observer configuration in the native or the tug_observers format."""
+    root = read_document(path)
+    kind = document_kind(root)
+    file = root.file
+    if kind == "diagnosis":
+        raise root.error("this is a diagnosis model (nodes and observations), not an observer "
+                         "configuration; `blackbox check-config` lists its contents")
+    if kind == "tug":
+        root.check_keys([_TUG_KEY])
+        translation = translate_setup(root[_TUG_KEY])
+        if not translation.observers:
+            warnings = (*translation.warnings,
+                        f"{file}:{root.line}: no observers; nothing will be observed")
+        else:
+            warnings = translation.warnings
+        return LoadedConfig(file, "tug", translation.observers, warnings=tuple(warnings))
+    native = read_native(root)
+    return LoadedConfig(file, "native", native.observers, native.sections, native.warnings,
+                        native.robot_id)
+
+
+def registered_observers() -> Mapping[str, object]:
+    """The observer registry with every built-in observer module imported."""
+    import blackbox.observe.observers  # noqa: F401  (registers the built-in observers)
+
+    return OBSERVERS
+
+
+def build_observers(config: LoadedConfig) -> list[Observer]:
+    """One observer per native entry, built by the factory registered for its ``type``."""
+    registered_observers()
+    observers: list[Observer] = []
+    for entry in config.observers:
+        kind = entry["type"]
+        name = kind.str()
+        factory = OBSERVERS.get(name)
+        if factory is None:
+            known = sorted(OBSERVERS)
+            close = difflib.get_close_matches(name, known, n=1)
+            hint = f"did you mean {close[0]!r}?" if close else f"known: {', '.join(known)}"
+            raise kind.error(f"unknown observer type {name!r}; {hint}")
+        try:
+            observers.append(factory(entry))
+        except ValueError as exc:  # a value a factory rejected without a located error
+            raise entry.error(f"invalid {name} observer: {exc}") from None
+    return observers
+
+
+@dataclass(frozen=True, slots=True)
+class ModelNode:
+    name: str
+    subscribes: tuple[str, ...]
+    publishes: tuple[str, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class ModelObservation:
+    type: str
+    resources: tuple[str, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class DiagnosisModelOutline:
+    """What a diagnosis model (tug_diagnosis layout) names, for display only.
+
+    The diagnosis stage reads and checks these files itself; this outline only lets
+    ``check-config`` say what a file is when it is given one.
+    """
+
+    file: str
+    nodes: tuple[ModelNode, ...]
+    observations: tuple[ModelObservation, ...]
+
+
+def outline_diagnosis_model(root: ConfigNode) -> DiagnosisModelOutline:
+    nodes = []
+    for node in root["nodes"].list():
+        node.check_keys(["name", "sub_topic", "pub_topic"])
+        nodes.append(ModelNode(
+            node["name"].str(),
+            node["sub_topic"].str_list() if "sub_topic" in node else (),
+            node["pub_topic"].str_list() if "pub_topic" in node else ()))
+    observations = []
+    for obs in root["observations"].list():
+        obs.check_keys(["type", "nodes", "topics"])
+        found = obs.first("nodes", "topics")
+        observations.append(ModelObservation(
+            obs["type"].str(), found[1].str_list() if found else ()))
+    return DiagnosisModelOutline(root.file, tuple(nodes), tuple(observations))
