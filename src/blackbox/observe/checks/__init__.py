@@ -95,6 +95,8 @@ def build_check(node: ConfigNode | None) -> Check:
     if type_node is None:
         if "value" in node or "deviation" in node:
             return build_nominal_value(node)
+        node.check_keys(("type", "value", "deviation", "true_mean", "significance_level",
+                         "std_deviation"))
         raise node.error("missing required key 'type' (student_t or nominal_value)")
     raw = type_node.raw
     if isinstance(raw, str) and raw in VALUE_CHECKS:
