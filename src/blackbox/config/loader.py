@@ -124,7 +124,10 @@ def build_observers(config: LoadedConfig) -> list[Observer]:
         if factory is None:
             known = sorted(OBSERVERS)
             close = difflib.get_close_matches(name, known, n=1)
-            hint = f"did you mean {close[0]!r}?" if close else f"known: {', '.join(known)}"
+            if close:
+                hint = f"did you mean {close[0]!r}?"
+            else:
+                hint = f"known: {', '.join(known)}" if known else "no observer types are installed"
             raise kind.error(f"unknown observer type {name!r}; {hint}")
         try:
             observers.append(factory(entry))
