@@ -12,7 +12,8 @@ whose ``value`` and ``deviation`` are both empty (tug template files).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from types import MappingProxyType
 from typing import cast
 
 from blackbox.config.node import ConfigNode
@@ -20,7 +21,6 @@ from blackbox.observe.base import VALUE_CHECKS, Check, register
 from blackbox.observe.checks.nominal import AcceptAllCheck, NominalValueCheck
 from blackbox.observe.checks.student_t import StudentTCheck
 from blackbox.observe.checks.value import (
-    VALUE_CHECK_TYPES,
     ExactCheck,
     GaussCheck,
     GreaterThanCheck,
@@ -48,8 +48,13 @@ __all__ = [
     "build_value_check",
 ]
 
-for _kind in VALUE_CHECK_TYPES:
-    register(VALUE_CHECKS, _kind.type_name)(_kind.from_config)
+register(VALUE_CHECKS, GaussCheck.type_name)(GaussCheck.from_config)
+register(VALUE_CHECKS, ExactCheck.type_name)(ExactCheck.from_config)
+register(VALUE_CHECKS, NotCheck.type_name)(NotCheck.from_config)
+register(VALUE_CHECKS, GreaterThanCheck.type_name)(GreaterThanCheck.from_config)
+register(VALUE_CHECKS, LessThanCheck.type_name)(LessThanCheck.from_config)
+register(VALUE_CHECKS, InBetweenCheck.type_name)(InBetweenCheck.from_config)
+register(VALUE_CHECKS, NotInBetweenCheck.type_name)(NotInBetweenCheck.from_config)
 
 NOMINAL_VALUE = "nominal_value"
 
@@ -75,10 +80,10 @@ def build_nominal_value(node: ConfigNode) -> Check:
     return NominalValueCheck(value, deviation)
 
 
-CHECK_TYPES: dict[str, Callable[[ConfigNode], Check]] = {
+CHECK_TYPES: Mapping[str, Callable[[ConfigNode], Check]] = MappingProxyType({
     StudentTCheck.type_name: StudentTCheck.from_config,
     NOMINAL_VALUE: build_nominal_value,
-}
+})
 
 
 def build_check(node: ConfigNode | None) -> Check:

@@ -175,8 +175,3 @@ class NotInBetweenCheck(_OnValue):
     def describe(self, subject: str = "value") -> str:
         return f"{subject} < {_g(self.lower_bound)} or {subject} > {_g(self.upper_bound)}"
 
-
-VALUE_CHECK_TYPES: tuple[type, ...] = (
-    GaussCheck, ExactCheck, NotCheck, GreaterThanCheck, LessThanCheck, InBetweenCheck,
-    NotInBetweenCheck,
-)

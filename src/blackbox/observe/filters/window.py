@@ -62,15 +62,25 @@ class Window:
         else:
             self._run = 1
             self._last = x
-        if self.extremes:
-            self._push_extremes(x)
         n = self._n
         if n == self.size:
             samples = self.samples
             y = samples[0]
             samples.append(x)
             if self.extremes:
-                self._evict_extremes(y)
+                # Monotonic deques. Strict popping keeps equal values, so the evicted
+                # sample, if still in a deque, is at its front.
+                hi, lo = self._hi, self._lo
+                while hi and hi[-1] < x:
+                    hi.pop()
+                hi.append(x)
+                while lo and lo[-1] > x:
+                    lo.pop()
+                lo.append(x)
+                if hi[0] == y:
+                    hi.popleft()
+                if lo[0] == y:
+                    lo.popleft()
             d = x - y
             if d:
                 mean = self._mean
@@ -83,6 +93,8 @@ class Window:
             return y
         if self.size is not None:
             self.samples.append(x)
+        if self.extremes:
+            self._grow_extremes(x)
         n += 1
         self._n = n
         if n == 1:
@@ -94,31 +106,23 @@ class Window:
             self._m2 += d * (x - self._mean)
         return None
 
-    def _push_extremes(self, x: float) -> None:
-        if self.size is None:
-            if not self._hi:
-                self._hi.append(x)
-                self._lo.append(x)
-            elif x > self._hi[0]:
-                self._hi[0] = x
-            elif x < self._lo[0]:
-                self._lo[0] = x
-            return
+    def _grow_extremes(self, x: float) -> None:
         hi, lo = self._hi, self._lo
+        if self.size is None:
+            if not hi:
+                hi.append(x)
+                lo.append(x)
+            elif x > hi[0]:
+                hi[0] = x
+            elif x < lo[0]:
+                lo[0] = x
+            return
         while hi and hi[-1] < x:
             hi.pop()
         hi.append(x)
         while lo and lo[-1] > x:
             lo.pop()
         lo.append(x)
-
-    def _evict_extremes(self, y: float) -> None:
-        # Strict popping above keeps equal values, so an evicted sample still in a deque
-        # is at its front.
-        if self._hi[0] == y:
-            self._hi.popleft()
-        if self._lo[0] == y:
-            self._lo.popleft()
 
     def _recompute(self) -> None:
         samples = self.samples
