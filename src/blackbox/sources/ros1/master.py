@@ -1,0 +1,259 @@
+"""The ROS 1 graph from the master's XML-RPC API, with liveness from each node itself.
+
+The master only knows what nodes registered; a node killed with SIGKILL stays registered.
+So every node is asked for its pid through its own slave API on every round: a node that
+refuses or does not answer in time is reported dead whatever the master says. Nothing here
+registers anything anywhere, so the robot never sees the black box in its graph.
+"""
+
+from __future__ import annotations
+
+import http.client
+import socket
+import xmlrpc.client
+from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+from urllib.parse import urlsplit
+
+from blackbox.sources.base import GraphSnapshot, NodeInfo, TopicInfo
+
+CALLER_ID = "/blackbox"
+"""The caller id the black box gives in XML-RPC calls; it is never registered."""
+
+Report = Callable[[str, str, str], None]
+"""``report(kind, component, message)``: a robot-side fault the black box noticed."""
+
+
+class RosApiError(Exception):
+    """An XML-RPC call failed: unreachable, timed out, malformed or answered with an error."""
+
+
+class _TimeoutTransport(xmlrpc.client.Transport):
+    def __init__(self, timeout: float) -> None:
+        super().__init__()
+        self._timeout = timeout
+
+    def make_connection(self, host: Any) -> http.client.HTTPConnection:
+        conn = super().make_connection(host)
+        conn.timeout = self._timeout
+        return conn
+
+
+class RosApi:
+    """One XML-RPC endpoint (the master or a node's slave API) with a per-call timeout.
+
+    Not thread-safe: the transport keeps its HTTP connection between calls.
+    """
+
+    def __init__(self, uri: str, timeout: float) -> None:
+        self.uri = uri
+        self._proxy = xmlrpc.client.ServerProxy(uri, transport=_TimeoutTransport(timeout),
+                                                allow_none=True)
+
+    def call(self, method: str, *args: Any) -> Any:
+        """Call ``method`` and return the value of a ``[code, message, value]`` reply."""
+        try:
+            reply = getattr(self._proxy, method)(*args)
+        except (OSError, http.client.HTTPException, xmlrpc.client.Error) as exc:
+            raise RosApiError(f"{method} on {self.uri}: {_describe(exc)}") from None
+        except Exception as exc:  # garbage on the wire can raise anything from the parser
+            raise RosApiError(f"{method} on {self.uri}: malformed reply ({_describe(exc)})"
+                              ) from None
+        if not (isinstance(reply, list) and len(reply) == 3 and isinstance(reply[0], int)):
+            raise RosApiError(f"{method} on {self.uri}: unexpected reply {str(reply)[:80]!r}")
+        code, message, value = reply
+        if code != 1:
+            raise RosApiError(f"{method} on {self.uri}: error {code}: {message}")
+        return value
+
+
+def _describe(exc: BaseException) -> str:
+    if isinstance(exc, socket.timeout | TimeoutError):
+        return "no answer (timed out)"
+    if isinstance(exc, ConnectionRefusedError):
+        return "connection refused"
+    text = str(exc) or type(exc).__name__
+    return text[:160]
+
+
+def host_of(uri: str) -> str | None:
+    try:
+        return urlsplit(uri).hostname
+    except ValueError:
+        return None
+
+
+@dataclass(slots=True)
+class SystemState:
+    """``getSystemState`` as mappings from a topic to its node names."""
+
+    publishers: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    subscribers: dict[str, tuple[str, ...]] = field(default_factory=dict)
+
+    def node_names(self) -> set[str]:
+        names: set[str] = set()
+        for group in (self.publishers, self.subscribers):
+            for nodes in group.values():
+                names.update(nodes)
+        return names
+
+
+def _topic_nodes(entries: Any) -> dict[str, tuple[str, ...]]:
+    out: dict[str, tuple[str, ...]] = {}
+    for entry in entries if isinstance(entries, list) else ():
+        if (isinstance(entry, list) and len(entry) == 2 and isinstance(entry[0], str)
+                and isinstance(entry[1], list)):
+            out[entry[0]] = tuple(sorted(n for n in entry[1] if isinstance(n, str)))
+    return out
+
+
+class MasterClient:
+    """The few master calls the black box needs; all read-only."""
+
+    def __init__(self, uri: str, timeout: float = 1.0) -> None:
+        self.uri = uri
+        self._api = RosApi(uri, timeout)
+
+    def system_state(self) -> SystemState:
+        value = self._api.call("getSystemState", CALLER_ID)
+        if not (isinstance(value, list) and len(value) == 3):
+            raise RosApiError(f"getSystemState on {self.uri}: unexpected value")
+        return SystemState(_topic_nodes(value[0]), _topic_nodes(value[1]))
+
+    def topic_types(self) -> dict[str, str]:
+        value = self._api.call("getTopicTypes", CALLER_ID)
+        return {t: ty for t, ty in (e for e in value if isinstance(e, list) and len(e) == 2)
+                if isinstance(t, str) and isinstance(ty, str)}
+
+    def lookup_node(self, name: str) -> str:
+        uri = self._api.call("lookupNode", CALLER_ID, name)
+        if not isinstance(uri, str):
+            raise RosApiError(f"lookupNode {name}: unexpected value")
+        return uri
+
+
+@dataclass(slots=True)
+class NodeState:
+    """What the poller knows about one node between rounds."""
+
+    name: str
+    uri: str | None = None
+    alive: bool = False
+    pid: int | None = None
+    reason: str = "not yet probed"
+    registered: bool = True
+
+
+def probe_pid(uri: str, timeout: float) -> int:
+    """The pid a node reports through its own slave API (raises :class:`RosApiError`)."""
+    pid = RosApi(uri, timeout).call("getPid", CALLER_ID)
+    if not isinstance(pid, int):
+        raise RosApiError(f"getPid on {uri}: not a pid: {pid!r}")
+    return pid
+
+
+class GraphPoller:
+    """Builds :class:`GraphSnapshot` s from the master plus a liveness probe of every node.
+
+    When the master is unreachable the last known topics are kept and the known nodes are
+    still probed directly, so liveness keeps working through a master restart.
+    """
+
+    def __init__(self, master_uri: str, report: Report, probe_timeout: float = 0.5,
+                 master_timeout: float = 1.0, max_workers: int = 8) -> None:
+        self.master = MasterClient(master_uri, master_timeout)
+        self._report = report
+        self._probe_timeout = probe_timeout
+        self._pool = ThreadPoolExecutor(max_workers=max_workers,
+                                        thread_name_prefix="ros1-probe")
+        self.nodes: dict[str, NodeState] = {}
+        self.state = SystemState()
+        self.types: dict[str, str] = {}
+        self.master_ok: bool | None = None
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+    def uri_of(self, node: str) -> str | None:
+        st = self.nodes.get(node)
+        return st.uri if st is not None else None
+
+    def refresh(self, now: float) -> GraphSnapshot:
+        """One round: ask the master, probe every node, return the graph at ``now``."""
+        self._refresh_master()
+        registered = self.state.node_names()
+        for name in registered - self.nodes.keys():
+            self.nodes[name] = NodeState(name)
+        for name, st in self.nodes.items():
+            st.registered = name in registered
+        self._probe(list(self.nodes.values()))
+        for name in [n for n, st in self.nodes.items() if not st.registered and not st.alive]:
+            del self.nodes[name]
+        return self.snapshot(now)
+
+    def snapshot(self, now: float) -> GraphSnapshot:
+        nodes = {n: NodeInfo(n, st.alive, st.pid if st.alive else None,
+                             host_of(st.uri) if st.uri else None)
+                 for n, st in sorted(self.nodes.items())}
+        names = sorted(self.state.publishers.keys() | self.state.subscribers.keys()
+                       | self.types.keys())
+        topics = {t: TopicInfo(t, self.types.get(t, ""), self.state.publishers.get(t, ()),
+                               self.state.subscribers.get(t, ()))
+                  for t in names}
+        return GraphSnapshot(now, nodes, topics)
+
+    def _refresh_master(self) -> None:
+        try:
+            state = self.master.system_state()
+            topics = state.publishers.keys() | state.subscribers.keys()
+            if not topics <= self.types.keys() or self.master_ok is not True:
+                self.types = self.master.topic_types()
+        except RosApiError as exc:
+            if self.master_ok is not False:
+                self._report("master_lost", self.master.uri,
+                             f"ROS master unreachable, keeping the last known graph: {exc}")
+            self.master_ok = False
+            return
+        if self.master_ok is False:
+            self._report("master_back", self.master.uri, "ROS master reachable again")
+        self.master_ok = True
+        self.state = state
+
+    def _probe(self, states: Iterable[NodeState]) -> None:
+        futures = [(st, self._pool.submit(self._probe_one, st)) for st in states]
+        for st, fut in futures:
+            was_alive, old_reason = st.alive, st.reason
+            try:
+                st.pid = fut.result()
+                st.alive, st.reason = True, ""
+            except RosApiError as exc:
+                st.alive, st.reason = False, str(exc)
+            except Exception as exc:  # a probe must never take the poller down
+                st.alive, st.reason = False, f"probe failed: {exc!r}"
+            if was_alive and not st.alive:
+                self._report("node_dead", st.name, f"node {st.name} stopped answering its "
+                             f"slave API: {st.reason}")
+            elif st.alive and not was_alive and old_reason != "not yet probed":
+                self._report("node_alive", st.name, f"node {st.name} answers again "
+                             f"(pid {st.pid})")
+
+    def _probe_one(self, st: NodeState) -> int:
+        """getPid on the known URI; on failure look the node up again (it may have restarted)."""
+        first_error: RosApiError | None = None
+        if st.uri is not None:
+            try:
+                return probe_pid(st.uri, self._probe_timeout)
+            except RosApiError as exc:
+                first_error = exc
+        if self.master_ok is False or not st.registered:
+            raise first_error or RosApiError(f"{st.name}: no slave URI known")
+        try:
+            uri = MasterClient(self.master.uri, self._probe_timeout).lookup_node(st.name)
+        except RosApiError as exc:
+            raise first_error or exc from None
+        if uri == st.uri and first_error is not None:
+            raise first_error
+        st.uri = uri
+        return probe_pid(uri, self._probe_timeout)

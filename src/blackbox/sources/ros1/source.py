@@ -1,0 +1,182 @@
+"""``Ros1Source``: a live ROS 1 robot as a stream of black-box source events.
+
+Two background threads do all I/O: the graph thread (master + node liveness + resources,
+a few times a second) and the TCPROS reader (every topic connection). Both append to one
+bounded in-memory queue; ``poll(until)`` sleeps until the wall clock reaches ``until`` and
+hands out what arrived. Source time is wall-clock seconds (``time.time()``).
+
+Robot-side faults (master gone, node dead, garbage on a connection, ...) are logged with a
+reason and returned from ``poll`` as :class:`~blackbox.model.BlackBoxEvent` s; none of them
+stops the source.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections import deque
+from urllib.parse import urlsplit
+
+import psutil
+
+from blackbox.config.node import ConfigError
+from blackbox.model import BlackBoxEvent
+from blackbox.sources.base import Event, Interest, NetworkSample, TopicSchema
+from blackbox.sources.ros1.master import GraphPoller
+from blackbox.sources.ros1.resources import ResourceSampler
+from blackbox.sources.ros1.tcpros import DEFAULT_MAX_MESSAGE_BYTES, TcprosSubscriber
+
+log = logging.getLogger("blackbox.sources.ros1")
+
+
+def master_uri_from_spec(spec: str, environ: dict[str, str] | os._Environ[str] = os.environ
+                         ) -> str:
+    """``ros1`` -> ``$ROS_MASTER_URI``; ``ros1://HOST:PORT`` -> ``http://HOST:PORT/``."""
+    if spec == "ros1":
+        uri = environ.get("ROS_MASTER_URI", "")
+        if not uri:
+            raise ConfigError("--source ros1 needs ROS_MASTER_URI (for example "
+                              "http://robot:11311) or use --source ros1://HOST:PORT", "--source")
+        parts = urlsplit(uri)
+        if parts.scheme != "http" or not parts.hostname:
+            raise ConfigError(f"ROS_MASTER_URI {uri!r} is not an http://HOST:PORT URI",
+                              "--source")
+        return uri
+    if not spec.startswith("ros1://"):
+        raise ConfigError(f"not a ROS 1 source: {spec!r}", "--source")
+    parts = urlsplit("http://" + spec.removeprefix("ros1://"))
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if not parts.hostname or port is None or parts.path not in ("", "/"):
+        raise ConfigError(f"bad ROS 1 source {spec!r}; expected ros1://HOST:PORT "
+                          "(for example ros1://127.0.0.1:11311)", "--source")
+    return f"http://{parts.hostname}:{port}/"
+
+
+class Ros1Source:
+    """A live ROS 1 robot, observed without registering anything with its master."""
+
+    def __init__(self, master_uri: str, *, graph_period: float = 0.3,
+                 probe_timeout: float = 0.5, resource_period: float = 1.0,
+                 idle_grace: float = 2.0, queue_limit: int = 200_000,
+                 backoff_min: float = 0.1, backoff_max: float = 2.0,
+                 default_max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES) -> None:
+        self.master_uri = master_uri
+        self.name = f"ros1 {master_uri}"
+        self._graph_period = graph_period
+        self._resource_period = resource_period
+        self._idle_grace = idle_grace
+        self._queue: deque[Event | BlackBoxEvent] = deque()
+        self._queue_limit = queue_limit
+        self._dropped = 0
+        self._held: list[Event | BlackBoxEvent] = []
+        self._stop = threading.Event()
+        self._poller = GraphPoller(master_uri, self._report, probe_timeout=probe_timeout)
+        self._backoff = (backoff_min, backoff_max)
+        self._default_cap = default_max_message_bytes
+        self._resources = ResourceSampler()
+        self._subscriber: TcprosSubscriber | None = None
+        self._thread: threading.Thread | None = None
+        self._interest = Interest()
+
+    @classmethod
+    def from_uri(cls, spec: str, **options: float) -> Ros1Source:
+        return cls(master_uri_from_spec(spec), **options)  # type: ignore[arg-type]
+
+    # ---- Source protocol -------------------------------------------------------------------
+
+    def start(self, interest: Interest) -> None:
+        if self._thread is not None:
+            raise RuntimeError("Ros1Source started twice")
+        self._interest = interest
+        self._subscriber = TcprosSubscriber(
+            interest.topics, interest.decoded, interest.max_message_bytes, self._push,
+            self._report, backoff_min=self._backoff[0], backoff_max=self._backoff[1],
+            default_max_bytes=self._default_cap)
+        self._subscriber.start()
+        self._thread = threading.Thread(target=self._graph_loop, name="ros1-graph",
+                                        daemon=True)
+        self._thread.start()
+
+    def now(self) -> float:
+        return time.time()
+
+    def poll(self, until: float) -> list[Event]:
+        delay = until - time.time()
+        if delay > 0:
+            self._stop.wait(delay)
+        queue = self._queue
+        events = self._held
+        self._held = []
+        while queue:
+            events.append(queue.popleft())
+        if self._dropped:
+            dropped, self._dropped = self._dropped, 0
+            events.append(BlackBoxEvent(time.time(), "ros1_queue_overflow",
+                                        f"dropped {dropped} events: the black box fell behind "
+                                        "the robot", self.name))
+        events.sort(key=_time_of)
+        cut = len(events)
+        while cut and events[cut - 1].time > until:
+            cut -= 1
+        self._held = events[cut:]
+        return events[:cut]  # type: ignore[return-value]
+
+    def schema(self, topic: str) -> TopicSchema | None:
+        return self._subscriber.schemas.get(topic) if self._subscriber else None
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=3.0)
+        if self._subscriber is not None:
+            self._subscriber.close()
+        self._poller.close()
+
+    # ---- background ------------------------------------------------------------------------
+
+    def _push(self, event: Event) -> None:
+        if len(self._queue) < self._queue_limit:
+            self._queue.append(event)
+        else:
+            self._dropped += 1
+
+    def _report(self, kind: str, component: str, message: str) -> None:
+        log.warning("%s: %s", component, message)
+        self._queue.append(BlackBoxEvent(time.time(), f"ros1_{kind}", message, component))
+
+    def _graph_loop(self) -> None:
+        next_resources = 0.0
+        subscriber = self._subscriber
+        assert subscriber is not None
+        while not self._stop.is_set():
+            started = time.time()
+            try:
+                graph = self._poller.refresh(started)
+                self._push(graph)
+                subscriber.sync(self._poller.state.publishers, self._poller.uri_of)
+                dead = {n for n, st in self._poller.nodes.items() if not st.alive}
+                subscriber.drop_half_open(dead, self._idle_grace)
+                if started >= next_resources:
+                    next_resources = started + self._resource_period
+                    for sample in self._resources.sample(started, self._interest.resources,
+                                                         dict(graph.nodes)):
+                        self._push(sample)
+                    if self._interest.network:
+                        self._sample_network(started)
+            except Exception as exc:  # the graph thread must outlive any surprise
+                log.exception("graph round failed")
+                self._report("graph_error", self.master_uri, f"graph round failed: {exc!r}")
+            self._stop.wait(max(0.0, self._graph_period - (time.time() - started)))
+
+    def _sample_network(self, now: float) -> None:
+        for iface, c in psutil.net_io_counters(pernic=True).items():
+            self._push(NetworkSample(now, iface, c.bytes_recv, c.bytes_sent))
+
+
+def _time_of(event: Event | BlackBoxEvent) -> float:
+    return event.time

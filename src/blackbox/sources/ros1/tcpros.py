@@ -1,0 +1,512 @@
+"""TCPROS subscriber connections made by hand, one per publisher, never registered.
+
+The black box asks a publisher directly for a connection (``requestTopic`` on its slave
+API), so the master never lists it as a subscriber. Every connection is read by one
+selector thread. Topics observed for timing only are read into a shared scratch buffer and
+never decoded: per message the cost is a length prefix and a few counters. Topics whose
+values are observed keep their bytes and decode lazily with ``rosbags`` from the
+``message_definition`` the publisher sent in its connection header.
+
+Whatever a publisher sends, the black box keeps going: malformed headers, absurd length
+prefixes (beyond a per-topic cap) and silent dead peers close that one connection with a
+reason, and the connection is retried with backoff.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import selectors
+import socket
+import struct
+import threading
+import time
+from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from blackbox.sources.base import MessageArrival, TopicSchema
+from blackbox.sources.ros1.master import CALLER_ID, Report, RosApi, RosApiError
+
+DEFAULT_MAX_MESSAGE_BYTES = 64 * 1024 * 1024
+MAX_HEADER_BYTES = 1024 * 1024
+_LEN = struct.Struct("<I")
+_SCRATCH_BYTES = 256 * 1024
+
+
+class HeaderError(Exception):
+    """A connection header that is not TCPROS."""
+
+
+def encode_header(fields: Mapping[str, str]) -> bytes:
+    """A TCPROS header: total length, then per field a length and ``key=value``."""
+    body = b"".join(_LEN.pack(len(kv)) + kv
+                    for kv in (f"{k}={v}".encode() for k, v in fields.items()))
+    return _LEN.pack(len(body)) + body
+
+
+def decode_header(body: bytes) -> dict[str, str]:
+    """The fields of a header body (without its total length prefix)."""
+    fields: dict[str, str] = {}
+    pos, n = 0, len(body)
+    while pos < n:
+        if pos + 4 > n:
+            raise HeaderError(f"truncated field length at byte {pos}")
+        (size,) = _LEN.unpack_from(body, pos)
+        pos += 4
+        if size > n - pos:
+            raise HeaderError(f"field of {size} bytes at byte {pos} overruns the "
+                              f"{n}-byte header")
+        raw = body[pos:pos + size]
+        pos += size
+        key, sep, value = raw.partition(b"=")
+        if not sep:
+            raise HeaderError(f"field without '=' at byte {pos - size}: {raw[:40]!r}")
+        try:
+            fields[key.decode()] = value.decode()
+        except UnicodeDecodeError:
+            raise HeaderError(f"field at byte {pos - size} is not UTF-8") from None
+    return fields
+
+
+def _recv_exact(sock: socket.socket, n: int) -> bytes:
+    buf = bytearray(n)
+    view = memoryview(buf)
+    got = 0
+    while got < n:
+        k = sock.recv_into(view[got:])
+        if k == 0:
+            raise ConnectionError(f"closed by the publisher after {got} of {n} header bytes")
+        got += k
+    return bytes(buf)
+
+
+def ros2_style_type(ros1_type: str) -> str:
+    """``sensor_msgs/Image`` -> ``sensor_msgs/msg/Image`` (the name rosbags uses)."""
+    pkg, _, name = ros1_type.partition("/")
+    return f"{pkg}/msg/{name}" if name and "/msg/" not in ros1_type else ros1_type
+
+
+class MessageDecoder:
+    """Decodes ROS 1 messages with types registered from connection headers."""
+
+    def __init__(self) -> None:
+        self._store = get_typestore(Stores.EMPTY)
+        self._lock = threading.Lock()
+        self._definitions: dict[str, str] = {}
+
+    def register(self, ros1_type: str, definition: str) -> str:
+        """Register ``ros1_type`` from its ``message_definition``; returns the rosbags name."""
+        name = ros2_style_type(ros1_type)
+        with self._lock:
+            if self._definitions.get(name) == definition:
+                return name
+            types = get_types_from_msg(definition, name)
+            known = self._store.fielddefs
+            self._store.register({k: v for k, v in types.items() if k not in known})
+            self._definitions[name] = definition
+        return name
+
+    def decode(self, data: bytes | bytearray | memoryview, name: str) -> Any:
+        with self._lock:
+            return self._store.deserialize_ros1(data, name)
+
+
+@dataclass(frozen=True, slots=True)
+class StreamKey:
+    topic: str
+    publisher: str
+
+
+class _Stream:
+    """Reading state of one established connection."""
+
+    __slots__ = ("body", "closed", "decode_as", "key", "last_rx", "lenbuf", "lenfill",
+                 "max_bytes", "messages", "publisher", "remaining", "size", "sock", "topic")
+
+    def __init__(self, key: StreamKey, sock: socket.socket, max_bytes: int,
+                 decode_as: str | None) -> None:
+        self.key = key
+        self.topic = key.topic
+        self.publisher = key.publisher
+        self.sock = sock
+        self.max_bytes = max_bytes
+        self.decode_as = decode_as
+        self.lenbuf = bytearray(4)
+        self.lenfill = 0
+        self.remaining = -1  # -1: reading a length prefix
+        self.size = 0
+        self.body: bytearray | None = None
+        self.last_rx = time.monotonic()
+        self.messages = 0
+        self.closed = False
+
+
+class TcprosReader:
+    """One thread reading every TCPROS connection through a selector."""
+
+    def __init__(self, on_message: Callable[[MessageArrival], None],
+                 on_closed: Callable[[StreamKey, str, int], None],
+                 on_first: Callable[[StreamKey], None], decoder: MessageDecoder) -> None:
+        self._on_message = on_message
+        self._on_closed = on_closed
+        self._on_first = on_first
+        self._decoder = decoder
+        self._selector = selectors.DefaultSelector()
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._selector.register(self._wake_r, selectors.EVENT_READ, None)
+        self._pending: list[_Stream] = []
+        self._drop: list[tuple[StreamKey, str]] = []
+        self._lock = threading.Lock()
+        self._streams: dict[StreamKey, _Stream] = {}
+        self._scratch = bytearray(_SCRATCH_BYTES)
+        self._view = memoryview(self._scratch)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="ros1-tcpros", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def add(self, key: StreamKey, sock: socket.socket, max_bytes: int,
+            decode_as: str | None) -> None:
+        sock.setblocking(False)
+        with self._lock:
+            self._pending.append(_Stream(key, sock, max_bytes, decode_as))
+        self._wake()
+
+    def drop(self, key: StreamKey, reason: str) -> None:
+        """Close ``key``'s connection from another thread (half-open, lost interest)."""
+        with self._lock:
+            self._drop.append((key, reason))
+        self._wake()
+
+    def idle_seconds(self) -> dict[StreamKey, float]:
+        now = time.monotonic()
+        return {k: now - s.last_rx for k, s in list(self._streams.items())}
+
+    def close(self) -> None:
+        self._stop.set()
+        self._wake()
+        self._thread.join(timeout=2.0)
+        for s in list(self._streams.values()):
+            with contextlib.suppress(OSError):
+                s.sock.close()
+        self._streams.clear()
+        self._selector.close()
+        self._wake_r.close()
+        self._wake_w.close()
+
+    def _wake(self) -> None:
+        with contextlib.suppress(OSError):
+            self._wake_w.send(b"x")
+
+    def _run(self) -> None:
+        select = self._selector.select
+        while not self._stop.is_set():
+            for sel_key, _ in select(timeout=1.0):
+                stream = sel_key.data
+                if stream is None:
+                    self._service_wakeup()
+                elif not stream.closed:
+                    self._read(stream)
+
+    def _service_wakeup(self) -> None:
+        with contextlib.suppress(OSError):
+            while self._wake_r.recv(4096):
+                pass
+        with self._lock:
+            pending, self._pending = self._pending, []
+            drops, self._drop = self._drop, []
+        for stream in pending:
+            old = self._streams.get(stream.key)
+            if old is not None:
+                self._close(old, "replaced by a new connection", notify=False)
+            self._streams[stream.key] = stream
+            self._selector.register(stream.sock, selectors.EVENT_READ, stream)
+        for key, reason in drops:
+            stream = self._streams.get(key)
+            if stream is not None:
+                self._close(stream, reason)
+
+    def _close(self, stream: _Stream, reason: str, notify: bool = True) -> None:
+        stream.closed = True
+        with contextlib.suppress(KeyError, ValueError, OSError):
+            self._selector.unregister(stream.sock)
+        with contextlib.suppress(OSError):
+            stream.sock.close()
+        if self._streams.get(stream.key) is stream:
+            del self._streams[stream.key]
+        if notify:
+            self._on_closed(stream.key, reason, stream.messages)
+
+    def _read(self, s: _Stream) -> None:
+        view = self._view
+        try:
+            n = s.sock.recv_into(view)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as exc:
+            self._close(s, f"connection error: {exc}")
+            return
+        if n == 0:
+            self._close(s, "publisher closed the connection")
+            return
+        now = time.time()
+        s.last_rx = time.monotonic()
+        pos = 0
+        while pos < n:
+            if s.remaining < 0:
+                if s.lenfill == 0 and n - pos >= 4:
+                    (size,) = _LEN.unpack_from(view, pos)
+                    pos += 4
+                else:
+                    take = min(4 - s.lenfill, n - pos)
+                    s.lenbuf[s.lenfill:s.lenfill + take] = view[pos:pos + take]
+                    s.lenfill += take
+                    pos += take
+                    if s.lenfill < 4:
+                        break
+                    (size,) = _LEN.unpack_from(s.lenbuf, 0)
+                    s.lenfill = 0
+                if size > s.max_bytes:
+                    self._close(s, f"message length prefix of {size} bytes exceeds the cap "
+                                   f"of {s.max_bytes} bytes for {s.topic} (garbage or "
+                                   f"oversized message)")
+                    return
+                s.size = size
+                s.remaining = size
+                if s.decode_as is not None:
+                    s.body = bytearray(size)
+                if size:
+                    continue
+            else:
+                take = s.remaining if s.remaining < n - pos else n - pos
+                if s.body is not None:
+                    start = s.size - s.remaining
+                    s.body[start:start + take] = view[pos:pos + take]
+                pos += take
+                s.remaining -= take
+                if s.remaining:
+                    continue
+            s.remaining = -1
+            s.messages += 1
+            if s.messages == 1:
+                self._on_first(s.key)
+            self._emit(s, now)
+
+    def _emit(self, s: _Stream, now: float) -> None:
+        body = s.body
+        if body is None:
+            self._on_message(MessageArrival(now, s.topic, s.publisher, s.size))
+            return
+        s.body = None
+        decoder, name = self._decoder, s.decode_as
+        assert name is not None
+
+        def decode() -> Any:
+            try:
+                return decoder.decode(body, name)
+            except Exception:
+                return None
+
+        self._on_message(MessageArrival(now, s.topic, s.publisher, s.size, decode=decode,
+                                        raw=lambda: bytes(body)))
+
+
+@dataclass(frozen=True, slots=True)
+class Handshake:
+    """A connected publisher: the socket after the header exchange and the reply header."""
+
+    sock: socket.socket
+    header: dict[str, str]
+
+
+def connect(publisher_uri: str, topic: str, timeout: float = 1.0,
+            header_cap: int = MAX_HEADER_BYTES) -> Handshake:
+    """Ask the publisher for ``topic`` over TCPROS and exchange headers.
+
+    Raises :class:`RosApiError`, :class:`HeaderError` or :class:`OSError` with a reason.
+    """
+    proto = RosApi(publisher_uri, timeout).call("requestTopic", CALLER_ID, topic, [["TCPROS"]])
+    if not (isinstance(proto, list) and len(proto) >= 3 and proto[0] == "TCPROS"
+            and isinstance(proto[1], str) and isinstance(proto[2], int)):
+        raise HeaderError(f"requestTopic {topic} on {publisher_uri}: no TCPROS endpoint "
+                          f"offered ({str(proto)[:80]})")
+    host, port = proto[1], proto[2]
+    sock = socket.create_connection((host, port), timeout=timeout)
+    try:
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.sendall(encode_header({"callerid": CALLER_ID, "topic": topic, "md5sum": "*",
+                                    "type": "*", "tcp_nodelay": "1"}))
+        (size,) = _LEN.unpack(_recv_exact(sock, 4))
+        if size > header_cap:
+            raise HeaderError(f"connection header of {size} bytes from {host}:{port} exceeds "
+                              f"{header_cap} bytes")
+        header = decode_header(_recv_exact(sock, size))
+        if "error" in header:
+            raise HeaderError(f"publisher refused {topic}: {header['error']}")
+        if "type" not in header:
+            raise HeaderError(f"connection header from {host}:{port} has no type")
+        _keepalive(sock)
+    except BaseException:
+        sock.close()
+        raise
+    return Handshake(sock, header)
+
+
+def _keepalive(sock: socket.socket) -> None:
+    """Let the kernel notice a peer that vanished without closing (cable pulled, host died)."""
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+    for name, value in (("TCP_KEEPIDLE", 2), ("TCP_KEEPINTVL", 1), ("TCP_KEEPCNT", 3)):
+        opt = getattr(socket, name, None)
+        if opt is not None:
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.IPPROTO_TCP, opt, value)
+
+
+@dataclass(slots=True)
+class _Backoff:
+    delay: float
+    next_try: float
+    reason: str = ""
+
+
+class TcprosSubscriber:
+    """Keeps one connection per (topic, publisher) the observers want, with backoff.
+
+    ``sync`` is called after every graph round with the publishers the master lists and
+    the slave URIs known; it starts missing connections in a small thread pool. A
+    connection is never closed just because the master stops listing it: peers talk
+    directly, so data keeps flowing through a master restart.
+    """
+
+    def __init__(self, topics: frozenset[str], decoded: frozenset[str],
+                 max_message_bytes: Mapping[str, int], on_message: Callable[[MessageArrival],
+                 None], report: Report, connect_timeout: float = 1.0,
+                 backoff_min: float = 0.1, backoff_max: float = 2.0,
+                 default_max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES) -> None:
+        self.topics = topics | decoded
+        self.decoded = decoded
+        self._caps = dict(max_message_bytes)
+        self._default_cap = default_max_bytes
+        self._report = report
+        self._timeout = connect_timeout
+        self._backoff_min = backoff_min
+        self._backoff_max = backoff_max
+        self.decoder = MessageDecoder()
+        self.reader = TcprosReader(on_message, self._closed, self._first, self.decoder)
+        self._pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="ros1-connect")
+        self._lock = threading.Lock()
+        self._active: set[StreamKey] = set()
+        self._connecting: set[StreamKey] = set()
+        self._backoff: dict[StreamKey, _Backoff] = {}
+        self.schemas: dict[str, TopicSchema] = {}
+        self._closing = False
+
+    def start(self) -> None:
+        self.reader.start()
+
+    def close(self) -> None:
+        self._closing = True
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        self.reader.close()
+
+    def connected(self) -> set[StreamKey]:
+        with self._lock:
+            return set(self._active)
+
+    def cap(self, topic: str) -> int:
+        return self._caps.get(topic, self._default_cap)
+
+    def sync(self, publishers: Mapping[str, tuple[str, ...]],
+             uri_of: Callable[[str], str | None]) -> None:
+        now = time.monotonic()
+        for topic in self.topics:
+            for node in publishers.get(topic, ()):
+                key = StreamKey(topic, node)
+                with self._lock:
+                    if key in self._active or key in self._connecting:
+                        continue
+                    b = self._backoff.get(key)
+                    if b is not None and now < b.next_try:
+                        continue
+                    uri = uri_of(node)
+                    if uri is None:
+                        continue
+                    self._connecting.add(key)
+                self._pool.submit(self._connect, key, uri)
+
+    def drop_half_open(self, dead: set[str], idle_grace: float) -> None:
+        """Close connections idle for ``idle_grace`` s whose publisher no longer answers.
+
+        A peer that vanished without closing (host down, network cut) leaves a connection
+        that looks healthy and never delivers; the node's own API tells it apart from a
+        publisher that is merely quiet.
+        """
+        for key, idle in self.reader.idle_seconds().items():
+            if key.publisher in dead and idle >= idle_grace:
+                self.reader.drop(key, f"half-open: no data for {idle:.1f} s and publisher "
+                                      f"{key.publisher} no longer answers its slave API")
+
+    def _connect(self, key: StreamKey, uri: str) -> None:
+        try:
+            hs = connect(uri, key.topic, self._timeout)
+        except (RosApiError, HeaderError, OSError, struct.error) as exc:
+            self._failed(key, f"cannot subscribe to {key.topic} from {key.publisher}: "
+                              f"{exc or type(exc).__name__}")
+            return
+        except Exception as exc:
+            self._failed(key, f"cannot subscribe to {key.topic} from {key.publisher}: {exc!r}")
+            return
+        if self._closing:
+            hs.sock.close()
+            return
+        header = hs.header
+        ros1_type = header.get("type", "")
+        definition = header.get("message_definition", "")
+        decode_as: str | None = None
+        if key.topic in self.decoded:
+            try:
+                decode_as = self.decoder.register(ros1_type, definition)
+            except Exception as exc:
+                self._report("decode_unavailable", key.topic,
+                             f"cannot decode {key.topic} ({ros1_type}) from {key.publisher}: "
+                             f"bad message_definition: {exc}; counting arrivals only")
+        if key.topic not in self.schemas and definition:
+            self.schemas[key.topic] = TopicSchema(key.topic, ros1_type, "ros1", definition,
+                                                  header.get("md5sum", ""))
+        with self._lock:
+            self._connecting.discard(key)
+            self._active.add(key)
+        self.reader.add(key, hs.sock, self.cap(key.topic), decode_as)
+
+    def _first(self, key: StreamKey) -> None:
+        with self._lock:
+            previous = self._backoff.pop(key, None)
+        if previous is not None and previous.reason:
+            self._report("subscribed", key.topic,
+                         f"receiving {key.topic} from {key.publisher} again")
+
+    def _closed(self, key: StreamKey, reason: str, messages: int) -> None:
+        with self._lock:
+            self._active.discard(key)
+            if messages:
+                self._backoff.pop(key, None)
+        self._failed(key, f"lost {key.topic} from {key.publisher}: {reason}")
+
+    def _failed(self, key: StreamKey, reason: str) -> None:
+        with self._lock:
+            self._connecting.discard(key)
+            b = self._backoff.get(key)
+            if b is None:
+                b = self._backoff[key] = _Backoff(self._backoff_min, 0.0)
+            else:
+                b.delay = min(b.delay * 2, self._backoff_max)
+            b.next_try = time.monotonic() + b.delay
+            repeated = b.reason == reason
+            b.reason = reason
+        if not repeated:
+            self._report("connection_fault", key.topic, reason)
