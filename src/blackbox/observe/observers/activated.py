@@ -1,0 +1,87 @@
+"""Whether a node is running, as the node itself answers (not what a registry remembers).
+
+A node killed with SIGKILL stays registered in the ROS 1 master, so liveness comes from
+``GraphSnapshot.nodes[node].alive``, which the source fills from the node's own API.
+The verdict follows the latest snapshot at the next evaluation.
+
+``start_up_time`` is grace for a robot still starting: within that many seconds of the
+observer's first event (first snapshot or first evaluation, whichever comes first) a node
+that is not running yet is ``NOT_AVAILABLE`` rather than an error. A running node is
+``GENERAL_OK`` at once.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+from blackbox.config.node import ConfigNode
+from blackbox.model import Code, Observation, Resource
+from blackbox.observe.base import OBSERVERS, ObserverBase, register
+from blackbox.observe.observers.entry import COMMON_KEYS, read_every, read_name
+from blackbox.sources.base import GraphSnapshot, Interest, NodeInfo
+
+
+class ActivatedObserver(ObserverBase):
+    """Liveness of one node."""
+
+    type_name: ClassVar[str] = "activated"
+
+    def __init__(self, node: str, start_up_time: float = 0.0, every: float = 1.0) -> None:
+        self.node = node
+        self.start_up_time = start_up_time
+        self.interval = every
+        self.resource = Resource(node=node)
+        self._started: float | None = None
+        self._seen_graph = False
+        self._info: NodeInfo | None = None
+
+    def interest(self) -> Interest:
+        return Interest(nodes=frozenset({self.node}))
+
+    def on_graph(self, graph: GraphSnapshot) -> None:
+        if self._started is None:
+            self._started = graph.time
+        self._seen_graph = True
+        self._info = graph.nodes.get(self.node)
+
+    def evaluate(self, now: float) -> list[Observation]:
+        if self._started is None:
+            self._started = now
+        info = self._info
+        if not self._seen_graph:
+            return [self._observation(now, Code.NOT_AVAILABLE,
+                                      "waiting for the first graph snapshot")]
+        if info is not None and info.alive:
+            pid = f" (pid {info.pid})" if info.pid is not None else ""
+            return [self._observation(now, Code.GENERAL_OK, f"node {self.node} is running{pid}",
+                                      alive=1.0)]
+        why = "not in the graph" if info is None else "registered but not answering"
+        since_start = now - self._started
+        if since_start < self.start_up_time:
+            return [self._observation(
+                now, Code.NOT_AVAILABLE,
+                f"node {self.node} is not running yet ({why}); start-up time "
+                f"{self.start_up_time:g} s, {since_start:.3g} s passed", alive=0.0)]
+        return [self._observation(now, Code.GENERAL_ERROR,
+                                  f"node {self.node} is not running ({why})", alive=0.0)]
+
+    def _observation(self, now: float, code: Code, message: str,
+                     alive: float | None = None) -> Observation:
+        values = {} if alive is None else {"alive": alive}
+        return Observation(now, self.type_name, self.resource, code, values=values,
+                           message=message)
+
+    def describe(self) -> str:
+        grace = f", start-up time {self.start_up_time:g} s" if self.start_up_time else ""
+        return f"activated {self.node}: node alive{grace}, every {self.interval:g} s"
+
+
+@register(OBSERVERS, "activated")
+def activated_from_config(node: ConfigNode) -> ActivatedObserver:
+    node.check_keys((*COMMON_KEYS, "node", "start_up_time"))
+    start_up = node.get("start_up_time")
+    return ActivatedObserver(
+        node=read_name(node, "node"),
+        start_up_time=0.0 if start_up is None else start_up.float(min=0.0),
+        every=read_every(node),
+    )

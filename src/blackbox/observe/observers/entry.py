@@ -1,0 +1,48 @@
+"""Reading the keys every observer entry shares, with one clear error per mistake."""
+
+from __future__ import annotations
+
+from blackbox.config.node import ConfigNode
+from blackbox.observe.filters import build_filter
+from blackbox.observe.observers.quantity import FilteredQuantity
+
+COMMON_KEYS: tuple[str, ...] = ("type", "every")
+DEFAULT_EVERY = 1.0
+
+
+def read_every(node: ConfigNode) -> float:
+    """``every``: seconds between evaluations, > 0 (default 1.0)."""
+    child = node.get("every")
+    return DEFAULT_EVERY if child is None else child.float(min=0.0, min_exclusive=True)
+
+
+def read_name(node: ConfigNode, key: str) -> str:
+    """A required topic, node or interface name."""
+    child = node[key]
+    if child.is_null:
+        raise child.error(f"{key} must be a name, got nothing (null)")
+    name = child.str()
+    if name != name.strip() or not name.strip():
+        raise child.error(f"{key} {name!r} has leading or trailing blanks")
+    return name
+
+
+def read_publishers(node: ConfigNode, key: str = "publishers") -> tuple[str, ...]:
+    """A publisher group: a list of node names; absent or empty means all publishers."""
+    child = node.get(key)
+    if child is None:
+        return ()
+    names = child.str_list()
+    if len(set(names)) != len(names):
+        raise child.error(f"{key} lists a publisher twice")
+    return names
+
+
+def read_bool(node: ConfigNode, key: str, default: bool) -> bool:
+    child = node.get(key)
+    return default if child is None else child.bool()
+
+
+def read_quantity(node: ConfigNode, filter_key: str, name: str) -> FilteredQuantity:
+    """The quantity ``name`` observed through the filter at ``filter_key`` (absent: none)."""
+    return FilteredQuantity(name, build_filter(node.get(filter_key)))

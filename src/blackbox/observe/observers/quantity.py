@@ -1,0 +1,137 @@
+"""Filtered quantities and the verdict of configured states on them.
+
+Most observers measure one or more named quantities (``period``, ``score``, ``cpu``, ...),
+feed each through its own filter and ask the configured states which of them fit the
+filtered summaries. This module holds that shared part, so an observer only says how its
+samples come about.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+from blackbox.model import Code, Observation, Resource, State
+from blackbox.observe.base import Filter, Summary
+from blackbox.observe.states import StateSpec, evaluate_states
+
+
+class FilteredQuantity:
+    """One named quantity and the filter its samples go through.
+
+    ``update`` is the filter's own bound method, so the hot path calls it directly.
+    """
+
+    __slots__ = ("filter", "name", "update")
+
+    def __init__(self, name: str, filter: Filter) -> None:
+        self.name = name
+        self.filter = filter
+        self.update = filter.update
+
+    def summary(self) -> Summary | None:
+        return self.filter.summary()
+
+    def provisional_summary(self, sample: float) -> Summary | None:
+        """The summary as if ``sample`` were the next sample; the filter stays unchanged.
+
+        Used for quantities whose next sample is known to be at least ``sample`` before it
+        arrives (a period or a delay still running), so a stall shows without waiting.
+        """
+        probe = copy.deepcopy(self.filter)
+        probe.update(sample)
+        return probe.summary()
+
+    def describe(self) -> str:
+        describe = getattr(self.filter, "describe", None)
+        how = describe() if callable(describe) else type(self.filter).__name__
+        return f"{how} of {self.name}"
+
+
+@dataclass(frozen=True, slots=True)
+class Verdict:
+    """What the states say about a set of summaries."""
+
+    code: Code
+    states: tuple[State, ...]
+    values: dict[str, float] = field(default_factory=dict)
+    fits: str = ""
+
+
+class SampleProblems:
+    """Messages since the last evaluation that gave no sample, and the latest reason why.
+
+    Used by the observers that read values out of messages (scores, timestamp, motion).
+    """
+
+    __slots__ = ("count", "reason", "undecodable")
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.reason = ""
+        self.undecodable = False
+
+    def add(self, reason: str, undecodable: bool = False) -> None:
+        self.count += 1
+        self.reason = reason
+        self.undecodable = undecodable
+
+    def clear(self) -> None:
+        self.count = 0
+        self.reason = ""
+        self.undecodable = False
+
+    def observation(self, now: float, observer: str, resource: Resource, seen: int,
+                    values: dict[str, float]) -> Observation:
+        """The observation reporting the skipped messages (``seen`` messages in all)."""
+        code = Code.NOT_AVAILABLE if self.undecodable else Code.GENERAL_ERROR
+        message = (f"{self.count} of {seen} messages since the last evaluation unreadable: "
+                   f"{self.reason}")
+        return Observation(now, observer, resource, code, values=values, message=message)
+
+
+def summary_values(summaries: Mapping[str, Summary | None]) -> dict[str, float]:
+    """``{name: value, name_deviation: deviation}`` for every summary that exists."""
+    values: dict[str, float] = {}
+    for name, s in summaries.items():
+        if s is None:
+            continue
+        values[name] = s.value
+        if s.deviation is not None:
+            values[f"{name}_deviation"] = s.deviation
+    return values
+
+
+def judge(states: Sequence[StateSpec], summaries: Mapping[str, Summary | None]) -> Verdict:
+    """The code, fitting states, values and a short ``fits ...`` phrase for a message."""
+    code, fitting = evaluate_states(states, summaries)
+    return Verdict(code, fitting, summary_values(summaries), fits_phrase(states, fitting))
+
+
+def fits_phrase(states: Sequence[StateSpec], fitting: Sequence[State]) -> str:
+    if not states:
+        return "(no states configured)"
+    if fitting:
+        return "fits " + ", ".join(repr(s.name) for s in fitting)
+    expected = ", ".join(repr(s.name) for s in states)
+    return f"fits no state (expected {expected})"
+
+
+def describe_states(states: Sequence[StateSpec]) -> str:
+    if not states:
+        return "no states"
+    return "; ".join(s.describe() for s in states)
+
+
+def number(x: float) -> str:
+    """A measured value for a message: four significant digits."""
+    return f"{x:.4g}"
+
+
+def byte_count(x: float) -> str:
+    """Bytes with a binary-free SI unit: ``1.25 MB``."""
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if abs(x) >= scale:
+            return f"{x / scale:.3g} {unit}"
+    return f"{x:.3g} B"

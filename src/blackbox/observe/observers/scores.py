@@ -1,0 +1,111 @@
+"""A number a topic publishes (a score, a sensor value), read by field path and filtered.
+
+Messages are decoded lazily: only this observer's ``msg.value`` access decodes them.
+
+A message whose field cannot be read (the path does not resolve, the value is not a
+number, or it is NaN or infinite) is skipped: it never reaches the filter. If any message
+since the previous evaluation was skipped, the observation is ``GENERAL_ERROR`` naming the
+reason: the publisher sends values the model cannot read, which someone must look at
+whether the robot or the model is wrong. A source that cannot decode the topic at all
+makes the observation ``NOT_AVAILABLE``: that is the black box's limit, not a robot fault.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import Any, ClassVar
+
+from blackbox.config.node import ConfigNode
+from blackbox.model import Code, Observation, Resource
+from blackbox.observe.base import OBSERVERS, ObserverBase, register
+from blackbox.observe.fieldpath import compile_field_path
+from blackbox.observe.observers.entry import COMMON_KEYS, read_every, read_name, read_quantity
+from blackbox.observe.observers.quantity import (
+    FilteredQuantity,
+    SampleProblems,
+    describe_states,
+    judge,
+    number,
+)
+from blackbox.observe.states import StateSpec, parse_states
+from blackbox.sources.base import Interest, MessageArrival
+
+DEFAULT_FIELD = "data"
+
+
+class ScoresObserver(ObserverBase):
+    """A numeric field of every message on one topic."""
+
+    type_name: ClassVar[str] = "scores"
+
+    def __init__(self, topic: str, field: str, score: FilteredQuantity,
+                 states: Sequence[StateSpec] = (), every: float = 1.0) -> None:
+        self.topic = topic
+        self.field = field
+        self.score = score
+        self.states = tuple(states)
+        self.interval = every
+        self.resource = Resource(topic=topic)
+        self._read: Callable[[Any], float] = compile_field_path(field)
+        self._problems = SampleProblems()
+        self._seen = 0
+
+    def interest(self) -> Interest:
+        return Interest(decoded=frozenset({self.topic}))
+
+    def on_message(self, msg: MessageArrival) -> None:
+        self._seen += 1
+        value = msg.value
+        if value is None:
+            self._problems.add("the source cannot decode this topic", undecodable=True)
+            return
+        try:
+            x = self._read(value)
+        except ValueError as exc:
+            self._problems.add(str(exc))
+            return
+        if not math.isfinite(x):
+            self._problems.add(f"{self.field} is {x}, not a finite number")
+            return
+        self.score.update(x)
+
+    def evaluate(self, now: float) -> list[Observation]:
+        problems, seen = self._problems, self._seen
+        self._seen = 0
+        summary = self.score.summary()
+        if problems.count:
+            values = {"skipped": float(problems.count)}
+            if summary is not None:
+                values["score"] = summary.value
+            observation = problems.observation(now, self.type_name, self.resource, seen, values)
+            problems.clear()
+            return [observation]
+        if summary is None:
+            return [Observation(now, self.type_name, self.resource, Code.NOT_AVAILABLE,
+                                message="waiting for first message")]
+        verdict = judge(self.states, {"score": summary})
+        return [Observation(now, self.type_name, self.resource, verdict.code, verdict.states,
+                            verdict.values, f"score {number(summary.value)} {verdict.fits}")]
+
+    def describe(self) -> str:
+        return (f"scores {self.topic} field {self.field}: {self.score.describe()}; "
+                f"{describe_states(self.states)}, every {self.interval:g} s")
+
+
+@register(OBSERVERS, "scores")
+def scores_from_config(node: ConfigNode) -> ScoresObserver:
+    node.check_keys((*COMMON_KEYS, "topic", "field", "filter", "states"))
+    field_node = node.get("field")
+    field = DEFAULT_FIELD if field_node is None else field_node.str()
+    try:
+        compile_field_path(field)
+    except ValueError as exc:
+        raise (field_node or node).error(str(exc)) from None
+    return ScoresObserver(
+        topic=read_name(node, "topic"),
+        field=field,
+        score=read_quantity(node, "filter", "score"),
+        states=parse_states(node.get("states"), ("score",)),
+        every=read_every(node),
+    )
