@@ -1,0 +1,95 @@
+"""The thesis's proposed UCMS additions (section 6.2.3) as a separate extension.
+
+UCMS cannot say what the black box knows about a characteristic beyond unit and descriptor,
+nor whether a threshold was crossed because the robot changed state or because something
+broke, nor which name an entity has. Rather than altering the NGVA types (which would break
+every plain UCMS reader), the additions travel on their own topics, keyed by the *same*
+source ids as the UCMS samples they extend. A plain UCMS reader never subscribes to them;
+a black-box-aware station joins them by id.
+
+No ``from __future__ import annotations`` here: the IDL machinery needs real annotations.
+"""
+
+from dataclasses import dataclass, field
+
+from cyclonedds.idl import IdlEnum, IdlStruct
+from cyclonedds.idl.annotations import key
+from cyclonedds.idl.types import int32, sequence
+
+from blackbox.health.types import T_DateTimeType, T_IdentifierType
+
+
+class T_EventKind(IdlEnum, typename="P_BlackBox_Ext.T_EventKind"):
+    """Why a threshold was crossed: a fault, or a change between healthy states."""
+
+    L_EventKind_FAULT = 0
+    L_EventKind_STATE_CHANGE = 1
+
+
+@dataclass
+class C_Parameter(IdlStruct, typename="P_BlackBox_Ext.C_Parameter"):
+    A_name: str = ""
+    A_value: float = 0.0
+
+
+@dataclass
+class C_Entity_Description(IdlStruct, typename="P_BlackBox_Ext.C_Entity_Description"):
+    """Names a Monitored Entity: the robot (``A_kind`` ``robot``), a node, a topic, ..."""
+
+    A_sourceID: T_IdentifierType
+    key("A_sourceID")
+    A_timeOfDataGeneration: T_DateTimeType = field(default_factory=T_DateTimeType)
+    A_robotId: str = ""
+    A_name: str = ""
+    A_kind: str = ""
+    A_parent_sourceID: T_IdentifierType = field(default_factory=T_IdentifierType)
+
+
+@dataclass
+class C_Characteristic_Extension(IdlStruct, typename="P_BlackBox_Ext.C_Characteristic_Extension"):
+    """What a Monitored Characteristic measures and how it is filtered and logged.
+
+    ``A_expectedNoise`` is the standard deviation the configuration expects of the
+    filtered value (NaN when not known); ``A_periodicLoggingIntervalInSeconds`` is how often
+    the recorder stores it periodically (0 when not periodically logged);
+    ``A_evaluationIntervalInSeconds`` is the exact observer interval (UCMS's publishing
+    interval is whole seconds).
+    """
+
+    A_sourceID: T_IdentifierType
+    key("A_sourceID")
+    A_timeOfDataGeneration: T_DateTimeType = field(default_factory=T_DateTimeType)
+    A_robotId: str = ""
+    A_name: str = ""
+    A_observer: str = ""
+    A_resource: str = ""
+    A_quantity: str = ""
+    A_expectedNoise: float = float("nan")
+    A_filterType: str = ""
+    A_filterParameters: sequence[C_Parameter] = field(default_factory=list)
+    A_periodicLoggingIntervalInSeconds: float = 0.0
+    A_evaluationIntervalInSeconds: float = 0.0
+    A_states: sequence[str] = field(default_factory=list)
+
+
+@dataclass
+class C_Event_Extension(IdlStruct, typename="P_BlackBox_Ext.C_Event_Extension"):
+    """Tells a Threshold Exceedence Event caused by a fault from one caused by a state change."""
+
+    A_sourceID: T_IdentifierType
+    key("A_sourceID")
+    A_timeOfDataGeneration: T_DateTimeType = field(default_factory=T_DateTimeType)
+    A_kind: T_EventKind = T_EventKind.L_EventKind_FAULT
+    A_code: int32 = 0
+    A_codeName: str = ""
+    A_fromStates: sequence[str] = field(default_factory=list)
+    A_toStates: sequence[str] = field(default_factory=list)
+    A_message: str = ""
+
+
+EXTENSION_TOPICS: dict[str, type] = {
+    "BlackBox_Entity_Description": C_Entity_Description,
+    "BlackBox_Characteristic_Extension": C_Characteristic_Extension,
+    "BlackBox_Event_Extension": C_Event_Extension,
+}
+"""Topic name -> type of the extension topics."""
