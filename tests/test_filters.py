@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import math
 import random
 import statistics
@@ -352,3 +353,18 @@ def test_configuration_errors_name_the_place_and_the_problem(text, line, path, m
     err = filter_error(text)
     assert message in err.message
     assert (err.file, err.line, err.path) == ("x.yaml", line, path)
+
+
+@pytest.mark.parametrize("make", [
+    lambda: MeanFilter(3), lambda: MedianFilter(3, MIN_MAX), lambda: KMeansFilter(3, 2),
+    lambda: EwmaFilter(0.5), lambda: EwmaFilter(0.5, 3), lambda: NoFilter(MIN_MAX),
+])
+def test_a_deep_copy_probes_the_next_sample_without_touching_the_original(make):
+    f = feed(make(), [1.0, 2.0, 3.0, 4.0])
+    before = f.summary()
+    probe = copy.deepcopy(f)
+    probe.update(100.0)
+    assert f.summary() == before
+    assert probe.summary() != before
+    f.update(100.0)
+    assert f.summary() == probe.summary()

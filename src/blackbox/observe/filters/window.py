@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from collections import deque
 from math import fsum, isfinite, sqrt
-from typing import ClassVar, Final
+from typing import ClassVar, Final, Self
 
 from blackbox.observe.base import Summary
 
@@ -54,6 +54,13 @@ class Window:
 
     def __len__(self) -> int:
         return self._n
+
+    def copy(self) -> Window:
+        clone = object.__new__(Window)
+        for name in Window.__slots__:
+            value = getattr(self, name)
+            setattr(clone, name, value.copy() if isinstance(value, deque) else value)
+        return clone
 
     def push(self, x: float) -> float | None:
         """Add ``x``; returns the sample that fell out of the window, if any."""
@@ -215,6 +222,21 @@ class WindowFilter:
     def reset(self) -> None:
         self._window.clear()
         self.rejected = 0
+
+    def copy(self) -> Self:
+        """An independent copy (for probing "what if this sample came next")."""
+        clone = object.__new__(type(self))
+        for cls in type(self).__mro__:
+            for name in getattr(cls, "__slots__", ()):
+                value = getattr(self, name)
+                setattr(clone, name, value.copy() if hasattr(value, "copy") else value)
+        return clone
+
+    def __copy__(self) -> Self:
+        return self.copy()
+
+    def __deepcopy__(self, memo: dict[int, object]) -> Self:
+        return self.copy()
 
     def _describe_window(self) -> str:
         size = self._window.size
