@@ -12,7 +12,6 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from blackbox.config.loader import LoadedConfig, build_observers, load_config
 from blackbox.config.node import ConfigError
@@ -21,6 +20,7 @@ from blackbox.output.live import LiveStatusView
 from blackbox.pipeline import Pipeline, RunStats
 from blackbox.sinks import Sink
 from blackbox.sources import open_source
+from blackbox.sources.base import Source
 
 DEFAULT_CONFIG = Path(__file__).parent / "configs" / "thesis.yaml"
 
@@ -53,23 +53,43 @@ class BlackBox:
     options: RunOptions
 
     def run(self, stop: threading.Event | None = None) -> RunStats:
-        return self.pipeline.run(self.options.duration, stop)
+        try:
+            return self.pipeline.run(self.options.duration, stop)
+        finally:
+            self.write_ground_truth()
+
+    def write_ground_truth(self) -> None:
+        """Write the simulator's injected faults, if asked to and if the source has any."""
+        path = self.options.ground_truth
+        ground_truth = getattr(self.pipeline.source, "ground_truth", None)
+        if path is not None and ground_truth is not None:
+            from blackbox.sources.sim import write_ground_truth
+
+            path.parent.mkdir(parents=True, exist_ok=True)
+            write_ground_truth(ground_truth, path)
 
 
-def source_options(options: RunOptions) -> dict[str, Any]:
-    """Options for the source: the simulator takes clock, faults and seed; others nothing."""
+def open_robot(options: RunOptions) -> Source:
+    """Open the source; the simulator also takes the clock, faults and seed options."""
     if not options.source.startswith("sim:"):
-        if options.faults or options.simulated_clock:
-            raise ConfigError("--faults and --simulated-clock need a simulated source (sim:...)",
-                              "--source")
-        return {}
-    return {
-        "realtime": not options.simulated_clock,
-        "faults": options.faults,
-        "seed": options.seed,
-        "duration": options.duration,
-        "ground_truth": options.ground_truth,
-    }
+        if options.faults or options.simulated_clock or options.ground_truth:
+            raise ConfigError("--faults, --ground-truth and --simulated-clock need a simulated "
+                              "source (sim:...)", "--source")
+        return open_source(options.source)
+    from blackbox.sources.sim import SimulatedSource, open_sim, random_campaign
+
+    realtime = not options.simulated_clock
+    faults = None if options.faults == "random" else options.faults
+    try:
+        source = open_sim(options.source, faults=faults, seed=options.seed, realtime=realtime)
+    except ValueError as exc:
+        raise ConfigError(str(exc), "--source") from None
+    if options.faults == "random":
+        horizon = options.duration if options.duration is not None else 3600.0
+        campaign = random_campaign(source.topology, horizon, options.seed)
+        source = SimulatedSource(source.topology, campaign, seed=options.seed,
+                                 realtime=realtime, name=source.name)
+    return source
 
 
 def build(options: RunOptions) -> BlackBox:
@@ -88,7 +108,7 @@ def build(options: RunOptions) -> BlackBox:
     if options.events is not None:
         sinks.append(JsonLinesSink(options.events, observations=False, diagnoses=False))
     sinks.extend(options.extra_sinks)
-    source = open_source(options.source, **source_options(options))
+    source = open_robot(options)
     pipeline = Pipeline(source, observers, sinks)
     return BlackBox(config, pipeline, options)
 
