@@ -101,7 +101,7 @@ class TimeoutObserver(ObserverBase):
         if not timed_out:
             return f"{what} ({limit})"
         if in_a_row >= self.max_timeouts_in_a_row:
-            return (f"{what} ({limit}, {in_a_row} timeouts in a row = max_timeouts_in_a_row: "
+            return (f"{what} ({limit}, {in_a_row} in a row = max_timeouts_in_a_row: "
                     "considered stopped)")
         return f"{what} ({limit}, {in_a_row} in a row)"
 
