@@ -3,7 +3,8 @@
 The shared files are the TU Graz tool's own examples and templates
 (/work/shared/compat/tug_observers) and the thesis experiment configurations
 (/work/shared/reference/thesis-setup). Expected entries are written out by hand from the
-tug files and docs/configuration.md.
+tug files and docs/configuration.md. The last tests build the observers and compare what
+they say they observe (``describe()``) across the two formats.
 """
 
 from __future__ import annotations
@@ -13,13 +14,15 @@ from typing import Any
 
 import pytest
 
-from blackbox.config.loader import load_config
+from blackbox.config.loader import build_observers, load_config
 from blackbox.config.node import ConfigError
+from blackbox.model import Resource
 
 SHARED = Path("/work/shared")
 TUG = SHARED / "compat" / "tug_observers"
 THESIS = SHARED / "reference" / "thesis-setup"
 NATIVE_THESIS = Path(__file__).parent / "data" / "configs" / "thesis_native.yaml"
+THESIS_11_20 = THESIS / "observers_tests_11-20.yaml"
 
 # file -> number of native observer entries it expands into
 EXPECTED_COUNTS = {
@@ -173,9 +176,29 @@ setup:
     [velocity] = entries(path)
     assert velocity["acceleration_window_size"] == 3
     assert velocity["x_filter"] == {"type": "mean", "window_size": 5, "deviation": "min_max"}
-    assert "rot_z_filter" not in velocity  # use_yaw: false switches rot_z off
+    assert velocity["use_yaw"] is False
+    assert "rot_z_filter" not in velocity  # ignored by tug once rot_z is switched off
     assert velocity["states"] == [
         {"number": 1, "name": "1", "x": {"value": {"type": "greater_than", "greater_than": -1.0}}}]
+
+
+def test_velocity_acceleration_window_defaults_to_tugs_seven() -> None:
+    [velocity] = entries(TUG / "observer_velocity.yaml")  # odometry and twist, no window
+    assert velocity["acceleration_window_size"] == 7
+
+
+def test_velocity_sources_must_share_one_acceleration_window(tmp_path: Path) -> None:
+    path = write(tmp_path, """
+setup:
+  - type: velocity
+    correlations:
+      - source_A: {type: twist, topic: /cmd_vel, acceleartion_window_size: 3}
+        source_B: {type: odometry, topic: /odom}
+""")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert (info.value.line, info.value.path) == (6, "setup[0].correlations[0].source_B")
+    assert "source_A differentiates over 3 messages, source_B over 7" in info.value.message
 
 
 def test_templates_load_with_empty_filters_and_checks() -> None:
@@ -238,3 +261,71 @@ def test_tug_errors_name_the_original_place(tmp_path: Path, text: str, line: int
     err = info.value
     assert (err.file, err.line, err.path) == (str(file), line, path)
     assert message in err.message
+
+
+# ---- built observers ----------------------------------------------------------------------
+
+
+def describe(path: Path) -> list[str]:
+    return [o.describe() for o in build_observers(load_config(path))]
+
+
+@pytest.mark.parametrize("path", sorted(EXPECTED_COUNTS), ids=lambda p: p.name)
+def test_every_shared_file_builds(path: Path) -> None:
+    observers = build_observers(load_config(path))
+    assert len(observers) == EXPECTED_COUNTS[path]
+    assert all(o.describe() for o in observers)
+
+
+def test_tug_and_native_thesis_build_the_same_observers() -> None:
+    tug = describe(THESIS_11_20)
+    assert len(tug) == 10
+    assert tug == describe(NATIVE_THESIS)
+
+
+def test_thesis_observers_observe_the_thesis_robot() -> None:
+    observers = build_observers(load_config(THESIS_11_20))
+    assert [o.type_name for o in observers] == (
+        ["scores"] + ["hz"] * 3 + ["activated"] * 3 + ["timeout"] * 3)
+    hz_signal = observers[3]
+    assert hz_signal.resource == Resource(topic="/signal", publishers=())
+    assert "|value - 0.083333| < 0.01" in hz_signal.describe()
+    assert [o.interval for o in observers[:4]] == [1.0] * 4
+    assert [o.resource.node for o in observers[4:7]] == [
+        "/audio_capture", "/usb_cam", "/Signal_generator"]
+
+
+def test_callerid_groups_become_publisher_groups() -> None:
+    first, second = build_observers(load_config(TUG / "observer_timeout.yaml"))
+    assert first.resource == Resource(topic="/topicA", publishers=("/dynamic_publisher",))
+    assert second.resource == Resource(topic="/topicA", publishers=())
+
+
+def test_switched_off_rotation_is_not_observed(tmp_path: Path) -> None:
+    path = tmp_path / "velocity.yaml"
+    path.write_text("""
+setup:
+  - type: velocity
+    correlations:
+      - source_A: {type: odometry, topic: /odom}
+        source_B: {type: twist, topic: /cmd_vel}
+        use_yaw: false
+        rot_z_filter: {type: mean, window_size: 5}
+        states:
+          - {state: still, number: 1, x: {value: {type: gauss, mean: 0, std_deviation: 0.1}},
+             rot_z: {value: {type: gauss, mean: 0, std_deviation: 0.1}}}
+""")
+    [velocity] = build_observers(load_config(path))
+    text = velocity.describe()
+    assert "acceleration over 7 messages" in text
+    assert "of rot_z" not in text
+
+
+def test_unknown_observer_type_suggests_a_registered_one(tmp_path: Path) -> None:
+    path = tmp_path / "c.yaml"
+    path.write_text("observers:\n  - type: timestmap\n    topic: /a\n")
+    config = load_config(path)
+    with pytest.raises(ConfigError) as info:
+        build_observers(config)
+    assert (info.value.line, info.value.path) == (2, "observers[0].type")
+    assert info.value.message == "unknown observer type 'timestmap'; did you mean 'timestamp'?"

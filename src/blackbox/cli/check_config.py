@@ -40,7 +40,8 @@ def run(args: argparse.Namespace) -> int:
     fmt = _FORMAT_NAMES[config.format]
     count = f"{len(observers)} observer{'' if len(observers) == 1 else 's'}"
     print(f"{config.file}: {fmt}, robot {config.robot_id!r}, {count}")
-    print("\n".join(observer_lines(observers)))
+    for line in observer_lines(observers):
+        print(line)
     if config.sections:
         print(f"sections: {', '.join(config.sections)}")
     for warning in config.warnings:

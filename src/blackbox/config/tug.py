@@ -23,6 +23,7 @@ _AXES = ("x", "y", "z", "rot_x", "rot_y", "rot_z")
 _AXIS_FILTERS = tuple(f"{axis}_filter" for axis in _AXES)
 _MOTION_QUANTITIES = {axis: axis for axis in _AXES}
 _IGNORED = ("use_global_subscriber", "resource_topic")
+TUG_ACCELERATION_WINDOW = 7
 
 
 @dataclass(frozen=True, slots=True)
@@ -160,6 +161,24 @@ def _states(node: ConfigNode | None, quantities: Mapping[str, str],
     return ConfigNode.sequence(out, node)
 
 
+def _acceleration_window(*sources: tuple[ConfigNode, ConfigNode | None]) -> ConfigNode | None:
+    """The one acceleration window of a velocity entry from tug's per-source windows.
+
+    tug differentiates each velocity source over ``acceleartion_window_size`` messages
+    (default 7); an imu measures acceleration itself and needs no window.
+    """
+    windows = [window if window is not None else _scalar(TUG_ACCELERATION_WINDOW, source)
+               for source, window in sources if source["type"].raw != "imu"]
+    if not windows:
+        return None
+    if any(w.raw != windows[0].raw for w in windows[1:]):
+        raise windows[1].error(
+            "the black box uses one acceleration window for both sources; source_A differentiates "
+            f"over {windows[0].raw!r} messages, source_B over {windows[1].raw!r} "
+            f"(tug's default is {TUG_ACCELERATION_WINDOW})")
+    return windows[0]
+
+
 class _Translator:
     def __init__(self) -> None:
         self.entries: list[ConfigNode] = []
@@ -284,14 +303,11 @@ class _Translator:
             source_b, window_b = self._source(corr, "source_B", acceleration=True)
             if source_a is None or source_b is None:
                 continue
-            window = window_a or window_b
-            if window_a is not None and window_b is not None and window_a.raw != window_b.raw:
-                raise window_b.error(
-                    "the black box uses one acceleration window for both sources; "
-                    f"source_A has {window_a.raw!r}, source_B {window_b.raw!r}")
             self.entries.append(_entry(
                 "velocity", corr, source_a=source_a, source_b=source_b,
-                acceleration_window_size=window, every=every, **self._motion(corr)))
+                acceleration_window_size=_acceleration_window(
+                    (source_a, window_a), (source_b, window_b)),
+                every=every, **self._motion(corr)))
 
     def _moving(self, group: ConfigNode) -> None:
         group.check_keys(["type", "main_loop_rate", "moveings", "correlations", *_IGNORED])
@@ -308,12 +324,17 @@ class _Translator:
                                        **self._motion(item)))
 
     def _motion(self, item: ConfigNode) -> dict[str, ConfigNode | None]:
-        """Axis filters and states of a velocity or moving entry, honouring ``use_roll`` ..."""
+        """Axis filters and states of a velocity or moving entry.
+
+        A rotation switched off (``use_yaw: false``) stays off, and its filter and state
+        checks, which the original tool ignores, are left out.
+        """
         dropped = [axis for switch, axis in _ROTATIONS
                    if switch in item and not item[switch].bool()]
         fields: dict[str, ConfigNode | None] = {
-            f"{axis}_filter": _filter(_child(item, f"{axis}_filter"))
-            for axis in _AXES if axis not in dropped}
+            switch: item[switch] for switch, axis in _ROTATIONS if axis in dropped}
+        fields.update({f"{axis}_filter": _filter(_child(item, f"{axis}_filter"))
+                       for axis in _AXES if axis not in dropped})
         fields["states"] = _states(_child(item, "states"), _MOTION_QUANTITIES, dropped)
         return fields
 
