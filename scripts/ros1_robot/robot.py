@@ -15,6 +15,7 @@ import contextlib
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -33,6 +34,13 @@ NODES = {"/usb_cam": "camera", "/audio_capture": "audio", "/Signal_generator": "
 TOPICS = {"/usb_cam/image_raw": "/usb_cam", "/audio": "/audio_capture",
           "/signal": "/Signal_generator"}
 """Topic -> publishing node."""
+
+
+def free_port() -> int:
+    """A TCP port free on 127.0.0.1 right now (for a master nobody else uses)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
 
 
 def ros_env(port: int, home: str) -> dict[str, str]:

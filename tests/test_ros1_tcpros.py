@@ -1,0 +1,194 @@
+"""TCPROS framing, headers, decoding and source specs, over real sockets but without ROS."""
+
+from __future__ import annotations
+
+import socket
+import struct
+import threading
+import time
+
+import pytest
+
+from blackbox.config.node import ConfigError
+from blackbox.sources.base import MessageArrival, NodeInfo
+from blackbox.sources.ros1.resources import ResourceSampler
+from blackbox.sources.ros1.source import master_uri_from_spec
+from blackbox.sources.ros1.tcpros import (
+    HeaderError,
+    MessageDecoder,
+    StreamKey,
+    TcprosReader,
+    decode_header,
+    encode_header,
+    ros2_style_type,
+)
+
+FLOAT64_DEF = "float64 data\n"
+POINT_DEF = """Header header
+geometry_msgs/Point[] points
+================================================================================
+MSG: std_msgs/Header
+uint32 seq
+time stamp
+string frame_id
+================================================================================
+MSG: geometry_msgs/Point
+float64 x
+float64 y
+float64 z
+"""
+
+
+def test_header_round_trip_matches_the_wire_format() -> None:
+    raw = encode_header({"topic": "/a", "md5sum": "*"})
+    # total 4 + (4 + 8) + (4 + 8) bytes: each field is its length then key=value
+    assert raw == (struct.pack("<I", 24) + struct.pack("<I", 8) + b"topic=/a"
+                   + struct.pack("<I", 8) + b"md5sum=*")
+    assert decode_header(raw[4:]) == {"topic": "/a", "md5sum": "*"}
+
+
+def test_header_value_may_contain_equals_and_newlines() -> None:
+    raw = encode_header({"message_definition": "a=b\nint32 x\n"})
+    assert decode_header(raw[4:]) == {"message_definition": "a=b\nint32 x\n"}
+
+
+@pytest.mark.parametrize(("body", "reason"), [
+    (struct.pack("<I", 100) + b"topic=/a", "overruns"),
+    (struct.pack("<I", 5) + b"topic", "without '='"),
+    (b"\x01\x00", "truncated"),
+    (struct.pack("<I", 3) + b"a=\xff", "not UTF-8"),
+])
+def test_malformed_headers_are_rejected_with_a_reason(body: bytes, reason: str) -> None:
+    with pytest.raises(HeaderError, match=reason):
+        decode_header(body)
+
+
+def test_type_names_become_rosbags_names() -> None:
+    assert ros2_style_type("sensor_msgs/Image") == "sensor_msgs/msg/Image"
+    assert ros2_style_type("sensor_msgs/msg/Image") == "sensor_msgs/msg/Image"
+
+
+def test_decoder_reaches_nested_fields_and_array_elements() -> None:
+    decoder = MessageDecoder()
+    name = decoder.register("my_msgs/Cloud", POINT_DEF)
+    frame = b"map"
+    data = (struct.pack("<III", 7, 1, 2) + struct.pack("<I", len(frame)) + frame
+            + struct.pack("<I", 2) + struct.pack("<3d", 1, 2, 3) + struct.pack("<3d", 4, 5, 6))
+    msg = decoder.decode(data, name)
+    assert msg.header.seq == 7
+    assert msg.header.frame_id == "map"
+    assert msg.points[1].y == 5.0
+    # registering the same definition again is a no-op, not a conflict
+    assert decoder.register("my_msgs/Cloud", POINT_DEF) == name
+
+
+class _Collected:
+    def __init__(self) -> None:
+        self.messages: list[MessageArrival] = []
+        self.closed: list[tuple[StreamKey, str, int]] = []
+        self.first: list[StreamKey] = []
+        self.done = threading.Event()
+
+    def on_message(self, m: MessageArrival) -> None:
+        self.messages.append(m)
+
+    def on_closed(self, key: StreamKey, reason: str, count: int) -> None:
+        self.closed.append((key, reason, count))
+        self.done.set()
+
+
+def _reader(decoder: MessageDecoder | None = None) -> tuple[TcprosReader, _Collected]:
+    got = _Collected()
+    reader = TcprosReader(got.on_message, got.on_closed, got.first.append,
+                          decoder or MessageDecoder())
+    reader.start()
+    return reader, got
+
+
+def _frames(payloads: list[bytes]) -> bytes:
+    return b"".join(struct.pack("<I", len(p)) + p for p in payloads)
+
+
+def test_reader_splits_a_byte_stream_into_messages_however_it_arrives() -> None:
+    """Length prefixes and bodies split across writes, an empty message, one large body."""
+    reader, got = _reader()
+    ours, theirs = socket.socketpair()
+    payloads = [b"abc", b"", b"x" * 700_000, b"\x01\x02\x03\x04\x05"]
+    stream = _frames(payloads)
+    key = StreamKey("/t", "/pub")
+    try:
+        reader.add(key, ours, max_bytes=1_000_000, decode_as=None)
+        for cut in (1, 2, 3, 5, 9, 300_000, 700_010):  # odd cuts split prefixes and bodies
+            theirs.sendall(stream[:cut])
+            stream = stream[cut:]
+            time.sleep(0.01)
+        theirs.sendall(stream)
+        theirs.close()
+        assert got.done.wait(5)
+    finally:
+        reader.close()
+    assert [m.size for m in got.messages] == [3, 0, 700_000, 5]
+    assert {m.publisher for m in got.messages} == {"/pub"}
+    assert got.messages[0].value is None  # timing-only topics are never decoded
+    assert got.first == [key]
+    assert got.closed == [(key, "publisher closed the connection", 4)]
+
+
+def test_decoded_topics_keep_their_bytes_and_decode_lazily() -> None:
+    decoder = MessageDecoder()
+    name = decoder.register("std_msgs/Float64", FLOAT64_DEF)
+    reader, got = _reader(decoder)
+    ours, theirs = socket.socketpair()
+    try:
+        reader.add(StreamKey("/v", "/pub"), ours, max_bytes=64, decode_as=name)
+        theirs.sendall(_frames([struct.pack("<d", 15.25), b"\x01"]))  # second is garbage
+        theirs.close()
+        assert got.done.wait(5)
+    finally:
+        reader.close()
+    good, bad = got.messages
+    assert good.value.data == 15.25
+    assert good.raw() == struct.pack("<d", 15.25)
+    assert bad.value is None  # undecodable bytes give no value instead of an exception
+
+
+def test_an_absurd_length_prefix_closes_only_that_connection_with_a_reason() -> None:
+    reader, got = _reader()
+    ours, theirs = socket.socketpair()
+    try:
+        reader.add(StreamKey("/t", "/evil"), ours, max_bytes=1000, decode_as=None)
+        theirs.sendall(_frames([b"ok"]) + struct.pack("<I", 0xFFFFFFF0) + b"junk")
+        assert got.done.wait(5)
+    finally:
+        reader.close()
+        theirs.close()
+    assert [m.size for m in got.messages] == [2]
+    (key, reason, count), = got.closed
+    assert key == StreamKey("/t", "/evil")
+    assert "4294967280 bytes exceeds the cap of 1000 bytes" in reason
+    assert count == 1
+
+
+def test_source_specs() -> None:
+    assert master_uri_from_spec("ros1://robot:11311") == "http://robot:11311/"
+    assert master_uri_from_spec("ros1", {"ROS_MASTER_URI": "http://10.0.0.2:11311"}) == \
+        "http://10.0.0.2:11311"
+    for bad in ("ros1://robot", "ros1://robot:x", "ros1://:11311", "ros1://h:1/path"):
+        with pytest.raises(ConfigError, match="expected ros1://HOST:PORT"):
+            master_uri_from_spec(bad)
+    with pytest.raises(ConfigError, match="ROS_MASTER_URI"):
+        master_uri_from_spec("ros1", {})
+    with pytest.raises(ConfigError, match="not an http"):
+        master_uri_from_spec("ros1", {"ROS_MASTER_URI": "robot:11311"})
+
+
+def test_remote_and_dead_nodes_have_no_resource_numbers_but_a_reason() -> None:
+    sampler = ResourceSampler()
+    nodes = {"/far": NodeInfo("/far", True, 1234, "192.0.2.7"),
+             "/dead": NodeInfo("/dead", False, None, "127.0.0.1")}
+    dead, far, gone = sampler.sample(5.0, frozenset({"/far", "/dead", "/gone"}), nodes)
+    assert (dead.node, dead.cpu_percent, dead.memory_bytes) == ("/dead", None, None)
+    assert "not running" in dead.reason
+    assert far.cpu_percent is None and far.memory_bytes is None
+    assert "runs on host 192.0.2.7" in far.reason
+    assert "not in the ROS graph" in gone.reason
