@@ -201,6 +201,39 @@ setup:
     assert "source_A differentiates over 3 messages, source_B over 7" in info.value.message
 
 
+def test_source_details_the_black_box_does_not_use_are_warned_about(tmp_path: Path) -> None:
+    path = write(tmp_path, """
+setup:
+  - type: moveing
+    moveings:
+      - source: {type: odometry, topic: /odom, velocity_window_size: 3,
+                 gravitation_cancelation: true}
+""")
+    config = load_config(path)
+    assert [e.to_python() for e in config.observers] == [
+        {"type": "moving", "source": {"type": "odometry", "topic": "/odom"}}]
+    assert config.warnings == (
+        f"{path}:5: at setup[0].moveings[0].source.velocity_window_size: ignored; "
+        "the black box differentiates with its own window",
+        f"{path}:6: at setup[0].moveings[0].source.gravitation_cancelation: ignored; "
+        "gravitation is not cancelled",
+    )
+
+
+@pytest.mark.parametrize(("source", "message"), [
+    ("{type: tf, base_frame: /a, target_frame: /b, topic: /tf}", "tf sources are not supported"),
+    ("{type: imu, topic: /imu, x_filter: {type: mean, window_size: 3}}",
+     "per-source filters are not supported"),
+])
+def test_unsupported_source_features_are_errors(tmp_path: Path, source: str,
+                                                message: str) -> None:
+    path = write(tmp_path, f"setup:\n  - type: moveing\n    moveings:\n      - source: {source}\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert info.value.line == 4
+    assert message in info.value.message
+
+
 def test_templates_load_with_empty_filters_and_checks() -> None:
     [hz] = entries(TUG / "observer_template_config_hz.yaml")
     assert hz["filter"] == {"type": "nofilter"}
