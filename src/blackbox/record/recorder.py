@@ -86,12 +86,6 @@ def config_entry_row(now: float, text: str, source: str, **extra: Any) -> Row:
     return Row(now, "config", None, None, payload)
 
 
-def next_config_version(store: Store) -> int:
-    latest = store.latest("config")
-    v = latest.payload.get("version") if latest else None
-    return (int(v) if isinstance(v, int) else 0) + 1
-
-
 class Recorder(SinkBase):
     """Sink writing the health log at ``path`` and snapshots beside it.
 
@@ -166,7 +160,6 @@ class Recorder(SinkBase):
         self._backlog: list[Row] = []
         self._store: Store | None = None
         self._next_retry = 0.0
-        self._config_version = 0
         self._seen_config_id = 0
         self._stop = threading.Event()
         self._open_store(initial=True)
@@ -400,17 +393,9 @@ class Recorder(SinkBase):
             self._poll_imports(store)
             return
         rows = self._backlog
-        for r in rows:
-            if r.kind == "config" and r.payload.get("version") is None:
-                self._config_version += 1
-                r.payload["version"] = self._config_version
         try:
             store.append(rows)
         except (sqlite3.Error, OSError) as exc:
-            for r in rows:
-                if r.kind == "config" and r.payload.get("version") == self._config_version:
-                    r.payload["version"] = None
-                    self._config_version -= 1
             self._storage_trouble(exc)
             return
         self.written += len(rows)
@@ -509,7 +494,8 @@ class Recorder(SinkBase):
 
     def _attach(self, store: Store) -> None:
         self._store = store
-        self._config_version = next_config_version(store) - 1
+        with contextlib.suppress(sqlite3.Error):
+            store.set_meta("robot_id", self.robot_id)
         self._seen_config_id = self._latest_config_id(store)
         with contextlib.suppress(sqlite3.Error, OSError):
             self.used_bytes = store.used_bytes()
@@ -528,7 +514,6 @@ class Recorder(SinkBase):
         for entry in sorted(new, key=lambda e: e.id):
             self._seen_config_id = max(self._seen_config_id, entry.id)
             version = int(entry.payload.get("version") or 0)
-            self._config_version = max(self._config_version, version)
             if entry.payload.get("source") == "import":
                 self._configs.append(ConfigVersion(version, entry.time,
                                                    str(entry.payload.get("text", "")),

@@ -139,3 +139,128 @@ def enforce_directory(directory: Path, budget_bytes: int) -> list[Path]:
         total -= size
         removed.append(p)
     return removed
+
+
+# ---- capacity ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class ObservedCharacteristic:
+    """One observer of a configuration, as far as the log's size is concerned."""
+
+    entity: str
+    characteristic: str
+    every: float = 1.0
+    values: int = 2
+
+
+@dataclass(frozen=True, slots=True)
+class CapacityEstimate:
+    observers: int
+    bytes_per_hour: float
+    entries_per_hour: float
+    budget_bytes: int
+    simulated_hours: float
+    faults_per_hour: float
+
+    @property
+    def hours(self) -> float:
+        return self.budget_bytes / self.bytes_per_hour if self.bytes_per_hour else float("inf")
+
+
+def thesis_robot() -> list[ObservedCharacteristic]:
+    """The thesis experiment: 3 nodes, 10 observers evaluated at 1 Hz (Appendix B)."""
+    out = [ObservedCharacteristic(n, "activated", values=0)
+           for n in ("/audio_capture", "/usb_cam", "/Signal_generator")]
+    for topic in ("/audio", "/usb_cam/image_raw", "/signal"):
+        out.append(ObservedCharacteristic(topic, "hz"))
+        out.append(ObservedCharacteristic(topic, "timeout", values=1))
+    out.append(ObservedCharacteristic("/signal", "scores"))
+    return out
+
+
+def hundred_topic_robot() -> list[ObservedCharacteristic]:
+    """100 topics (rate and timeout each) and 25 nodes (alive, CPU/memory): 250 observers."""
+    out: list[ObservedCharacteristic] = []
+    for i in range(100):
+        out.append(ObservedCharacteristic(f"/robot/topic_{i:03d}", "hz"))
+        out.append(ObservedCharacteristic(f"/robot/topic_{i:03d}", "timeout", values=1))
+    for i in range(25):
+        out.append(ObservedCharacteristic(f"/robot/node_{i:02d}", "activated", values=0))
+        out.append(ObservedCharacteristic(f"/robot/node_{i:02d}", "resources", values=4))
+    return out
+
+
+def estimate_capacity(observers: list[ObservedCharacteristic], budget_bytes: int,
+                      policy: object | None = None, *, faults_per_hour: float = 1.0,
+                      fault_seconds: float = 10.0, simulated_hours: float = 1.0,
+                      workdir: Path | None = None) -> CapacityEstimate:
+    """Measure bytes per operating hour by recording a simulated run into a real log.
+
+    Every observer reports at its interval with realistic values; ``faults_per_hour``
+    times an hour one observer (in turn) is faulty for ``fault_seconds``, which adds the
+    state changes, the event-driven samples, a diagnosis and failure entries. The log is
+    written through the same policy and store as in operation, so the result includes
+    SQLite's own overhead (indexes, page fill).
+    """
+    import random
+    import tempfile
+
+    from blackbox.model import Code, Observation, Resource, State
+    from blackbox.record.policy import LoggingPolicy, PolicyTracker, observation_payload
+    from blackbox.record.store import Row
+
+    tracker = PolicyTracker(policy if isinstance(policy, LoggingPolicy) else LoggingPolicy())
+    rng = random.Random(7)
+    span = simulated_hours * 3600.0
+    n_faults = max(0, round(faults_per_hour * simulated_hours))
+    faults = [(span * (k + 0.5) / n_faults, observers[k % len(observers)]) for k in
+              range(n_faults)] if observers else []
+    resources = {o: Resource(node=o.entity) if o.characteristic in ("activated", "resources")
+                 else Resource(topic=o.entity) for o in observers}
+    names = [f"value_{k}" for k in range(8)]
+    ok = (State(1, "ok"),)
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        store = Store.open(Path(tmp) / "capacity.db", durability="normal", check=False)
+        store.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        empty = store.used_bytes()
+        rows: list[Row] = []
+        entries = 0
+        t0 = 1.7e9
+        step = min((o.every for o in observers), default=1.0)
+        ticks = int(span / step)
+        for i in range(ticks):
+            t = i * step
+            for o in observers:
+                if (t / o.every) % 1.0 > 1e-9 and abs((t / o.every) % 1.0 - 1.0) > 1e-9:
+                    continue
+                faulty = any(ft <= t < ft + fault_seconds and fo is o for ft, fo in faults)
+                values = {names[k]: rng.gauss(1.0, 0.05) for k in range(o.values)}
+                obs = Observation(t0 + t, o.characteristic, resources[o],
+                                  Code.NO_STATE_FITS if faulty else Code.GENERAL_OK,
+                                  () if faulty else ok, values)
+                d = tracker.decide(obs)
+                if d is not None:
+                    rows.append(Row(obs.time, d.kind, d.channel, int(obs.code),
+                                    observation_payload(obs, d.kind != "sample")))
+            for ft, fo in faults:
+                if t == int(ft / step) * step or t == int((ft + fault_seconds) / step) * step:
+                    start = t < ft + fault_seconds - step
+                    comps = [fo.entity] if start else []
+                    rows.append(Row(t0 + t, "diagnosis", None, None,
+                                    {"candidates": [comps] if comps else [], "failed": [],
+                                     "explanation": "", "complete": True}))
+                    rows.append(Row(t0 + t, "failure", None, None,
+                                    {"components": [fo.entity],
+                                     "category": "detection" if start else "rectification"}))
+            if len(rows) >= 5000:
+                entries += len(rows)
+                store.append(rows)
+                rows = []
+        entries += len(rows)
+        store.append(rows)
+        store.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        used = store.used_bytes() - empty
+        store.close()
+    return CapacityEstimate(len(observers), used / simulated_hours, entries / simulated_hours,
+                            budget_bytes, simulated_hours, faults_per_hour)

@@ -280,22 +280,39 @@ class Store:
         return cid
 
     def append(self, rows: Sequence[Row]) -> list[int]:
-        """Write ``rows`` in one transaction; returns their ids. All or nothing."""
+        """Write ``rows`` in one transaction; returns their ids. All or nothing.
+
+        Configuration rows whose payload ``version`` is ``None`` get the next version
+        number inside the transaction, so concurrent writers never share a version.
+        """
         db = self._db
+        numbered: list[Row] = []
         db.execute("BEGIN IMMEDIATE")
         try:
-            ids = self._insert(rows)
+            ids = self._insert(rows, numbered)
             db.execute("COMMIT")
         except BaseException:
             self._rollback()
+            for r in numbered:
+                r.payload["version"] = None
             raise
         return ids
 
-    def _insert(self, rows: Sequence[Row]) -> list[int]:
+    def _next_config_version(self) -> int:
+        row = self._db.execute(
+            "SELECT max(CAST(json_extract(payload, '$.version') AS INTEGER)) FROM entries "
+            "WHERE kind = ?", (KINDS["config"],)).fetchone()
+        return int(row[0] or 0) + 1
+
+    def _insert(self, rows: Sequence[Row], numbered: list[Row] | None = None) -> list[int]:
         db = self._db
         cur = db.cursor()
         ids: list[int] = []
         for r in rows:
+            if r.kind == "config" and r.payload.get("version") is None:
+                r.payload["version"] = self._next_config_version()
+                if numbered is not None:
+                    numbered.append(r)
             cid = self._channel_id(r.channel) if r.channel is not None else None
             cur.execute("INSERT INTO entries (time, kind, channel, code, payload) "
                         "VALUES (?, ?, ?, ?, ?)",
@@ -370,6 +387,13 @@ class Store:
         except OSError:
             wal_size = 0
         return int((count - free) * page + wal_size)
+
+    def meta(self, key: str) -> str | None:
+        row = self._db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
+        return None if row is None else str(row[0])
+
+    def set_meta(self, key: str, value: str) -> None:
+        self._db.execute("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, value))
 
     def count(self, kind: str | None = None) -> int:
         if kind is None:
