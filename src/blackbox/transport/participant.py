@@ -1,0 +1,102 @@
+"""One DDS participant per process, on loopback unless told otherwise.
+
+Which Cyclone configuration applies, first match wins: an explicit ``cyclone_config`` (XML
+or a ``file://`` URI), the ``CYCLONEDDS_URI`` environment variable (Cyclone's own
+convention), else :data:`LOOPBACK_CONFIG`, so that nothing leaves the machine unless
+the operator says so.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from cyclonedds.core import DDSException
+from cyclonedds.domain import Domain, DomainParticipant
+from cyclonedds.pub import DataWriter, Publisher
+from cyclonedds.sub import DataReader, Subscriber
+from cyclonedds.topic import Topic
+
+from blackbox.health.extension import EXTENSION_TOPICS
+from blackbox.health.types import REMOTE_TOPICS, UCMS_TOPICS
+from blackbox.transport.qos import partition, qos_for
+
+LOOPBACK_CONFIG = (
+    '<General><Interfaces><NetworkInterface name="lo"/></Interfaces>'
+    "<AllowMulticast>false</AllowMulticast></General>"
+    "<Discovery><ParticipantIndex>auto</ParticipantIndex>"
+    "<MaxAutoParticipantIndex>40</MaxAutoParticipantIndex>"
+    '<Peers><Peer address="127.0.0.1"/></Peers></Discovery>'
+)
+"""Loopback only, unicast discovery: what tests and the default demo use."""
+
+ALL_TOPICS: dict[str, type] = {**UCMS_TOPICS, **EXTENSION_TOPICS, **REMOTE_TOPICS}
+TOPIC_OF_TYPE: dict[type, str] = {t: name for name, t in ALL_TOPICS.items()}
+
+
+@dataclass(frozen=True, slots=True)
+class TransportSettings:
+    domain_id: int = 0
+    partition: str = "blackbox"
+    cyclone_config: str | None = None
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.domain_id <= 232:
+            raise ValueError(f"domain id must be 0..232, got {self.domain_id}")
+        if not self.partition:
+            raise ValueError("partition must not be empty")
+
+
+@dataclass
+class Bus:
+    """A participant with one publisher and one subscriber in the configured partition."""
+
+    settings: TransportSettings
+    participant: DomainParticipant
+    domain: Domain | None
+    publisher: Publisher
+    subscriber: Subscriber
+    topics: dict[str, Topic] = field(default_factory=dict)
+
+    @classmethod
+    def open(cls, settings: TransportSettings) -> Bus:
+        config = settings.cyclone_config
+        if config is None and not os.environ.get("CYCLONEDDS_URI"):
+            config = LOOPBACK_CONFIG
+        domain = None
+        if config is not None:
+            try:
+                domain = Domain(settings.domain_id, config)
+            except DDSException:
+                domain = None  # this process already created the domain
+        participant = DomainParticipant(settings.domain_id)
+        qos = partition(settings.partition)
+        return cls(settings, participant, domain, Publisher(participant, qos),
+                   Subscriber(participant, qos))
+
+    def topic(self, name: str) -> Topic:
+        topic = self.topics.get(name)
+        if topic is None:
+            topic = Topic(self.participant, name, ALL_TOPICS[name])
+            self.topics[name] = topic
+        return topic
+
+    def writer(self, name: str) -> DataWriter:
+        return DataWriter(self.publisher, self.topic(name), qos_for(name))
+
+    def reader(self, name: str) -> DataReader:
+        return DataReader(self.subscriber, self.topic(name), qos_for(name))
+
+    def writers(self, names: Mapping[str, Any]) -> dict[type, DataWriter]:
+        return {ALL_TOPICS[n]: self.writer(n) for n in names}
+
+    def close(self) -> None:
+        """Delete the participant and everything in it now (not whenever GC runs), so
+        remote readers see the writers leave."""
+        participant = self.participant
+        if participant is not None:
+            self.topics.clear()
+            participant.__del__()
+        self.domain = None
