@@ -223,6 +223,8 @@ def test_lifecycle_errors():
     source.start(EVERYTHING)
     with pytest.raises(RuntimeError, match="already started"):
         source.start(EVERYTHING)
+    with pytest.raises(ValueError, match="finite"):
+        source.poll(float("inf"))  # the robot never runs out of events
     source.close()
     assert source.poll(5.0) == []
     with pytest.raises(ValueError, match="start_time"):

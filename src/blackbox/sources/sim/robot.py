@@ -9,6 +9,7 @@ for the wall clock, so the same robot can drive a live pipeline or a fast batch 
 from __future__ import annotations
 
 import heapq
+import math
 import random
 import time
 from collections.abc import Iterable, Mapping
@@ -174,6 +175,8 @@ class SimulatedSource:
             raise RuntimeError(f"{self.name}: call start() before poll()")
         if self._closed:
             return []
+        if not math.isfinite(until):
+            raise ValueError(f"{self.name}: poll needs a finite time, got {until!r}")
         if self.realtime:
             while (wait := until - self.now()) > 0:
                 time.sleep(wait)
