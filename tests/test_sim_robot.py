@@ -262,3 +262,24 @@ def test_open_sim_uris(tmp_path: Path):
         open_sim("sim:thesi")
     with pytest.raises(ValueError, match="unknown option"):
         open_sim("sim:thesis?speed=2")
+
+
+def test_any_noetic_type_with_a_nested_numeric_field():
+    robot = Topology.parse("""\
+nodes: [{name: /base}]
+topics:
+  - {name: /cmd_vel, type: geometry_msgs/Twist, publisher: /base, rate: 10,
+     value: {field: linear.x, mean: 0.5, noise: 0.1, distribution: gauss}}
+  - {name: /ticks, type: std_msgs/Int32, publisher: /base, rate: 10,
+     value: {field: data, mean: 7, noise: 0.4}}
+""")
+    events = run(SimulatedSource(robot, seed=2), 5.0, Interest(topics=frozenset(robot.topics)))
+    twists = arrivals(events, "/cmd_vel")
+    assert {a.size for a in twists} == {48}  # six float64
+    xs = [a.value.linear.x for a in twists]
+    assert 0.3 < statistics.fmean(xs) < 0.7
+    assert {a.value.angular.z for a in twists} == {0.0}
+    store = get_typestore(Stores.ROS1_NOETIC)
+    assert store.deserialize_ros1(twists[0].raw(), "geometry_msgs/msg/Twist").linear.x == xs[0]
+    # integer fields are rounded: 7 +- 0.4 is always 7
+    assert {a.value.data for a in arrivals(events, "/ticks")} == {7}

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -71,20 +72,19 @@ def default_message(store: Typestore, type_name: str) -> Any:
 
 def _default_field(store: Typestore, desc: tuple[Any, Any]) -> Any:
     kind, arg = desc
-    kind = int(kind)
-    if kind == 1:  # base type
+    if kind == Nodetype.BASE:
         base = arg[0]
         if base == "string":
             return ""
         if base == "bool":
             return False
         return 0.0 if base.startswith("float") else 0
-    if kind == 2:  # nested message
+    if kind == Nodetype.NAME:
         return default_message(store, arg)
     inner, length = arg
-    if int(inner[0]) == 1 and inner[1][0] in _NUMPY_OF:
-        return np.zeros(length if kind == 3 else 0, dtype=_NUMPY_OF[inner[1][0]])
-    if kind == 3:
+    if inner[0] == Nodetype.BASE and inner[1][0] in _NUMPY_OF:
+        return np.zeros(length if kind == Nodetype.ARRAY else 0, dtype=_NUMPY_OF[inner[1][0]])
+    if kind == Nodetype.ARRAY:
         return [_default_field(store, inner) for _ in range(length)]
     return []
 
@@ -99,13 +99,13 @@ def has_field(store: Typestore, type_name: str, path: str) -> str | None:
             return None
         kind, arg = fields[part]
         last = i == len(parts) - 1
-        if int(kind) == 2 and not last:
+        if kind == Nodetype.NAME and not last:
             current = arg
-        elif int(kind) == 2:
+        elif kind == Nodetype.NAME:
             return str(arg)
-        elif int(kind) == 1 and last:
+        elif kind == Nodetype.BASE and last:
             return str(arg[0])
-        elif int(kind) in (3, 4) and last and int(arg[0][0]) == 1:
+        elif kind in (Nodetype.ARRAY, Nodetype.SEQUENCE) and last and arg[0][0] == Nodetype.BASE:
             return f"{arg[0][1][0]}[]"
         else:
             return None
