@@ -130,7 +130,8 @@ class RingBuffer:
         while held_q and (self._bytes > cap or held_q[0].time < horizon):
             self._bytes -= len(held_q.popleft().data)
         for capture in self._captures:
-            capture.add(held)
+            if held.time <= capture.end:
+                capture.add(held)
 
     def active(self, time: float) -> Capture | None:
         """The capture collecting at ``time``, if any."""
