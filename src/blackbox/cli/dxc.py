@@ -1,0 +1,63 @@
+"""``blackbox dxc``: score the diagnosis engine on the DX Competition circuits."""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+from blackbox.config.node import ConfigError
+from blackbox.diagnose.dxc import BASELINES, CircuitDiagnoser, load_catalog, load_scenario
+
+DEFAULT_ROOT = Path(os.environ.get("BLACKBOX_DXC", "../shared/benchmarks/dxc"))
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("dxc", help="diagnose the DX Competition circuit scenarios and "
+                                          "print the benchmark score")
+    p.add_argument("--model", required=True, help="circuit name, e.g. 74L85 or c432")
+    p.add_argument("--limit", type=float, default=1.0, help="seconds per scenario (default 1)")
+    p.add_argument("--scenarios", type=int, default=None, metavar="N",
+                   help="only the first N scenarios")
+    p.add_argument("--root", type=Path, default=DEFAULT_ROOT,
+                   help="benchmark directory with models/ and scenarios/ "
+                        "(default $BLACKBOX_DXC or ../shared/benchmarks/dxc)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.limit <= 0:
+        raise ConfigError("--limit must be > 0", "<command line>")
+    model = args.root / "models" / f"{args.model}.xml"
+    if not model.is_file():
+        known = sorted(p.stem for p in (args.root / "models").glob("*.xml"))
+        raise ConfigError(f"no DXC model {args.model!r}; known: {', '.join(known) or 'none'}",
+                          str(model))
+    files = sorted((args.root / "scenarios" / args.model).glob("*.scn"))[: args.scenarios]
+    diagnoser = CircuitDiagnoser(load_catalog(model))
+    gates = len(diagnoser.circuit.gates)
+    print(f"model {args.model}: {gates} gates, {len(files)} scenarios, "
+          f"{args.limit:g} s limit per scenario")
+    print(f"{'scenario':<14} {'score':>6} {'diagnoses':>9} {'card':>4} {'seconds':>8}  status")
+    scores: list[float] = []
+    slowest = 0.0
+    for f in files:
+        r = diagnoser.run(load_scenario(f), args.limit)
+        slowest = max(slowest, r.seconds)
+        card = len(r.diagnoses[0]) if r.diagnoses else 0
+        status = "complete" if r.complete else "time limit (best so far)"
+        if r.score is None:
+            status += ", unscored (benchmark has no ground truth)"
+            shown = "-"
+        else:
+            scores.append(r.score)
+            shown = f"{r.score:.3f}"
+        print(f"{r.scenario:<14} {shown:>6} {len(r.diagnoses):>9} {card:>4} {r.seconds:>8.3f}"
+              f"  {status}")
+    if scores:
+        print(f"mean score {sum(scores) / len(scores):.3f} over {len(scores)} scored scenarios; "
+              f"slowest scenario {slowest:.3f} s")
+    baselines = BASELINES.get(args.model)
+    if baselines:
+        print("published baselines: " + ", ".join(f"{k} {v:.3f}" for k, v in baselines.items()))
+    return 0

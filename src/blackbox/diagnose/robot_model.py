@@ -1,0 +1,344 @@
+"""The robot as a diagnosis model: nodes, topics, hardware and what is observed about them.
+
+The model comes from a tug_diagnosis YAML file (``nodes`` with ``pub_topic``/``sub_topic``,
+``observations`` with ``type`` and ``nodes`` or ``topics``; an optional ``hardware`` list per
+node names devices behind a driver node) or is derived from a live :class:`GraphSnapshot`
+plus the observers' resources, with no extra file.
+
+Clauses (weak fault model plus one exoneration rule; see ``docs/diagnosis.md``):
+
+* ``good(T)`` means topic ``T`` delivers right messages at the right rate. It holds when the
+  topic (the transport), its publishers, their hardware and all their input topics are good:
+  ``not AB(T) and not AB(p) and not AB(h) and good(I) ... -> good(T)``.
+* *rate* observations (``hz``, ``timeout``, ``timestamp``, ``timing``) on ``T`` hold when the
+  topic and the publishers of the observed group (with hardware and inputs) are healthy;
+  *value* observations (``scores``, ``velocity``, ``moving``) the same without ``AB(T)``:
+  a transport delays or drops messages but does not change their content.
+* ``activated`` and ``resources`` hold when their node is healthy; ``network`` when its
+  interface is.
+* Exoneration: when every observation mentioning ``T`` is known and OK, ``good(T)`` holds, so
+  upstream components cannot explain symptoms downstream of a healthy-looking topic.
+
+Topics in a feedback loop are treated as one unit (their strongly connected component), so a
+cycle of healthy nodes can never "explain" a symptom by itself.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+from blackbox.config.node import ConfigNode
+from blackbox.model import Resource
+from blackbox.sources.base import GraphSnapshot
+
+RATE_TYPES = frozenset({"hz", "timeout", "timestamp", "timing"})
+VALUE_TYPES = frozenset({"scores", "velocity", "moving", "movement"})
+NODE_TYPES = frozenset({"activated", "resources"})
+NETWORK_TYPES = frozenset({"network"})
+OBSERVATION_TYPES = RATE_TYPES | VALUE_TYPES | NODE_TYPES | NETWORK_TYPES
+PAIR_TYPES = frozenset({"timing", "velocity"})
+
+
+@dataclass(frozen=True, slots=True)
+class NodeSpec:
+    name: str
+    pub: tuple[str, ...] = ()
+    sub: tuple[str, ...] = ()
+    hardware: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class ObservationSpec:
+    """An observed characteristic: observer type name and the resource it observes."""
+
+    type: str
+    resource: Resource
+
+    def key(self) -> tuple[str, Resource]:
+        return (self.type, self.resource)
+
+
+@dataclass(frozen=True, slots=True)
+class RobotModel:
+    """Components and structure. Nodes are sorted by name, observations in declared order."""
+
+    nodes: tuple[NodeSpec, ...]
+    observations: tuple[ObservationSpec, ...] = ()
+    interfaces: tuple[str, ...] = field(default=())
+
+    @property
+    def topics(self) -> tuple[str, ...]:
+        seen: dict[str, None] = {}
+        for n in self.nodes:
+            for t in (*n.pub, *n.sub):
+                seen.setdefault(t)
+        for o in self.observations:
+            for t in (o.resource.topic, o.resource.topic_b):
+                if t:
+                    seen.setdefault(t)
+        return tuple(sorted(seen))
+
+    @property
+    def components(self) -> tuple[str, ...]:
+        names = [n.name for n in self.nodes]
+        names += [h for n in self.nodes for h in n.hardware]
+        names += list(self.topics)
+        names += [f"iface:{i}" for i in self.interfaces]
+        return tuple(dict.fromkeys(names))
+
+    def kind(self, component: str) -> str:
+        """``node``, ``hardware``, ``topic`` or ``interface``."""
+        if component.startswith("iface:"):
+            return "interface"
+        for n in self.nodes:
+            if n.name == component:
+                return "node"
+            if component in n.hardware:
+                return "hardware"
+        return "topic"
+
+    def publishers(self, topic: str) -> tuple[str, ...]:
+        return tuple(n.name for n in self.nodes if topic in n.pub)
+
+    def node(self, name: str) -> NodeSpec | None:
+        return next((n for n in self.nodes if n.name == name), None)
+
+
+def build_model(nodes: Iterable[NodeSpec], observations: Iterable[ObservationSpec]
+               ) -> RobotModel:
+    obs = tuple(dict.fromkeys(observations))
+    ifaces = tuple(sorted({o.resource.interface for o in obs if o.resource.interface}))
+    ns = tuple(sorted((NodeSpec(n.name, tuple(sorted(set(n.pub))), tuple(sorted(set(n.sub))),
+                                tuple(n.hardware)) for n in nodes), key=lambda n: n.name))
+    return RobotModel(ns, obs, ifaces)
+
+
+# ---- tug_diagnosis YAML --------------------------------------------------------------------
+
+def load_robot_model(path: str | Path) -> RobotModel:
+    """Load a tug_diagnosis model file; every error names file, line and key path."""
+    return parse_robot_model(ConfigNode.load(path))
+
+
+def parse_robot_model(root: ConfigNode) -> RobotModel:
+    root.check_keys(["nodes", "observations"])
+    nodes: list[NodeSpec] = []
+    names: set[str] = set()
+    for item in root["nodes"].list():
+        item.check_keys(["name", "pub_topic", "sub_topic", "hardware"])
+        name = item["name"].str()
+        if name in names:
+            raise item["name"].error(f"node {name!r} defined twice")
+        names.add(name)
+        pub = item.get("pub_topic")
+        sub = item.get("sub_topic")
+        hw = item.get("hardware")
+        nodes.append(NodeSpec(name, pub.str_list() if pub else (), sub.str_list() if sub else (),
+                              hw.str_list() if hw else ()))
+    known_topics = {t for n in nodes for t in (*n.pub, *n.sub)}
+    observations: list[ObservationSpec] = []
+    obs_node = root.get("observations")
+    for item in obs_node.list() if obs_node else []:
+        item.check_keys(["type", "nodes", "topics", "interfaces", "callerids"])
+        kind = item["type"].str(sorted(OBSERVATION_TYPES))
+        if kind in NODE_TYPES:
+            for n in item["nodes"].list(allow_single=True):
+                if n.str() not in names:
+                    raise n.error(f"unknown node {n.str()!r}; declare it under 'nodes'")
+                observations.append(ObservationSpec(kind, Resource(node=n.str())))
+        elif kind in NETWORK_TYPES:
+            for i in item["interfaces"].str_list():
+                observations.append(ObservationSpec(kind, Resource(interface=i)))
+        else:
+            topics_node = item["topics"]
+            topics = topics_node.str_list()
+            for t in topics:
+                if t not in known_topics:
+                    raise topics_node.error(f"topic {t!r} is neither published nor subscribed "
+                                            f"by a declared node")
+            callers = item.get("callerids")
+            group = tuple(callers.str_list()) if callers else ()
+            if kind in PAIR_TYPES:
+                if len(topics) != 2:
+                    raise topics_node.error(f"'{kind}' observes exactly two topics, "
+                                            f"got {len(topics)}")
+                observations.append(ObservationSpec(
+                    kind, Resource(topic=topics[0], topic_b=topics[1], publishers=group)))
+            else:
+                observations.extend(ObservationSpec(kind, Resource(topic=t, publishers=group))
+                                    for t in topics)
+    return build_model(nodes, observations)
+
+
+# ---- derived from the live graph -----------------------------------------------------------
+
+class ObservedResource(Protocol):
+    """What the model needs from an observer: its type name and what it observes."""
+
+    @property
+    def type_name(self) -> str: ...
+
+    @property
+    def resource(self) -> Resource: ...
+
+
+def derive_robot_model(graph: GraphSnapshot, observed: Sequence[ObservedResource]
+                       ) -> RobotModel:
+    """The part of the graph that can explain an observation: observed nodes and topics and
+    everything upstream of the observed topics."""
+    specs = [ObservationSpec(o.type_name, o.resource) for o in observed]
+    pubs: dict[str, set[str]] = {}
+    subs_of: dict[str, set[str]] = {}
+    for t in graph.topics.values():
+        for p in t.publishers:
+            pubs.setdefault(t.name, set()).add(p)
+        for s in t.subscribers:
+            subs_of.setdefault(s, set()).add(t.name)
+    topics: set[str] = set()
+    producers: set[str] = set()
+    stack = [t for s in specs for t in (s.resource.topic, s.resource.topic_b) if t]
+    while stack:
+        t = stack.pop()
+        if t in topics:
+            continue
+        topics.add(t)
+        for p in pubs.get(t, ()):
+            producers.add(p)
+            stack.extend(i for i in subs_of.get(p, ()) if i not in topics)
+    observed_nodes = {s.resource.node for s in specs if s.resource.node}
+    specs_nodes = []
+    for n in sorted(producers | observed_nodes):
+        pub = tuple(t for t in topics if n in pubs.get(t, ()))
+        sub = tuple(t for t in subs_of.get(n, ()) if t in topics) if n in producers else ()
+        specs_nodes.append(NodeSpec(n, pub, sub))
+    return build_model(specs_nodes, specs)
+
+
+# ---- clauses ---------------------------------------------------------------------------------
+
+@dataclass(frozen=True, slots=True)
+class Explanation:
+    """Who may be to blame for an observation: ``components`` directly, ``inputs`` via the
+    ``good`` variable of upstream topics."""
+
+    components: tuple[str, ...]
+    inputs: tuple[str, ...]
+
+
+def _scc(model: RobotModel) -> dict[str, frozenset[str]]:
+    """Strongly connected components of the topic dependency graph (Tarjan, iterative)."""
+    deps: dict[str, list[str]] = {t: [] for t in model.topics}
+    for n in model.nodes:
+        for t in n.pub:
+            deps[t].extend(n.sub)
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    on: set[str] = set()
+    stack: list[str] = []
+    out: dict[str, frozenset[str]] = {}
+    counter = 0
+    for start in deps:
+        if start in index:
+            continue
+        work = [(start, iter(deps[start]))]
+        index[start] = low[start] = counter
+        counter += 1
+        stack.append(start)
+        on.add(start)
+        while work:
+            v, it = work[-1]
+            advanced = False
+            for w in it:
+                if w not in index:
+                    index[w] = low[w] = counter
+                    counter += 1
+                    stack.append(w)
+                    on.add(w)
+                    work.append((w, iter(deps[w])))
+                    advanced = True
+                    break
+                if w in on:
+                    low[v] = min(low[v], index[w])
+            if advanced:
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                group = []
+                while True:
+                    w = stack.pop()
+                    on.discard(w)
+                    group.append(w)
+                    if w == v:
+                        break
+                fs = frozenset(group)
+                for w in group:
+                    out[w] = fs
+    return out
+
+
+class TopicStructure:
+    """Upstream explanations of every topic, with feedback loops collapsed."""
+
+    def __init__(self, model: RobotModel) -> None:
+        self.model = model
+        self.scc = _scc(model)
+        self._pub = {t: model.publishers(t) for t in model.topics}
+        self._node = {n.name: n for n in model.nodes}
+
+    def producers(self, topic: str, group: Sequence[str] = (), rate: bool = True
+                  ) -> Explanation:
+        """Components and input topics that explain a fault seen on ``topic``."""
+        loop = self.scc.get(topic, frozenset({topic}))
+        cyclic = len(loop) > 1 or any(topic in self._node[p].sub for p in self._pub.get(topic, ())
+                                      if p in self._node)
+        topics = sorted(loop) if cyclic else [topic]
+        comps: list[str] = []
+        inputs: list[str] = []
+        for t in topics:
+            if rate or cyclic:
+                comps.append(t)
+            pubs = self._pub.get(t, ())
+            if group and t == topic:
+                pubs = tuple(p for p in pubs if p in group) or tuple(group)
+            for p in pubs:
+                spec = self._node.get(p)
+                comps.append(p)
+                if spec is None:
+                    continue
+                comps.extend(spec.hardware)
+                inputs.extend(i for i in spec.sub if i not in loop)
+        return Explanation(tuple(dict.fromkeys(comps)), tuple(dict.fromkeys(inputs)))
+
+    def explain(self, spec: ObservationSpec) -> Explanation:
+        r = spec.resource
+        if spec.type in NODE_TYPES or (r.node and not r.topic):
+            return Explanation((r.node,) if r.node else (), ())
+        if spec.type in NETWORK_TYPES or (r.interface and not r.topic):
+            return Explanation((f"iface:{r.interface}",), ())
+        rate = spec.type not in VALUE_TYPES
+        parts = [self.producers(r.topic, r.publishers, rate)] if r.topic else []
+        if r.topic_b:
+            parts.append(self.producers(r.topic_b, (), rate))
+        return Explanation(tuple(dict.fromkeys(c for p in parts for c in p.components)),
+                           tuple(dict.fromkeys(i for p in parts for i in p.inputs)))
+
+    def mentions(self, spec: ObservationSpec) -> tuple[str, ...]:
+        """Topics whose every aspect this observation covers (for exoneration)."""
+        r = spec.resource
+        if r.publishers and r.topic and set(self._pub.get(r.topic, ())) - set(r.publishers):
+            return ()
+        return tuple(t for t in (r.topic, r.topic_b) if t)
+
+
+def observed_topics(model: RobotModel) -> Mapping[str, list[ObservationSpec]]:
+    out: dict[str, list[ObservationSpec]] = {}
+    s = TopicStructure(model)
+    for o in model.observations:
+        for t in s.mentions(o):
+            out.setdefault(t, []).append(o)
+    return out
