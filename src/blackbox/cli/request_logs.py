@@ -1,0 +1,74 @@
+"""``blackbox request-logs``: fetch a robot's recorded health log over DDS."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from datetime import datetime
+from typing import Any
+
+from blackbox.cli.listen import add_bus_arguments, open_bus
+
+
+def _time(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        pass
+    try:
+        return datetime.fromisoformat(text).timestamp()
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected seconds since the epoch or an ISO date-time, got {text!r}") from None
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("request-logs", help="fetch a robot's health log over DDS",
+                       description=__doc__)
+    add_bus_arguments(p)
+    p.add_argument("--robot", required=True, help="robot id (as in its configuration)")
+    p.add_argument("--entity", help="node or topic (exact, or a glob with * ? [)")
+    p.add_argument("--characteristic", help="observer type (exact or glob)")
+    p.add_argument("--since", type=_time, help="start time (epoch seconds or ISO date-time)")
+    p.add_argument("--until", type=_time, help="end time (epoch seconds or ISO date-time)")
+    p.add_argument("--kind", action="append", default=[], dest="kinds",
+                   help="entry kind (repeatable): observation, exceedance, diagnosis, "
+                        "failure, sample, blackbox_event, config, snapshot")
+    p.add_argument("--max", type=int, default=0, dest="max_entries",
+                   help="at most this many entries (default: all)")
+    p.add_argument("--timeout", type=float, default=10.0, help="seconds to wait (default 10)")
+    p.add_argument("--out", help="write JSON lines here instead of standard output")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from blackbox.transport.logservice import LogClient
+
+    bus = open_bus(args)
+    if bus is None:
+        return 2
+    try:
+        client = LogClient(bus)
+        answer = client.request(args.robot, entity=args.entity,
+                                characteristic=args.characteristic, since=args.since,
+                                until=args.until, kinds=args.kinds,
+                                max_entries=max(0, args.max_entries), timeout=args.timeout)
+    finally:
+        bus.close()
+    if answer.status != "ok":
+        print(f"error: robot {args.robot}: {answer.status}", file=sys.stderr)
+        return 1
+    lines = "".join(json.dumps(e, sort_keys=True) + "\n" for e in answer.entries)
+    if args.out:
+        try:
+            with open(args.out, "w", encoding="utf-8") as f:
+                f.write(lines)
+        except OSError as exc:
+            print(f"error: cannot write {args.out}: {exc}", file=sys.stderr)
+            return 1
+    else:
+        sys.stdout.write(lines)
+    print(f"{len(answer.entries)} entries in {answer.chunks} chunks from {args.robot}",
+          file=sys.stderr)
+    return 0

@@ -1,0 +1,88 @@
+"""A scripted black box for the DDS tests: publishes through ``DdsHealthSink`` (and records
+through the real recorder when ``--store`` is given), driven line by line on stdin.
+
+Commands: ``ok`` (one round of healthy observations of the thesis robot), ``fault`` (the
+camera's rate fails and the diagnosis names ``/usb_cam``), ``quit``. Each command is
+answered with ``done <command>`` on stdout once written. Observation times are wall-clock
+so that log requests by time range work.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from blackbox.model import Code, Diagnosis, Observation, Resource, State
+from blackbox.transport.publisher import DdsHealthSink
+
+CAMERA = Resource(topic="/usb_cam/image_raw", publishers=("/usb_cam",))
+AUDIO = Resource(topic="/audio", publishers=("/audio_capture",))
+SIGNAL = Resource(topic="/signal", publishers=("/signal_generator",))
+
+
+def healthy(t: float) -> list[Observation]:
+    ok = (State(1, "ok"),)
+    return [
+        Observation(t, "hz", CAMERA, Code.GENERAL_OK, ok, {"period": 0.0667}),
+        Observation(t, "hz", AUDIO, Code.GENERAL_OK, ok, {"period": 0.0333}),
+        Observation(t, "hz", SIGNAL, Code.GENERAL_OK, ok, {"period": 0.0667}),
+        Observation(t, "scores", SIGNAL, Code.GENERAL_OK, ok, {"score": 15.0}),
+        Observation(t, "activated", Resource(node="/usb_cam"), Code.GENERAL_OK),
+    ]
+
+
+def faulty(t: float) -> list[Observation]:
+    out = healthy(t)
+    out[0] = Observation(t, "hz", CAMERA, Code.NO_STATE_FITS, (), {"period": 0.5},
+                         "period 0.5 s fits no state")
+    return out
+
+
+def main() -> int:
+    p = argparse.ArgumentParser()
+    p.add_argument("--robot", required=True)
+    p.add_argument("--domain", type=int, required=True)
+    p.add_argument("--partition", default="blackbox")
+    p.add_argument("--store", default=None)
+    args = p.parse_args()
+    recorder = None
+    if args.store:
+        from blackbox.record import Recorder
+
+        recorder = Recorder(args.store, robot_id=args.robot, commit_interval=0.1)
+    sink = DdsHealthSink(args.robot, domain_id=args.domain, partition=args.partition,
+                         log_store_path=args.store, on_ibit=lambda: healthy(time.time()))
+    sinks = [s for s in (recorder, sink) if s is not None]
+    print("ready", flush=True)
+    for line in sys.stdin:
+        command = line.strip()
+        t = time.time()
+        if command == "quit":
+            break
+        if command == "ok":
+            for s in sinks:
+                s.on_observations(t, healthy(t))
+                s.on_diagnosis(Diagnosis(t, ()))
+        elif command == "fault":
+            obs = faulty(t)
+            for s in sinks:
+                s.on_observations(t, obs)
+                s.on_diagnosis(Diagnosis(t, (frozenset({"/usb_cam"}),), (obs[0],),
+                                         "camera publishes too slowly"))
+        else:
+            print(f"unknown {command}", flush=True)
+            continue
+        if recorder is not None:
+            deadline = time.monotonic() + 5
+            while recorder.written == 0 and time.monotonic() < deadline:
+                time.sleep(0.02)
+        print(f"done {command}", flush=True)
+    for s in sinks:
+        s.close()
+    print("closed", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
