@@ -111,10 +111,18 @@ def read_axes(node: ConfigNode) -> tuple[str, ...]:
 
 
 def read_axis_quantities(node: ConfigNode, axes: Sequence[str]) -> dict[str, FilteredQuantity]:
-    for axis in AXES:
-        if axis not in axes and node.get(f"{axis}_filter") is not None:
-            raise node[f"{axis}_filter"].error(
-                f"{axis}_filter given but {axis} is switched off")
+    """One filtered quantity per observed axis; a switched-off axis may not be configured."""
+    switch_of = {axis: switch for switch, axis in ROTATION_SWITCHES}
+    off = [axis for axis in AXES if axis not in axes]
+    states = node.get("states")
+    entries = [e for e in states.list() if e.is_map] if states is not None else []
+    for axis in off:
+        used = node.get(f"{axis}_filter")
+        used = used if used is not None else next(
+            (e[axis] for e in entries if axis in e), None)
+        if used is not None:
+            raise used.error(f"{used.path.rsplit('.', 1)[-1]} given but {axis} is switched "
+                             f"off ({switch_of[axis]}: false)")
     return {axis: read_quantity(node, f"{axis}_filter", axis) for axis in axes}
 
 
