@@ -180,8 +180,8 @@ class GraphPoller:
         st = self.nodes.get(node)
         return st.uri if st is not None else None
 
-    def refresh(self, now: float) -> GraphSnapshot:
-        """One round: ask the master, probe every node, return the graph at ``now``."""
+    def refresh(self) -> None:
+        """One round: ask the master and probe every node (see :meth:`snapshot`)."""
         self._refresh_master()
         registered = self.state.node_names()
         for name in registered - self.nodes.keys():
@@ -191,7 +191,6 @@ class GraphPoller:
         self._probe(list(self.nodes.values()))
         for name in [n for n, st in self.nodes.items() if not st.registered and not st.alive]:
             del self.nodes[name]
-        return self.snapshot(now)
 
     def snapshot(self, now: float) -> GraphSnapshot:
         nodes = {n: NodeInfo(n, st.alive, st.pid if st.alive else None,

@@ -12,18 +12,28 @@ stops the source.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
+from functools import partial
 from urllib.parse import urlsplit
 
 import psutil
 
 from blackbox.config.node import ConfigError
 from blackbox.model import BlackBoxEvent
-from blackbox.sources.base import Event, Interest, NetworkSample, TopicSchema
+from blackbox.sources.base import (
+    Event,
+    Interest,
+    MessageArrival,
+    NetworkSample,
+    ResourceSample,
+    TopicSchema,
+)
 from blackbox.sources.ros1.master import GraphPoller
 from blackbox.sources.ros1.resources import ResourceSampler
 from blackbox.sources.ros1.tcpros import DEFAULT_MAX_MESSAGE_BYTES, TcprosSubscriber
@@ -71,6 +81,7 @@ class Ros1Source:
         self._resource_period = resource_period
         self._idle_grace = idle_grace
         self._queue: deque[Event | BlackBoxEvent] = deque()
+        self._lock = threading.Lock()
         self._queue_limit = queue_limit
         self._dropped = 0
         self._held: list[Event | BlackBoxEvent] = []
@@ -94,7 +105,7 @@ class Ros1Source:
             raise RuntimeError("Ros1Source started twice")
         self._interest = interest
         self._subscriber = TcprosSubscriber(
-            interest.topics, interest.decoded, interest.max_message_bytes, self._push,
+            interest.topics, interest.decoded, interest.max_message_bytes, self._push_message,
             self._report, backoff_min=self._backoff[0], backoff_max=self._backoff[1],
             default_max_bytes=self._default_cap)
         self._subscriber.start()
@@ -112,8 +123,9 @@ class Ros1Source:
         queue = self._queue
         events = self._held
         self._held = []
-        while queue:
-            events.append(queue.popleft())
+        with self._lock:  # every event stamped before this instant is in the queue
+            while queue:
+                events.append(queue.popleft())
         if self._dropped:
             dropped, self._dropped = self._dropped, 0
             events.append(BlackBoxEvent(time.time(), "ros1_queue_overflow",
@@ -139,15 +151,26 @@ class Ros1Source:
 
     # ---- background ------------------------------------------------------------------------
 
-    def _push(self, event: Event) -> None:
-        if len(self._queue) < self._queue_limit:
-            self._queue.append(event)
-        else:
-            self._dropped += 1
+    def _push_message(self, msg: MessageArrival) -> None:
+        """Stamp and queue under one lock, so ``poll`` never misses an earlier event."""
+        with self._lock:
+            if len(self._queue) < self._queue_limit:
+                msg.time = time.time()
+                self._queue.append(msg)
+            else:
+                self._dropped += 1
+
+    def _push(self, make: Callable[[float], Event | BlackBoxEvent]) -> None:
+        with self._lock:
+            if len(self._queue) < self._queue_limit:
+                self._queue.append(make(time.time()))
+            else:
+                self._dropped += 1
 
     def _report(self, kind: str, component: str, message: str) -> None:
         log.warning("%s: %s", component, message)
-        self._queue.append(BlackBoxEvent(time.time(), f"ros1_{kind}", message, component))
+        with self._lock:
+            self._queue.append(BlackBoxEvent(time.time(), f"ros1_{kind}", message, component))
 
     def _graph_loop(self) -> None:
         next_resources = 0.0
@@ -156,16 +179,17 @@ class Ros1Source:
         while not self._stop.is_set():
             started = time.time()
             try:
-                graph = self._poller.refresh(started)
-                self._push(graph)
+                self._poller.refresh()
+                self._push(self._poller.snapshot)
                 subscriber.sync(self._poller.state.publishers, self._poller.uri_of)
                 dead = {n for n, st in self._poller.nodes.items() if not st.alive}
                 subscriber.drop_half_open(dead, self._idle_grace)
                 if started >= next_resources:
                     next_resources = started + self._resource_period
+                    nodes = dict(self._poller.snapshot(started).nodes)
                     for sample in self._resources.sample(started, self._interest.resources,
-                                                         dict(graph.nodes)):
-                        self._push(sample)
+                                                         nodes):
+                        self._push(partial(_restamped, sample))
                     if self._interest.network:
                         self._sample_network(started)
             except Exception as exc:  # the graph thread must outlive any surprise
@@ -175,7 +199,12 @@ class Ros1Source:
 
     def _sample_network(self, now: float) -> None:
         for iface, c in psutil.net_io_counters(pernic=True).items():
-            self._push(NetworkSample(now, iface, c.bytes_recv, c.bytes_sent))
+            self._push(partial(NetworkSample, interface=iface, rx_bytes=c.bytes_recv,
+                               tx_bytes=c.bytes_sent))
+
+
+def _restamped(sample: ResourceSample, time: float) -> ResourceSample:
+    return dataclasses.replace(sample, time=time)
 
 
 def _time_of(event: Event | BlackBoxEvent) -> float:

@@ -15,6 +15,7 @@ reason, and the connection is retried with backoff.
 from __future__ import annotations
 
 import contextlib
+import logging
 import selectors
 import socket
 import struct
@@ -29,6 +30,8 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from blackbox.sources.base import MessageArrival, TopicSchema
 from blackbox.sources.ros1.master import CALLER_ID, Report, RosApi, RosApiError
+
+log = logging.getLogger("blackbox.sources.ros1")
 
 DEFAULT_MAX_MESSAGE_BYTES = 64 * 1024 * 1024
 MAX_HEADER_BYTES = 1024 * 1024
@@ -208,10 +211,15 @@ class TcprosReader:
         while not self._stop.is_set():
             for sel_key, _ in select(timeout=1.0):
                 stream = sel_key.data
-                if stream is None:
-                    self._service_wakeup()
-                elif not stream.closed:
-                    self._read(stream)
+                try:
+                    if stream is None:
+                        self._service_wakeup()
+                    elif not stream.closed:
+                        self._read(stream)
+                except Exception as exc:  # one bad connection must not stop the reader
+                    log.exception("TCPROS reader")
+                    if stream is not None and not stream.closed:
+                        self._close(stream, f"internal error while reading: {exc!r}")
 
     def _service_wakeup(self) -> None:
         with contextlib.suppress(OSError):

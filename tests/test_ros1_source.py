@@ -1,0 +1,140 @@
+"""Ros1Source against the real thesis robot on Debian's ROS 1 (roscore + three rospy nodes)."""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import time
+import xmlrpc.client
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from blackbox.model import BlackBoxEvent
+from blackbox.sources.base import GraphSnapshot, Interest, MessageArrival, ResourceSample
+from blackbox.sources.ros1 import Ros1Source
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros1_robot"))
+import itertools
+
+from robot import ThesisRobot, free_port
+
+pytestmark = [pytest.mark.ros1,
+              pytest.mark.skipif(shutil.which("roscore") is None, reason="needs Debian's ROS 1")]
+
+IMAGE = "/usb_cam/image_raw"
+THESIS_INTEREST = Interest(topics=frozenset({IMAGE, "/audio"}), decoded=frozenset({"/signal"}),
+                           resources=frozenset({"/usb_cam", "/Signal_generator"}))
+
+
+class Watch:
+    """Polls a source in small steps, keeping every event, until a condition holds."""
+
+    def __init__(self, source: Ros1Source) -> None:
+        self.source = source
+        self.events: list[object] = []
+
+    def until(self, cond: Callable[[list[object]], bool], timeout: float = 10.0) -> bool:
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            self.events.extend(self.source.poll(time.time() + 0.1))
+            if cond(self.events):
+                return True
+        return False
+
+    def of(self, kind: type) -> list:
+        return [e for e in self.events if isinstance(e, kind)]
+
+
+@pytest.fixture(scope="module")
+def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ThesisRobot]:
+    r = ThesisRobot(free_port(), log_dir=tmp_path_factory.mktemp("robot-logs"))
+    try:
+        yield r.start()
+    finally:
+        r.stop()
+
+
+@pytest.fixture(scope="module")
+def watched(robot: ThesisRobot) -> Iterator[Watch]:
+    """A source watching the thesis robot for three seconds, then kept open."""
+    state_before = robot.master().getSystemState("/test")
+    source = Ros1Source.from_uri(f"ros1://127.0.0.1:{robot.port}")
+    source.start(THESIS_INTEREST)
+    watch = Watch(source)
+    watch.until(lambda ev: False, timeout=3.0)
+    watch.state_before = state_before  # type: ignore[attr-defined]
+    try:
+        yield watch
+    finally:
+        source.close()
+
+
+def test_graph_lists_the_thesis_nodes_alive_with_their_real_pids(robot: ThesisRobot,
+                                                                watched: Watch) -> None:
+    graph = watched.of(GraphSnapshot)[-1]
+    for name in ("/usb_cam", "/audio_capture", "/Signal_generator"):
+        node = graph.nodes[name]
+        assert node.alive
+        assert node.pid == robot.pid(name)
+        assert node.host == "127.0.0.1"
+    assert graph.topics[IMAGE].type == "sensor_msgs/Image"
+    assert graph.topics[IMAGE].publishers == ("/usb_cam",)
+    assert graph.topics[IMAGE].subscribers == ("/Signal_generator",)
+    assert graph.topics["/signal"].type == "std_msgs/Float64"
+
+
+def test_graph_snapshots_come_at_least_every_half_second(watched: Watch) -> None:
+    times = [g.time for g in watched.of(GraphSnapshot)]
+    assert len(times) >= 5
+    assert max(b - a for a, b in itertools.pairwise(times)) < 0.5
+
+
+def test_every_message_is_attributed_to_its_publishing_node(watched: Watch) -> None:
+    msgs = watched.of(MessageArrival)
+    by_topic = {(m.topic, m.publisher) for m in msgs}
+    assert by_topic == {(IMAGE, "/usb_cam"), ("/audio", "/audio_capture"),
+                        ("/signal", "/Signal_generator")}
+    images = [m for m in msgs if m.topic == IMAGE]
+    # header (seq 4 + stamp 8 + "usb_cam" 4+7) + height, width 8 + "rgb8" 4+4
+    # + is_bigendian 1 + step 4 + data 4+921600
+    assert {m.size for m in images} == {4 + 8 + 11 + 8 + 8 + 1 + 4 + 4 + 640 * 480 * 3}
+    assert images[0].value is None  # arrival-only topic: never decoded
+
+
+def test_value_topics_are_decoded_from_the_publishers_definition(watched: Watch) -> None:
+    values = [m.value.data for m in watched.of(MessageArrival) if m.topic == "/signal"]
+    assert len(values) >= 20
+    assert all(14.5 <= v <= 15.5 for v in values)
+    schema = watched.source.schema("/signal")
+    assert schema is not None
+    assert (schema.type, schema.encoding, schema.definition.strip()) == (
+        "std_msgs/Float64", "ros1", "float64 data")
+    assert schema.md5sum == "fdb28210bfa9d7c91146260178d9a584"
+
+
+def test_messages_come_in_time_order(watched: Watch) -> None:
+    times = [e.time for e in watched.events]  # type: ignore[attr-defined]
+    assert times == sorted(times)
+
+
+def test_local_nodes_get_cpu_and_memory(robot: ThesisRobot, watched: Watch) -> None:
+    samples = [s for s in watched.of(ResourceSample) if s.node == "/usb_cam"]
+    measured = [s for s in samples if s.cpu_percent is not None]
+    assert measured, samples
+    assert measured[-1].memory_bytes is not None and measured[-1].memory_bytes > 10e6
+    assert all(s.node in THESIS_INTEREST.resources for s in watched.of(ResourceSample))
+
+
+def test_the_black_box_is_invisible_in_the_master(robot: ThesisRobot, watched: Watch) -> None:
+    """The master lists exactly the same subscribers; only the publisher knows of us."""
+    assert robot.master().getSystemState("/test") == watched.state_before  # type: ignore
+    _, _, uri = robot.master().lookupNode("/test", "/usb_cam")
+    _, _, bus = xmlrpc.client.ServerProxy(uri).getBusInfo("/test")
+    ours = [c for c in bus if c[1] == "/blackbox"]
+    assert [(c[2], c[4]) for c in ours] == [("o", IMAGE)]
+
+
+def test_no_faults_are_reported_on_a_healthy_robot(watched: Watch) -> None:
+    assert watched.of(BlackBoxEvent) == []
