@@ -15,6 +15,7 @@ from blackbox.config.node import ConfigError, ConfigNode
 from blackbox.sources.base import GraphSnapshot, Interest, MessageArrival, ResourceSample
 from blackbox.sources.sim import (
     FAULT_KINDS,
+    THESIS_FAULT_KINDS,
     Fault,
     GroundTruth,
     SimulatedSource,
@@ -268,6 +269,8 @@ def test_random_campaign_honours_kinds_and_fixed_parameters():
                              mean_gap=5.0, duration_range=(2.0, 4.0), min_separation=3.0)
     assert {f.kind for f in faults} == {"rate", "kill"}
     assert all(dict(f.params) == {"factor": 0.5} for f in faults if f.kind == "rate")
+    thesis = random_campaign(THESIS, 300.0, seed=1, kinds=THESIS_FAULT_KINDS)
+    assert {f.kind for f in thesis} <= {"kill", "stall", "rate", "offset", "scale"}
     values_only = random_campaign(THESIS, 200.0, seed=1, kinds=["offset", "drift"])
     assert {f.component for f in values_only} == {"/signal"}
     with pytest.raises(ValueError, match="unknown fault kind"):

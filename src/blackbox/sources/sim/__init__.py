@@ -2,6 +2,7 @@
 
 from .faults import (
     FAULT_KINDS,
+    THESIS_FAULT_KINDS,
     Fault,
     FaultKind,
     GroundTruth,
@@ -17,6 +18,7 @@ from .topology import NodeSpec, TopicSpec, Topology
 __all__ = [
     "BUILTIN_ROBOTS",
     "FAULT_KINDS",
+    "THESIS_FAULT_KINDS",
     "BytesModel",
     "Fault",
     "FaultKind",

@@ -51,6 +51,10 @@ FAULT_KINDS: Mapping[str, FaultKind] = MappingProxyType({k.name: k for k in (
               doc="node memory grows by rate bytes per second"),
 )})
 
+# The thesis injected killed nodes, an unplugged camera (a stalled topic), changed camera
+# and signal rates and a changed signal magnitude (section 6.2.1.2).
+THESIS_FAULT_KINDS: tuple[str, ...] = ("kill", "stall", "rate", "offset", "scale")
+
 
 @dataclass(frozen=True, slots=True)
 class Fault:
@@ -323,5 +327,5 @@ def _campaign(node: ConfigNode, topology: Topology) -> list[Fault]:
         raise node.error(str(exc)) from None
 
 
-__all__ = ["FAULT_KINDS", "Fault", "FaultKind", "GroundTruth", "load_faults",
+__all__ = ["FAULT_KINDS", "THESIS_FAULT_KINDS", "Fault", "FaultKind", "GroundTruth", "load_faults",
            "random_campaign", "read_ground_truth", "write_ground_truth"]
