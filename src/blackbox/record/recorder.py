@@ -247,7 +247,7 @@ class Recorder(SinkBase):
             for capture in self.ring.flush():
                 self._hand_over(capture)
         self._queue_rows([Row(self.clock(), "blackbox_event", (COMPONENT, "event", "{}"), None,
-                              {"event": "stop", "dropped": self.dropped})])
+                              {"event": "stop", "dropped": self.dropped})], force=True)
         self._stop.set()
         self._thread.join(timeout)
         self._deliver()
@@ -271,8 +271,8 @@ class Recorder(SinkBase):
 
     # ---- pipeline-thread helpers --------------------------------------------------------------
 
-    def _queue_rows(self, rows: list[Row]) -> None:
-        if self._queued_rows + len(rows) > self.queue_limit:
+    def _queue_rows(self, rows: list[Row], force: bool = False) -> None:
+        if not force and self._queued_rows + len(rows) > self.queue_limit:
             kept = [r for r in rows if r.kind != "sample"]
             self.dropped += len(rows) - len(kept)
             rows = kept
