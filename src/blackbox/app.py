@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import signal
 import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -80,15 +81,19 @@ def open_robot(options: RunOptions) -> Source:
 
     realtime = not options.simulated_clock
     faults = None if options.faults == "random" else options.faults
+    # A real-time robot stamps with the wall clock, so its records line up with everything
+    # else on the machine; a simulated clock starts at 0 and is reproducible.
+    start = time.time() if realtime else 0.0
     try:
-        source = open_sim(options.source, faults=faults, seed=options.seed, realtime=realtime)
+        source = open_sim(options.source, faults=faults, seed=options.seed, realtime=realtime,
+                          start_time=start)
     except ValueError as exc:
         raise ConfigError(str(exc), "--source") from None
     if options.faults == "random":
         horizon = options.duration if options.duration is not None else 3600.0
         campaign = random_campaign(source.topology, horizon, options.seed)
         source = SimulatedSource(source.topology, campaign, seed=options.seed,
-                                 realtime=realtime, name=source.name)
+                                 realtime=realtime, start_time=start, name=source.name)
     return source
 
 
