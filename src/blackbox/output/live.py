@@ -26,6 +26,13 @@ def status_word(code: Code) -> str:
     return "FAULT" if code < 0 else "OK"
 
 
+def format_time(t: float) -> str:
+    """Wall-clock times as local time of day; simulated clocks as seconds since start."""
+    if t > 1e8:
+        return time.strftime("%H:%M:%S", time.localtime(t)) + f".{int(t * 1000) % 1000:03d}"
+    return f"{t:10.3f}"
+
+
 def format_values(obs: Observation) -> str:
     parts = []
     for name, value in list(obs.values.items())[:3]:
@@ -56,7 +63,7 @@ class LiveStatusView(SinkBase):
             self._latest[key] = obs
             if not self.interactive and (before is None or status_word(before.code)
                                          != status_word(obs.code)):
-                self._line(f"{now:10.3f} {status_word(obs.code):5} {obs.observer:9} "
+                self._line(f"{format_time(now)} {status_word(obs.code):5} {obs.observer:9} "
                            f"{obs.resource.label()}: {obs.message}")
         if self.interactive:
             self._maybe_draw()
@@ -64,14 +71,14 @@ class LiveStatusView(SinkBase):
     def on_diagnosis(self, diagnosis: Diagnosis) -> None:
         self._diagnosis = diagnosis
         if not self.interactive:
-            self._line(f"{diagnosis.time:10.3f} DIAG  {self.diagnosis_line(diagnosis)}")
+            self._line(f"{format_time(diagnosis.time)} DIAG  {self.diagnosis_line(diagnosis)}")
         else:
             self._maybe_draw(force=True)
 
     def on_event(self, event: BlackBoxEvent) -> None:
         self._events.append(event)
         if not self.interactive:
-            self._line(f"{event.time:10.3f} EVENT {event.kind}: {event.message}")
+            self._line(f"{format_time(event.time)} EVENT {event.kind}: {event.message}")
 
     def close(self) -> None:
         if self.interactive:
@@ -99,7 +106,7 @@ class LiveStatusView(SinkBase):
 
     def render(self) -> str:
         """The table as text (without terminal control codes)."""
-        lines = [f"{self.title}  t={self._now:.1f} s  "
+        lines = [f"{self.title}  {format_time(self._now).strip()}  "
                  f"{sum(1 for o in self._latest.values() if o.code < 0)} faulty of "
                  f"{len(self._latest)} observed"]
         lines.append(f"{'STATUS':6} {'OBSERVER':10} {'RESOURCE':38} {'VALUES':32} MESSAGE")
@@ -114,7 +121,8 @@ class LiveStatusView(SinkBase):
                 lines.append("  " + self._diagnosis.explanation[:300])
         if self._events:
             lines.append("")
-            lines.extend(f"event {e.time:.1f} {e.kind}: {e.message[:90]}" for e in self._events)
+            lines.extend(f"event {format_time(e.time).strip()} {e.kind}: {e.message[:90]}"
+                         for e in self._events)
         return "\n".join(lines)
 
     def _draw(self) -> None:
