@@ -144,3 +144,15 @@ def test_state_over_a_wrong_quantity_is_an_error() -> None:
         OBSERVERS["scores"](ConfigNode.parse(text, "t.yaml"))
     assert err.value.line == 4
     assert "unknown key 'period'" in err.value.message
+
+
+def test_a_message_that_fails_to_decode_is_an_error_not_a_crash() -> None:
+    sc = build()
+
+    def garbage() -> object:
+        raise ValueError("buffer too short")
+
+    sc.on_message(MessageArrival(0.0, "/signal", "/sensor", 3, decode=garbage))
+    [obs] = sc.evaluate(1.0)
+    assert obs.code == Code.GENERAL_ERROR
+    assert obs.message.endswith("message does not decode: buffer too short")

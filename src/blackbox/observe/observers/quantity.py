@@ -11,10 +11,12 @@ from __future__ import annotations
 import copy
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 from blackbox.model import Code, Observation, Resource, State
 from blackbox.observe.base import Filter, Summary
 from blackbox.observe.states import StateSpec, evaluate_states
+from blackbox.sources.base import MessageArrival
 
 
 class FilteredQuantity:
@@ -81,6 +83,22 @@ class SampleProblems:
         self.count = 0
         self.reason = ""
         self.undecodable = False
+
+    def value_of(self, msg: MessageArrival, label: str = "") -> Any:
+        """``msg.value``, or ``None`` after recording why there is none.
+
+        A decoder failing on malformed bytes is the robot's garbage, never the black box's
+        crash: it becomes an unreadable message like any other.
+        """
+        prefix = f"{label}: " if label else ""
+        try:
+            value = msg.value
+        except Exception as exc:
+            self.add(f"{prefix}message does not decode: {exc}")
+            return None
+        if value is None:
+            self.add(f"{prefix}the source cannot decode this topic", undecodable=True)
+        return value
 
     def observation(self, now: float, observer: str, resource: Resource, seen: int,
                     values: dict[str, float]) -> Observation:

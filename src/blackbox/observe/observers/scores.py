@@ -56,9 +56,8 @@ class ScoresObserver(ObserverBase):
 
     def on_message(self, msg: MessageArrival) -> None:
         self._seen += 1
-        value = msg.value
+        value = self._problems.value_of(msg)
         if value is None:
-            self._problems.add("the source cannot decode this topic", undecodable=True)
             return
         try:
             x = self._read(value)

@@ -82,9 +82,8 @@ class TimestampObserver(ObserverBase):
         if self._group and msg.publisher not in self._group:
             return
         self._seen += 1
-        value = msg.value
+        value = self._problems.value_of(msg)
         if value is None:
-            self._problems.add("the source cannot decode this topic", undecodable=True)
             return
         try:
             stamp = stamp_seconds(_read_stamp(value))

@@ -130,9 +130,8 @@ class VelocityObserver(ObserverBase):
         if not estimates:
             return
         self._seen += 1
-        value = msg.value
+        value = self._problems.value_of(msg, msg.topic)
         if value is None:
-            self._problems.add(f"the source cannot decode {msg.topic}", undecodable=True)
             return
         for estimate in estimates:
             try:
