@@ -1,0 +1,97 @@
+"""``blackbox run`` and ``blackbox demo`` as a user runs them: real processes, real files."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from blackbox.output.jsonlines import read_records
+
+BLACKBOX = [sys.executable, "-m", "blackbox"]
+
+
+def blackbox(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*BLACKBOX, *args], capture_output=True, text=True, timeout=timeout)
+
+
+def test_simulated_run_writes_observations_as_documented_json_lines(tmp_path: Path) -> None:
+    out = tmp_path / "obs.jsonl"
+    events = tmp_path / "events.jsonl"
+    result = blackbox("run", "--source", "sim:thesis", "--duration", "20", "--simulated-clock",
+                      "--quiet", "--observations", str(out), "--events", str(events))
+    assert result.returncode == 0, result.stderr
+    records = read_records(out)
+    assert len(records) == 200  # ten observers, once per simulated second
+    first = records[0]
+    assert first["record"] == "observation" and first["schema"] == 1
+    assert set(first) >= {"time", "observer", "resource", "code", "code_name", "faulty",
+                          "states", "values", "message"}
+    assert set(first["resource"]) == {"node", "topic", "publishers", "topic_b", "interface"}
+    assert not any(r["faulty"] for r in records)
+    assert [r["kind"] for r in read_records(events)] == ["start", "stop"]
+    assert "20.0 s observed" in result.stderr
+
+
+def test_injected_faults_appear_with_their_ground_truth(tmp_path: Path) -> None:
+    faults = tmp_path / "faults.yaml"
+    faults.write_text("faults:\n  - {kind: kill, component: /usb_cam, start: 10, end: 20}\n")
+    out, truth = tmp_path / "obs.jsonl", tmp_path / "truth.jsonl"
+    result = blackbox("run", "--duration", "30", "--simulated-clock", "--quiet",
+                      "--faults", str(faults), "--ground-truth", str(truth),
+                      "--observations", str(out))
+    assert result.returncode == 0, result.stderr
+    dead = [r for r in read_records(out) if r["observer"] == "activated" and r["faulty"]]
+    assert {r["resource"]["node"] for r in dead} == {"/usb_cam"}
+    assert min(r["time"] for r in dead) <= 11.0
+    assert [(t["kind"], t["component"], t["start"], t["end"])
+            for t in read_records(truth)] == [("kill", "/usb_cam", 10.0, 20.0)]
+
+
+def test_ctrl_c_stops_a_real_time_run_cleanly(tmp_path: Path) -> None:
+    out, events = tmp_path / "obs.jsonl", tmp_path / "events.jsonl"
+    proc = subprocess.Popen([*BLACKBOX, "run", "--quiet", "--observations", str(out),
+                             "--events", str(events)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and (not out.exists() or out.stat().st_size == 0):
+            time.sleep(0.1)
+        assert out.exists() and out.stat().st_size > 0, "no observation within 30 s"
+        proc.send_signal(signal.SIGINT)
+        _, stderr = proc.communicate(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, stderr
+    assert "Traceback" not in stderr
+    for line in out.read_text().splitlines():
+        json.loads(line)
+    assert read_records(events)[-1]["kind"] == "stop"
+
+
+def test_bad_configuration_and_unknown_source_exit_2_without_traceback(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("observers:\n  - type: hz\n    topic: /a\n    filter: {type: mean, "
+                   "window_size: -3}\n")
+    result = blackbox("run", "--config", str(bad), "--simulated-clock", "--duration", "1")
+    assert result.returncode == 2
+    assert f"{bad}:4:" in result.stderr and "window_size" in result.stderr
+    assert "Traceback" not in result.stderr
+
+    result = blackbox("run", "--source", "carrier-pigeon", "--duration", "1")
+    assert result.returncode == 2
+    assert "unknown source" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_demo_runs_fast_with_random_faults_and_records_them(tmp_path: Path) -> None:
+    result = blackbox("demo", "--fast", "--duration", "120", "--out", str(tmp_path))
+    assert result.returncode == 0, result.stderr
+    truth = read_records(tmp_path / "ground_truth.jsonl")
+    assert truth, "a random campaign over 120 s injects faults"
+    faulty = [r for r in read_records(tmp_path / "observations.jsonl") if r["faulty"]]
+    assert faulty
+    assert "FAULT" in result.stdout
