@@ -1,0 +1,261 @@
+"""Black box and listener as separate processes over Cyclone DDS on loopback.
+
+Each test gets its own domain id (from the pid and a counter) so runs never cross-talk.
+The black box side is ``tests/dds_blackbox_driver.py`` (DdsHealthSink plus the real
+recorder); the station side is the real ``blackbox listen --json``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import queue
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import psutil
+import pytest
+
+pytestmark = pytest.mark.dds
+
+HERE = Path(__file__).parent
+DRIVER = HERE / "dds_blackbox_driver.py"
+_counter = itertools.count()
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env.pop("CYCLONEDDS_URI", None)  # the built-in loopback configuration applies
+    return env
+
+
+def fresh_domain() -> int:
+    return 100 + (os.getpid() * 7 + next(_counter)) % 120
+
+
+class BlackBox:
+    def __init__(self, robot: str, domain: int, store: Path | None = None,
+                 partition: str = "blackbox") -> None:
+        cmd = [sys.executable, str(DRIVER), "--robot", robot, "--domain", str(domain),
+               "--partition", partition]
+        if store is not None:
+            cmd += ["--store", str(store)]
+        self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     text=True, env=_env())
+        assert self._line() == "ready"
+
+    def _line(self) -> str:
+        assert self.proc.stdout is not None
+        return self.proc.stdout.readline().strip()
+
+    def send(self, command: str) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(command + "\n")
+        self.proc.stdin.flush()
+        assert self._line() == f"done {command}"
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            assert self.proc.stdin is not None
+            self.proc.stdin.write("quit\n")
+            self.proc.stdin.close()
+            self.proc.wait(timeout=10)
+
+
+class Listener:
+    """``blackbox listen --json`` in its own process; a thread collects its state lines."""
+
+    def __init__(self, domain: int, *extra: str) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "blackbox", "listen", "--domain", str(domain), "--json",
+             "--duration", "30", *extra],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
+        self.lines: queue.Queue[str] = queue.Queue()
+        self.state: dict[str, Any] = {}
+        threading.Thread(target=self._pump, daemon=True).start()
+
+    def _pump(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.put(line)
+
+    def wait_for(self, predicate, timeout: float = 10.0) -> dict[str, Any]:
+        """Read state lines until ``predicate(state)`` holds (bounded by ``timeout``)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                line = self.lines.get(timeout=0.1)
+            except queue.Empty:
+                if self.proc.poll() is not None:
+                    break
+                continue
+            if line.strip():
+                self.state = json.loads(line)
+                if predicate(self.state):
+                    return self.state
+        raise AssertionError(f"condition not met; last state: {json.dumps(self.state)[:2000]}")
+
+    def kill(self) -> None:
+        self.proc.kill()
+        self.proc.wait(timeout=10)
+
+
+def entities(state: dict[str, Any], robot: str) -> dict[str, str]:
+    r = state.get("robots", {}).get(robot)
+    return {} if r is None else {n: e["health"] for n, e in r["entities"].items()}
+
+
+def events(state: dict[str, Any], robot: str) -> list[dict[str, Any]]:
+    r = state.get("robots", {}).get(robot)
+    return [] if r is None else r["events"]
+
+
+@pytest.fixture
+def cleanup():
+    procs: list[Any] = []
+    yield procs
+    for p in procs:
+        if isinstance(p, BlackBox):
+            try:
+                p.stop()
+            except Exception:
+                p.proc.kill()
+        else:
+            p.kill()
+
+
+def test_late_joiner_gets_the_full_state(cleanup):
+    domain = fresh_domain()
+    box = BlackBox("thesis", domain)
+    cleanup.append(box)
+    box.send("ok")
+    box.send("fault")
+    # The listener starts after everything was published: it sees it all from durability.
+    listener = Listener(domain, "--backfill", "0")
+    cleanup.append(listener)
+    state = listener.wait_for(lambda s: entities(s, "thesis").get("/usb_cam")
+                              == "NOT_OPERATIONAL")
+    assert entities(state, "thesis") == {
+        "thesis": "DEGRADED",  # one of three nodes down
+        "/usb_cam": "NOT_OPERATIONAL",  # named by the diagnosis
+        "/audio_capture": "OPERATIONAL",
+        "/signal_generator": "OPERATIONAL",
+    }
+    chars = state["robots"]["thesis"]["characteristics"]
+    assert chars["hz /usb_cam/image_raw [/usb_cam] period"] == 0.5
+    assert chars["scores /signal [/signal_generator] score"] == 15.0
+    assert len(chars) == 5
+
+
+def test_restarted_listener_gets_state_again_and_missed_events_from_the_log(cleanup, tmp_path):
+    domain = fresh_domain()
+    box = BlackBox("thesis", domain, store=tmp_path / "health.db")
+    cleanup.append(box)
+    box.send("ok")
+    first = Listener(domain, "--backfill", "0")
+    cleanup.append(first)
+    first.wait_for(lambda s: entities(s, "thesis").get("/usb_cam") == "OPERATIONAL")
+    first.kill()
+    box.send("fault")  # nobody is listening: the events are missed live
+    second = Listener(domain, "--backfill", "300")
+    cleanup.append(second)
+    state = second.wait_for(lambda s: entities(s, "thesis").get("/usb_cam") == "NOT_OPERATIONAL"
+                            and any(e["origin"] == "log" and e["kind"] == "failure"
+                                    for e in events(s, "thesis")))
+    from_log = [e for e in events(state, "thesis") if e["origin"] == "log"]
+    assert {e["kind"] for e in from_log} == {"exceedance", "failure"}
+    failure = next(e for e in from_log if e["kind"] == "failure")
+    assert failure["entity"] == "/usb_cam"
+    assert "camera publishes too slowly" in failure["text"]
+
+
+def test_live_events_reach_a_connected_listener(cleanup):
+    domain = fresh_domain()
+    box = BlackBox("thesis", domain)
+    cleanup.append(box)
+    box.send("ok")
+    listener = Listener(domain, "--backfill", "0")
+    cleanup.append(listener)
+    listener.wait_for(lambda s: entities(s, "thesis").get("/usb_cam") == "OPERATIONAL")
+    box.send("fault")
+    state = listener.wait_for(lambda s: any(e["kind"] == "failure"
+                                            for e in events(s, "thesis")))
+    kinds = sorted(e["kind"] for e in events(state, "thesis"))
+    assert kinds == ["exceedence", "failure"]
+    assert all(e["origin"] == "live" for e in events(state, "thesis"))
+
+
+def test_two_black_boxes_on_one_domain_are_kept_apart(cleanup):
+    domain = fresh_domain()
+    a = BlackBox("alpha", domain)
+    b = BlackBox("bravo", domain)
+    hidden = BlackBox("charlie", domain, partition="other-fleet")
+    cleanup.extend([a, b, hidden])
+    a.send("fault")
+    b.send("ok")
+    hidden.send("fault")
+    listener = Listener(domain, "--backfill", "0")
+    cleanup.append(listener)
+    state = listener.wait_for(lambda s: entities(s, "alpha").get("/usb_cam") == "NOT_OPERATIONAL"
+                              and entities(s, "bravo").get("/usb_cam") == "OPERATIONAL")
+    assert "charlie" not in state["robots"]  # another partition
+    assert entities(state, "bravo")["bravo"] == "OPERATIONAL"
+    assert entities(state, "alpha")["alpha"] == "DEGRADED"
+
+
+def test_log_request_is_answered_only_by_the_addressed_robot(cleanup, tmp_path):
+    domain = fresh_domain()
+    a = BlackBox("alpha", domain, store=tmp_path / "a.db")
+    b = BlackBox("bravo", domain, store=tmp_path / "b.db")
+    cleanup.extend([a, b])
+    a.send("fault")
+    b.send("ok")
+    out = tmp_path / "alpha.jsonl"
+    done = subprocess.run(
+        [sys.executable, "-m", "blackbox", "request-logs", "--domain", str(domain), "--robot",
+         "alpha", "--kind", "failure", "--out", str(out)],
+        capture_output=True, text=True, env=_env(), timeout=30)
+    assert done.returncode == 0, done.stderr
+    entries = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [e["payload"]["components"] for e in entries] == [["/usb_cam"]]
+    assert "1 entries" in done.stderr
+
+
+def _udp_ports(pid: int) -> list[int]:
+    return sorted({c.laddr.port for c in psutil.Process(pid).net_connections(kind="udp")})
+
+
+def test_foreign_and_garbage_samples_do_not_crash_the_listener(cleanup):
+    domain = fresh_domain()
+    box = BlackBox("thesis", domain)
+    cleanup.append(box)
+    box.send("ok")
+    listener = Listener(domain, "--backfill", "0")
+    cleanup.append(listener)
+    listener.wait_for(lambda s: entities(s, "thesis").get("/usb_cam") == "OPERATIONAL")
+    # A different type on a UCMS topic name, written by a third process.
+    intruder = subprocess.run(
+        [sys.executable, str(HERE / "dds_intruder.py"), str(domain)],
+        capture_output=True, text=True, env=_env(), timeout=30)
+    assert intruder.returncode == 0, intruder.stderr
+    # Raw garbage datagrams at every UDP port the listener has open.
+    ports = _udp_ports(listener.proc.pid)
+    assert ports
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for port in ports:
+            for payload in (b"", b"RTPS\x02\x01", os.urandom(200), b"RTPS" + os.urandom(60)):
+                s.sendto(payload, ("127.0.0.1", port))
+    box.send("fault")
+    state = listener.wait_for(lambda s: entities(s, "thesis").get("/usb_cam")
+                              == "NOT_OPERATIONAL")
+    assert listener.proc.poll() is None
+    assert entities(state, "thesis")["/audio_capture"] == "OPERATIONAL"
+    # The intruder's well-formed but meaningless samples stay under their own resource id.
+    assert "#12345" in state["robots"]
+    assert set(state["robots"]) == {"thesis", "#12345"}
