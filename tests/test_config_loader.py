@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import random
 from pathlib import Path
 
 import pytest
@@ -9,6 +10,7 @@ import pytest
 from blackbox.config.loader import (
     ModelNode,
     ModelObservation,
+    build_observers,
     document_kind,
     load_config,
     outline_diagnosis_model,
@@ -123,3 +125,39 @@ def test_diagnosis_model_outline() -> None:
         "activated", ("/audio_capture", "/usb_cam", "/Signal_generator"))
     assert [o.type for o in model.observations] == (
         ["activated"] + ["hz"] * 3 + ["timeout"] * 3 + ["scores"])
+
+
+def test_mutated_configurations_fail_only_with_config_errors(tmp_path: Path) -> None:
+    """Seeded random edits of the shared files: every outcome is a result or a ConfigError."""
+    sources = sorted([*Path("/work/shared/compat/tug_observers").glob("*.yaml"),
+                      *THESIS_MODEL.parent.glob("*.yaml"), DATA / "thesis_native.yaml"])
+    values = ["-1", "0", "1.5", "null", "[]", "{}", "abc", "1e400", ".nan", "true", "[a, b]",
+              "{a: 1}", "99999999999999999999", "!!binary aGVsbG8=", "2020-01-01", "/x",
+              "{type: kmeans, window_size: 2, k_size: 3}", "{type: gauss}"]
+    rng = random.Random(20240601)
+    path = tmp_path / "mutated.yaml"
+    outcomes = {"loaded": 0, "error": 0}
+    for _ in range(300):
+        lines = rng.choice(sources).read_text().splitlines()
+        for _ in range(rng.randint(1, 3)):
+            j = rng.randrange(len(lines))
+            line = lines[j]
+            if ":" in line and rng.random() < 0.7:
+                lines[j] = line[:line.index(":") + 1] + " " + rng.choice(values)
+            elif rng.random() < 0.5:
+                lines[j] = line[:rng.randrange(len(line) + 1)]
+            else:
+                lines[j] = " " * rng.randint(0, 4) + line.lstrip()
+        path.write_text("\n".join(lines) + "\n")
+        try:
+            root = read_document(path)
+            if document_kind(root) == "diagnosis":
+                outline_diagnosis_model(root)
+            else:
+                for observer in build_observers(load_config(path)):
+                    observer.describe()
+            outcomes["loaded"] += 1
+        except ConfigError as exc:
+            assert exc.file == str(path)
+            outcomes["error"] += 1
+    assert outcomes["loaded"] > 0 and outcomes["error"] > 0

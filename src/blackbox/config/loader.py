@@ -131,7 +131,7 @@ def build_observers(config: LoadedConfig) -> list[Observer]:
             raise kind.error(f"unknown observer type {name!r}; {hint}")
         try:
             observers.append(factory(entry))
-        except ValueError as exc:  # a value a factory rejected without a located error
+        except (ValueError, OverflowError) as exc:  # rejected by a factory without a location
             raise entry.error(f"invalid {name} observer: {exc}") from None
     return observers
 
