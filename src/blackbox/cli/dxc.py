@@ -9,7 +9,13 @@ from pathlib import Path
 from blackbox.config.node import ConfigError
 from blackbox.diagnose.dxc import BASELINES, CircuitDiagnoser, load_catalog, load_scenario
 
-DEFAULT_ROOT = Path(os.environ.get("BLACKBOX_DXC", "../shared/benchmarks/dxc"))
+
+def _default_root() -> Path:
+    env = os.environ.get("BLACKBOX_DXC")
+    if env:
+        return Path(env)
+    vendored = Path("data/shared/benchmarks/dxc")
+    return vendored if vendored.is_dir() else Path("../shared/benchmarks/dxc")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -19,15 +25,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--limit", type=float, default=1.0, help="seconds per scenario (default 1)")
     p.add_argument("--scenarios", type=int, default=None, metavar="N",
                    help="only the first N scenarios")
-    p.add_argument("--root", type=Path, default=DEFAULT_ROOT,
+    p.add_argument("--root", type=Path, default=None,
                    help="benchmark directory with models/ and scenarios/ "
-                        "(default $BLACKBOX_DXC or ../shared/benchmarks/dxc)")
+                        "(default $BLACKBOX_DXC, else data/shared/benchmarks/dxc, "
+                        "else ../shared/benchmarks/dxc)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.limit <= 0:
         raise ConfigError("--limit must be > 0", "<command line>")
+    args.root = args.root or _default_root()
     model = args.root / "models" / f"{args.model}.xml"
     if not model.is_file():
         known = sorted(p.stem for p in (args.root / "models").glob("*.xml"))

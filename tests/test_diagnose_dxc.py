@@ -1,0 +1,126 @@
+"""Circuits: the thesis full adder, DXC catalogs and scenarios, the DXC score."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from blackbox.cli import main
+from blackbox.config.node import ConfigError
+from blackbox.diagnose.dxc import (
+    Circuit,
+    CircuitDiagnoser,
+    Gate,
+    load_catalog,
+    load_scenario,
+    score,
+    utility,
+)
+
+DXC = Path(__file__).resolve().parents[1] / "data" / "shared" / "benchmarks" / "dxc"
+needs_dxc = pytest.mark.skipif(not DXC.is_dir(), reason="shared DXC benchmark missing")
+
+# Thesis Fig. 4.1: in1(X1)=in1(A1)=a, in2(X1)=in2(A1)=b, carry-in c into X2 and A2.
+FULL_ADDER = Circuit("full-adder", (
+    Gate("X1", "xor", ("a", "b"), "x1"),
+    Gate("X2", "xor", ("x1", "c"), "sum"),
+    Gate("A1", "and", ("a", "b"), "a1"),
+    Gate("A2", "and", ("c", "x1"), "a2"),
+    Gate("O1", "or", ("a2", "a1"), "carry"),
+), ("a", "b", "c", "sum", "carry"))
+
+
+def fs(*names: str) -> frozenset[str]:
+    return frozenset(names)
+
+
+def test_full_adder_minimal_diagnoses():
+    # a=1, b=0, c=1 should give sum=0, carry=1; observed sum=1, carry=0.
+    # Conflicts {X1, X2} and {X1, A2, O1}; their minimal hitting sets are the diagnoses.
+    d = CircuitDiagnoser(FULL_ADDER)
+    obs = {"a": True, "b": False, "c": True, "sum": True, "carry": False}
+    facts = d.facts(obs)
+    assert d.checker.conflict(facts).components in ({"X1", "X2"}, {"X1", "A2", "O1"})
+    assert d.checker.consistent(facts, {"X1"})
+    assert not d.checker.consistent(facts, {"X2"})
+    sets, complete, _ = d.diagnose(obs, limit=5.0)
+    assert sets == (fs("X1"),) and complete  # the minimum-cardinality diagnosis
+
+    from blackbox.diagnose.hsdag import hs_dag
+
+    def prover(path):
+        c = d.checker.conflict(facts, path)
+        return None if c is None else c.components
+
+    assert set(hs_dag(prover).sets) == {fs("X1"), fs("X2", "A2"), fs("X2", "O1")}
+
+
+def test_full_adder_correct_outputs_need_no_diagnosis():
+    d = CircuitDiagnoser(FULL_ADDER)
+    sets, complete, _ = d.diagnose({"a": True, "b": False, "c": True, "sum": False,
+                                    "carry": True})
+    assert sets == (frozenset(),) and complete
+
+
+def test_utility_hand_computed():
+    f = 33
+    assert utility(fs("g1"), fs("g1"), f) == 1.0
+    # n = 1, nbar = 1, N = 1, Nbar = 32: 1 - 1*2/(33*2) - 1*33/(33*2)
+    assert utility(fs("g1"), fs("g2"), f) == pytest.approx(1 - 1 / 33 - 0.5)
+    # reporting nothing against one fault: n = 0, nbar = 1, N = 0, Nbar = 33
+    assert utility(fs(), fs("g1"), f) == pytest.approx(1 - 34 / 66)
+    # n = 1, nbar = 0, N = 2: 1 - 1*3/(33*2)
+    assert utility(fs("g1", "g2"), fs("g1"), f) == pytest.approx(1 - 3 / 66)
+
+
+def test_score_averages_pairs_and_normalises():
+    truth = [fs("g1"), fs("g2")]
+    mean = (1.0 + (1 - 1 / 33 - 0.5)) / 2
+    assert score([fs("g1"), fs("g2")], truth, 33, 1.0) == pytest.approx(mean)
+    assert score([fs("g1")], truth, 33, 0.5) == pytest.approx(mean / 0.5)
+    assert score([], [fs("g1")], 33, 1.0) == pytest.approx(1 - 34 / 66)  # no fault = {{}}
+
+
+@needs_dxc
+def test_normalization_factor_is_the_score_of_the_ambiguity_group():
+    s = load_scenario(DXC / "scenarios/74L85/74L85.000.scn")
+    assert s.ambiguity_group == (fs("gate107"), fs("gate97"))
+    assert s.injected == (fs("gate107"),)
+    assert s.observations["o2"] is False and s.observations["i1"] is True
+    assert score(s.ambiguity_group, s.ambiguity_group, 33, s.normalization) == pytest.approx(1.0)
+
+
+@needs_dxc
+def test_catalog_and_scenario_on_74L85():
+    circuit = load_catalog(DXC / "models/74L85.xml")
+    assert len(circuit.gates) == 33 and len(circuit.ports) == 14
+    r = CircuitDiagnoser(circuit).run(load_scenario(DXC / "scenarios/74L85/74L85.000.scn"))
+    assert set(r.diagnoses) == {fs("gate107"), fs("gate97")}
+    assert r.score == pytest.approx(1.0)
+
+
+@needs_dxc
+def test_scenario_whose_ground_truth_timed_out_is_unscored():
+    s = load_scenario(DXC / "scenarios/c432/c432.040.scn")
+    assert s.ambiguity_group is None and not s.scored
+
+
+def test_bad_catalog_and_scenario_errors(tmp_path: Path):
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<systemCatalog><oops></systemCatalog>")
+    with pytest.raises(ConfigError, match="cannot read DXC system catalog"):
+        load_catalog(bad)
+    scn = tmp_path / "x.scn"
+    scn.write_text("sensors @0 { i1 = maybe };\nambiguityGroup @1 diagnoses = { { g } };\n")
+    with pytest.raises(ConfigError, match="non-boolean"):
+        load_scenario(scn)
+
+
+@needs_dxc
+def test_cli_prints_scores_and_baselines(capsys):
+    assert main(["dxc", "--model", "74L85", "--scenarios", "3", "--root", str(DXC)]) == 0
+    out = capsys.readouterr().out
+    assert "74L85.002" in out and "mean score 1.000 over 3 scored scenarios" in out
+    assert "single-fault simulation 0.749" in out
+    assert main(["dxc", "--model", "nope", "--root", str(DXC)]) == 2
