@@ -1,0 +1,181 @@
+"""Crash safety: SIGKILL during heavy writing, 20 times; a full disk; the log survives."""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from blackbox.model import BlackBoxEvent, Code, Observation, Resource
+from blackbox.record import Recorder, Store
+
+COMMIT = 0.25
+# Writing one commit interval's rows takes part of the next interval; scheduling on a
+# two-core machine adds a little more. The loss bound below is one interval plus this.
+MARGIN = 0.25
+
+WRITER = """
+import sys, time
+from blackbox.model import Code, Observation, Resource
+from blackbox.record import Recorder
+run = int(sys.argv[2])
+rec = Recorder(sys.argv[1], robot_id="crash", commit_interval=float(sys.argv[3]), snapshot=None)
+resources = [Resource(topic=f"/t{k}") for k in range(50)]
+print("ready", flush=True)
+seq = 0
+while True:  # 2,000 observations a second, each a state change, so each is logged
+    batch = []
+    for _ in range(100):
+        code = Code.GENERAL_OK if (seq // 50) % 2 else Code.NO_STATE_FITS
+        batch.append(Observation(time.time(), "hz", resources[seq % 50], code,
+                                 values={"run": run, "seq": seq}))
+        seq += 1
+    rec.on_observations(time.time(), batch)
+    time.sleep(0.05)
+"""
+
+
+def _env() -> dict[str, str]:
+    src = str(Path(__file__).resolve().parent.parent / "src")
+    return {**os.environ, "PYTHONPATH": src + os.pathsep + os.environ.get("PYTHONPATH", "")}
+
+
+@pytest.mark.slow
+def test_sigkill_during_heavy_writing_loses_at_most_one_commit_interval(tmp_path: Path) -> None:
+    log = tmp_path / "log.db"
+    rng = random.Random(5)
+    runs = 20
+    for run in range(runs):
+        proc = subprocess.Popen([sys.executable, "-c", WRITER, str(log), str(run), str(COMMIT)],
+                                stdout=subprocess.PIPE, env=_env())
+        try:
+            assert proc.stdout is not None
+            assert proc.stdout.readline().strip() == b"ready"
+            time.sleep(rng.uniform(0.4, 1.2))
+            killed_at = time.time()
+            proc.send_signal(signal.SIGKILL)
+        finally:
+            proc.kill()
+            proc.wait(timeout=30)
+        assert proc.returncode == -signal.SIGKILL
+
+        with Store.open(log) as store:  # opening replays the WAL, as the next start would
+            assert store.integrity_check() == "ok"
+            newest, count = store.execute(
+                "SELECT max(time), count(*) FROM entries "
+                "WHERE json_extract(payload, '$.values.run') = ?", (run,)).fetchone()
+            assert count > 0, f"run {run}: nothing committed"
+            lost = killed_at - newest
+            assert lost <= COMMIT + MARGIN, f"run {run}: lost the last {lost:.3f} s"
+            seqs = [r[0] for r in store.execute(
+                "SELECT json_extract(payload, '$.values.seq') FROM entries "
+                "WHERE json_extract(payload, '$.values.run') = ? ORDER BY id", (run,))]
+            assert seqs == list(range(len(seqs))), "a committed prefix, without holes"
+
+    with Store.open(log, readonly=True) as store:
+        starts = [e for e in store.query(kinds=["blackbox_event"])
+                  if e.payload.get("event") == "start"]
+        assert len(starts) == runs  # every start appended to the same log
+        ids = [e.id for e in store.query()]
+        assert len(ids) == len(set(ids))
+
+
+@pytest.fixture
+def small_filesystem(tmp_path: Path) -> Iterator[Path]:
+    """A real 8 MiB tmpfs, so the disk really runs full (needs root, as in CI)."""
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    result = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", f"bb-{uuid.uuid4().hex[:8]}",
+                             str(mnt)], capture_output=True, text=True)
+    if result.returncode != 0:
+        pytest.skip(f"cannot mount a size-limited tmpfs here: {result.stderr.strip()}")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+def _fill(directory: Path) -> Path:
+    filler = directory / "filler"
+    chunk = b"\xff" * 65536
+    with filler.open("wb") as fh:
+        try:
+            while True:
+                fh.write(chunk)
+                fh.flush()
+        except OSError:
+            pass
+    return filler
+
+
+def test_full_disk_is_reported_observation_continues_and_writing_resumes(
+        small_filesystem: Path) -> None:
+    log = small_filesystem / "log.db"
+    events: list[BlackBoxEvent] = []
+    rec = Recorder(log, robot_id="r1", commit_interval=0.05, retry_interval=0.05,
+                   snapshot=None, on_self_event=events.append, queue_limit=1_000_000)
+    t = [1_700_000_000.0]
+    batches = [0]
+
+    def observe(n: int = 200) -> None:
+        code = Code.NO_STATE_FITS if batches[0] % 2 else Code.GENERAL_OK
+        batches[0] += 1
+        batch = []
+        for k in range(n):  # each a state change of its channel, ~300 bytes of payload
+            t[0] += 0.001
+            batch.append(Observation(t[0], "hz", Resource(topic=f"/t{k}"), code,
+                                     message="x" * 250))
+        rec.on_observations(t[0], batch)  # must never raise or block
+
+    observe()
+    deadline = time.monotonic() + 20
+    while rec.written < 200:
+        assert time.monotonic() < deadline
+        time.sleep(0.02)
+
+    filler = _fill(small_filesystem)
+    deadline = time.monotonic() + 20
+    while not rec.failing:
+        assert time.monotonic() < deadline, "the full disk was never noticed"
+        observe()
+        time.sleep(0.02)
+    observe()  # delivers the self-event on this (the pipeline's) thread
+    full_since = t[0]
+    health = rec.health()
+    assert health.code == Code.GENERAL_ERROR
+    assert health.resource == Resource(node="/blackbox/recorder")
+    assert "full" in health.message
+    assert [(e.kind, e.component) for e in events] == [("storage_error", "blackbox/recorder")]
+    for _ in range(10):
+        observe()
+    full_until = t[0]
+
+    filler.unlink()  # space returns
+    deadline = time.monotonic() + 20
+    while rec.failing:
+        assert time.monotonic() < deadline, "writing did not resume"
+        time.sleep(0.02)
+    observe()
+    assert [e.kind for e in events] == ["storage_error", "storage_resumed"]
+    assert rec.health().code == Code.GENERAL_OK
+    rec.close()
+
+    with Store.open(log, readonly=True) as store:
+        assert store.integrity_check() == "ok"
+        own = [e.payload["event"] for e in store.query(kinds=["blackbox_event"])]
+        assert own[:1] == ["start"] and "storage_error" in own and "storage_resumed" in own
+        # Nothing was dropped: the backlog held what arrived while the disk was full.
+        assert rec.dropped == 0
+        changes = store.count("observation") + store.count("exceedance")
+        assert changes == 200 * batches[0]
+        assert store.count() == rec.written
+        during = list(store.query(start=full_since, end=full_until, kinds=["exceedance"]))
+        assert len(during) >= 200 * 5
