@@ -16,6 +16,7 @@ from pathlib import Path
 
 from blackbox.config.loader import LoadedConfig, build_observers, load_config
 from blackbox.config.node import ConfigError
+from blackbox.diagnose.live import DiagnosisSettings, LiveDiagnoser
 from blackbox.output.jsonlines import JsonLinesSink
 from blackbox.output.live import LiveStatusView
 from blackbox.pipeline import Pipeline, RunStats
@@ -42,6 +43,7 @@ class RunOptions:
     faults: str | None = None
     seed: int = 1
     ground_truth: Path | None = None
+    diagnosis: bool = True
     extra_sinks: list[Sink] = field(default_factory=list)
 
 
@@ -113,8 +115,12 @@ def build(options: RunOptions) -> BlackBox:
     if options.events is not None:
         sinks.append(JsonLinesSink(options.events, observations=False, diagnoses=False))
     sinks.extend(options.extra_sinks)
+    settings = DiagnosisSettings.from_config(config.sections.get("diagnosis"),
+                                             Path(options.config).parent)
+    diagnoser = (LiveDiagnoser(observers, settings)
+                 if options.diagnosis and settings.enabled else None)
     source = open_robot(options)
-    pipeline = Pipeline(source, observers, sinks)
+    pipeline = Pipeline(source, observers, sinks, diagnoser=diagnoser)
     return BlackBox(config, pipeline, options)
 
 

@@ -35,7 +35,8 @@ from blackbox.sources.base import (
 
 
 class Diagnoser(Protocol):
-    """What the pipeline needs from a diagnosis engine."""
+    """What the pipeline needs from a diagnosis engine. A diagnoser that also has
+    ``on_graph(graph)`` receives every graph snapshot (to follow the robot's structure)."""
 
     def update(self, now: float, observations: Sequence[Observation]) -> Diagnosis | None: ...
 
@@ -65,13 +66,11 @@ class Pipeline:
         observers: Sequence[Observer],
         sinks: Sequence[Sink] = (),
         diagnoser: Diagnoser | None = None,
-        diagnoser_factory: Callable[[GraphSnapshot], Diagnoser | None] | None = None,
     ) -> None:
         self.source = source
         self.observers = list(observers)
         self.sinks = list(sinks)
         self.diagnoser = diagnoser
-        self._diagnoser_factory = diagnoser_factory
         self.stats = RunStats()
         self._by_topic: dict[str, list[Callable[[MessageArrival], None]]] = defaultdict(list)
         self._by_node_resources: dict[str, list[Observer]] = defaultdict(list)
@@ -210,8 +209,12 @@ class Pipeline:
         self.latest_graph = graph
         for obs in self._graph:
             obs.on_graph(graph)
-        if self.diagnoser is None and self._diagnoser_factory is not None:
-            self.diagnoser = self._diagnoser_factory(graph)
+        on_graph = getattr(self.diagnoser, "on_graph", None)
+        if on_graph is not None:
+            try:
+                on_graph(graph)
+            except Exception as exc:
+                self._report_error("diagnosis", type(self.diagnoser).__name__, exc, graph.time)
 
     def _evaluate(self, observer: Observer, now: float) -> list[Observation]:
         self.stats.evaluations += 1

@@ -1,0 +1,105 @@
+"""The diagnosis stage of a running black box.
+
+Without a model file the robot model is derived from the live graph, so a robot needs no
+extra configuration; when nodes or topics appear or vanish at run time the model is derived
+again and the latest observations are replayed into it. With a tug_diagnosis model file the
+model is fixed.
+
+Configured by the native ``diagnosis:`` section::
+
+    diagnosis:
+      enabled: true             # default
+      model: robot_model.yaml   # optional tug_diagnosis file, relative to the config file
+      priors: {/usb_cam: 0.2, topic: 0.005}   # component names or kinds -> probability
+      max_cardinality: 4        # largest diagnosis searched
+      time_budget: 0.1          # seconds per re-diagnosis (anytime: best so far)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from blackbox.config.node import ConfigNode
+from blackbox.diagnose.engine import DiagnosisEngine
+from blackbox.diagnose.robot_model import ObservedResource
+from blackbox.model import Diagnosis, Observation
+from blackbox.sources.base import GraphSnapshot
+
+
+@dataclass(frozen=True)
+class DiagnosisSettings:
+    enabled: bool = True
+    model: Path | None = None
+    priors: Mapping[str, float] = field(default_factory=dict)
+    max_cardinality: int | None = 4
+    time_budget: float = 0.1
+
+    @classmethod
+    def from_config(cls, node: ConfigNode | None, base_dir: Path) -> DiagnosisSettings:
+        if node is None:
+            return cls()
+        node.check_keys(["enabled", "model", "priors", "max_cardinality", "time_budget"])
+        enabled = node["enabled"].bool() if node.get("enabled") is not None else True
+        model = None
+        if node.get("model") is not None:
+            model = Path(node["model"].str())
+            model = model if model.is_absolute() else base_dir / model
+            if not model.is_file():
+                raise node["model"].error(f"diagnosis model {model} not found")
+        priors: dict[str, float] = {}
+        if node.get("priors") is not None:
+            for name, value in node["priors"].items():
+                priors[name] = value.float(min=0.0, min_exclusive=True, max=0.999999)
+        max_card = (node["max_cardinality"].int(min=1) if node.get("max_cardinality")
+                    is not None else 4)
+        budget = (node["time_budget"].float(min=0.0, min_exclusive=True)
+                  if node.get("time_budget") is not None else 0.1)
+        return cls(enabled, model, priors, max_card, budget)
+
+
+def _structure(graph: GraphSnapshot) -> frozenset[tuple[str, tuple[str, ...], tuple[str, ...]]]:
+    return frozenset((t.name, tuple(sorted(t.publishers)), tuple(sorted(t.subscribers)))
+                     for t in graph.topics.values())
+
+
+class LiveDiagnoser:
+    """A :class:`DiagnosisEngine` that follows the robot's graph."""
+
+    def __init__(self, observers: Sequence[ObservedResource], settings: DiagnosisSettings
+                 ) -> None:
+        self.observers = list(observers)
+        self.settings = settings
+        self.engine: DiagnosisEngine | None = None
+        self._structure: frozenset | None = None
+        self._latest: dict[tuple[str, object], Observation] = {}
+        if settings.model is not None:
+            self.engine = DiagnosisEngine.from_model_file(settings.model, settings.priors,
+                                                          **self._engine_kwargs())
+
+    def _engine_kwargs(self) -> dict[str, object]:
+        return {"max_cardinality": self.settings.max_cardinality,
+                "time_budget": self.settings.time_budget}
+
+    def on_graph(self, graph: GraphSnapshot) -> None:
+        if self.settings.model is not None:
+            return
+        structure = _structure(graph)
+        if structure == self._structure:
+            return
+        self._structure = structure
+        self.engine = DiagnosisEngine.from_graph(graph, self.observers, self.settings.priors,
+                                                 **self._engine_kwargs())
+        if self._latest:
+            self.engine.update(graph.time, list(self._latest.values()))
+
+    def update(self, now: float, observations: Sequence[Observation]) -> Diagnosis | None:
+        for obs in observations:
+            self._latest[obs.key()] = obs
+        if self.engine is None:
+            return None
+        return self.engine.update(now, observations)
+
+    def current(self) -> Diagnosis | None:
+        return None if self.engine is None else self.engine.current()
