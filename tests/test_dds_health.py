@@ -259,3 +259,22 @@ def test_foreign_and_garbage_samples_do_not_crash_the_listener(cleanup):
     # The intruder's well-formed but meaningless samples stay under their own resource id.
     assert "#12345" in state["robots"]
     assert set(state["robots"]) == {"thesis", "#12345"}
+
+
+def test_run_ibit_evaluates_and_answers_with_the_reference_number(cleanup, monkeypatch):
+    from blackbox.transport.ibit import request_ibit
+    from blackbox.transport.participant import Bus, TransportSettings
+
+    monkeypatch.delenv("CYCLONEDDS_URI", raising=False)
+    domain = fresh_domain()
+    box = BlackBox("thesis", domain)
+    cleanup.append(box)
+    box.send("fault")
+    bus = Bus.open(TransportSettings(domain))
+    try:
+        result = request_ibit(bus, "thesis", timeout=10.0)
+    finally:
+        bus.close()
+    assert result is not None
+    assert (result.A_observations, result.A_failed) == (5, 0)  # the driver's test is healthy
+    assert result.A_report[0] == "OK hz /usb_cam/image_raw [/usb_cam] GENERAL_OK"
