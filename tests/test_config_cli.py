@@ -9,6 +9,7 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -26,8 +27,17 @@ def check_config(path: Path) -> subprocess.CompletedProcess[str]:
                           capture_output=True, text=True, timeout=60, check=False)
 
 
-def located_error(path: Path) -> re.Match[str]:
-    result = check_config(path)
+@pytest.fixture(scope="module")
+def bad_results() -> dict[str, subprocess.CompletedProcess[str]]:
+    """``check-config`` on every bad file, run two at a time to keep this file fast."""
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        names = sorted(p.name for p in BAD.glob("*.yaml"))
+        return dict(zip(names, pool.map(lambda n: check_config(BAD / n), names), strict=True))
+
+
+def located_error(path: Path,
+                  result: subprocess.CompletedProcess[str] | None = None) -> re.Match[str]:
+    result = result or check_config(path)
     assert "Traceback" not in result.stderr
     assert result.returncode == 2, result.stdout + result.stderr
     assert result.stdout == ""
@@ -79,15 +89,17 @@ def test_every_bad_file_is_in_the_table() -> None:
 
 @pytest.mark.parametrize(("name", "line", "path", "message"), BAD_FILES,
                          ids=[name for name, *_ in BAD_FILES])
-def test_bad_configuration(name: str, line: int, path: str | None, message: str) -> None:
-    error = located_error(BAD / name)
+def test_bad_configuration(bad_results: dict[str, subprocess.CompletedProcess[str]], name: str,
+                           line: int, path: str | None, message: str) -> None:
+    error = located_error(BAD / name, bad_results[name])
     assert int(error["line"]) == line
     assert error["path"] == path
     assert message in error["msg"]
 
 
-def test_duplicate_state_number() -> None:
-    error = located_error(BAD / "duplicate_state_number.yaml")
+def test_duplicate_state_number(bad_results: dict[str, subprocess.CompletedProcess[str]]) -> None:
+    name = "duplicate_state_number.yaml"
+    error = located_error(BAD / name, bad_results[name])
     assert (int(error["line"]), error["path"]) == (9, "observers[0].states[1].number")
     assert "duplicate state number 1" in error["msg"]
 
