@@ -57,7 +57,7 @@ class DiagnosisEngine:
     """
 
     def __init__(self, model: RobotModel, priors: Mapping[str, float] | None = None, *,
-                 max_cardinality: int | None = 4, time_budget: float = 0.1,
+                 max_cardinality: int | None = None, time_budget: float = 0.1,
                  cache_size: int = 256) -> None:
         self.priors = dict(priors or {})
         for name, p in self.priors.items():
