@@ -95,3 +95,19 @@ def test_demo_runs_fast_with_random_faults_and_records_them(tmp_path: Path) -> N
     faulty = [r for r in read_records(tmp_path / "observations.jsonl") if r["faulty"]]
     assert faulty
     assert "FAULT" in result.stdout
+
+
+def test_run_keeps_a_health_log_with_failures_and_their_snapshots(tmp_path: Path) -> None:
+    faults = tmp_path / "faults.yaml"
+    faults.write_text("faults:\n  - {kind: kill, component: /usb_cam, start: 10, end: 20}\n")
+    db = tmp_path / "bb.db"
+    result = blackbox("run", "--duration", "30", "--simulated-clock", "--quiet",
+                      "--faults", str(faults), "--record", str(db))
+    assert result.returncode == 0, result.stderr
+    query = blackbox("log", "query", "--db", str(db), "--kind", "failure", "--format", "jsonl")
+    assert query.returncode == 0, query.stderr
+    failures = [json.loads(line) for line in query.stdout.splitlines()]
+    detected = [f for f in failures if f["payload"].get("category") == "detection"]
+    assert detected and detected[0]["payload"]["components"] == ["/usb_cam"]
+    snapshots = list((tmp_path / "bb.db.snapshots").glob("*.mcap"))
+    assert snapshots, "a failure writes the flight-recorder snapshot"

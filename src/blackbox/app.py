@@ -6,6 +6,7 @@ so there is exactly one place that knows how the stages plug together.
 
 from __future__ import annotations
 
+import dataclasses
 import signal
 import threading
 import time
@@ -20,6 +21,8 @@ from blackbox.diagnose.live import DiagnosisSettings, LiveDiagnoser
 from blackbox.output.jsonlines import JsonLinesSink
 from blackbox.output.live import LiveStatusView
 from blackbox.pipeline import Pipeline, RunStats
+from blackbox.record.recorder import Recorder, recorder_options
+from blackbox.selfmonitor import ProbeObserver
 from blackbox.sinks import Sink
 from blackbox.sources import open_source
 from blackbox.sources.base import Source
@@ -44,6 +47,7 @@ class RunOptions:
     seed: int = 1
     ground_truth: Path | None = None
     diagnosis: bool = True
+    record: Path | None = None
     extra_sinks: list[Sink] = field(default_factory=list)
 
 
@@ -115,13 +119,33 @@ def build(options: RunOptions) -> BlackBox:
     if options.events is not None:
         sinks.append(JsonLinesSink(options.events, observations=False, diagnoses=False))
     sinks.extend(options.extra_sinks)
-    settings = DiagnosisSettings.from_config(config.sections.get("diagnosis"),
-                                             Path(options.config).parent)
+    base_dir = Path(options.config).parent
+    settings = DiagnosisSettings.from_config(config.sections.get("diagnosis"), base_dir)
     diagnoser = (LiveDiagnoser(observers, settings)
                  if options.diagnosis and settings.enabled else None)
     source = open_robot(options)
+    recorder = None
+    if options.record is not None or "recorder" in config.sections:
+        recorder = open_recorder(options, config, source)
+        sinks.append(recorder)
+        observers.append(ProbeObserver(
+            "recorder", lambda now: dataclasses.replace(recorder.health(), time=now)))
     pipeline = Pipeline(source, observers, sinks, diagnoser=diagnoser)
+    if recorder is not None:
+        recorder.on_self_event = pipeline.emit_event
+        recorder.record_config(Path(options.config).read_text(encoding="utf-8"),
+                               source=str(options.config))
     return BlackBox(config, pipeline, options)
+
+
+def open_recorder(options: RunOptions, config: LoadedConfig, source: Source) -> Recorder:
+    """The on-board store; snapshots are ROS 1 bags for ROS 1 robots, MCAP otherwise."""
+    kwargs = recorder_options(config.sections.get("recorder"), Path(options.config).parent)
+    if options.record is not None:
+        kwargs["path"] = options.record
+    kwargs.setdefault("snapshot_format", "ros1" if options.source.startswith("ros1") else "mcap")
+    Path(kwargs["path"]).parent.mkdir(parents=True, exist_ok=True)
+    return Recorder(**kwargs, robot_id=config.robot_id, schema_lookup=source.schema)
 
 
 @contextmanager

@@ -241,6 +241,10 @@ class Pipeline:
                 for sink in self.sinks:
                     self._call(sink, "on_diagnosis", diagnosis)
 
+    def emit_event(self, event: BlackBoxEvent) -> None:
+        """Hand one of the black box's own events to every sink (pipeline thread only)."""
+        self._emit_event(event)
+
     def _emit_event(self, event: BlackBoxEvent) -> None:
         for sink in self.sinks:
             self._call(sink, "on_event", event)

@@ -34,6 +34,7 @@ def demo_command(args: argparse.Namespace) -> int:
         simulated_clock=args.fast, faults="random", seed=args.seed,
         ground_truth=out / "ground_truth.jsonl", observations=out / "observations.jsonl",
         diagnoses=out / "diagnoses.jsonl", events=out / "events.jsonl",
+        record=out / "blackbox.db",
         live_interactive=None if not args.fast else False,
     )
     blackbox = build(options)

@@ -36,6 +36,8 @@ def add_run_arguments(p: argparse.ArgumentParser, default_config: Path = DEFAULT
                    help="write every diagnosis as JSON lines (schema: docs/observations.md)")
     p.add_argument("--events", type=Path, default=None, metavar="FILE",
                    help="write the black box's own events as JSON lines")
+    p.add_argument("--record", type=Path, default=None, metavar="DB",
+                   help="keep the health log in this SQLite file (see docs/recorder.md)")
     p.add_argument("--quiet", action="store_true", help="no live status view")
 
 
@@ -45,6 +47,7 @@ def options_from_args(args: argparse.Namespace) -> RunOptions:
         simulated_clock=args.simulated_clock, observations=args.observations,
         diagnoses=args.diagnoses, events=args.events, live=not args.quiet,
         faults=args.faults, seed=args.seed, ground_truth=args.ground_truth,
+        record=args.record,
     )
 
 

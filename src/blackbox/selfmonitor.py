@@ -1,0 +1,33 @@
+"""The black box watching itself.
+
+Its own parts (the recorder, the DDS link) report their health as ordinary observations,
+so a full disk or a dead link shows up in the live view, the log, the diagnosis and the
+health messages exactly like a fault of the robot.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from blackbox.model import Observation
+from blackbox.observe.base import ObserverBase
+from blackbox.sources.base import Interest
+
+
+class ProbeObserver(ObserverBase):
+    """Evaluates a health probe of one of the black box's own components."""
+
+    def __init__(self, type_name: str, probe: Callable[[float], Observation],
+                 interval: float = 1.0) -> None:
+        self.type_name = type_name  # type: ignore[misc]
+        self.probe = probe
+        self.interval = interval
+
+    def interest(self) -> Interest:
+        return Interest()
+
+    def evaluate(self, now: float) -> list[Observation]:
+        return [self.probe(now)]
+
+    def describe(self) -> str:
+        return f"{self.type_name}: the black box's own {self.type_name} health"
