@@ -27,6 +27,9 @@ class ConfigError(Exception):
         self.line = line
         self.column = column
         self.path = path
+        # Where this node's key stands, for errors about the key itself (unknown keys).
+        self.key_line = line
+        self.key_column = column
 
     def __str__(self) -> str:
         where = f"{self.file}:{self.line}:{self.column}"
@@ -47,7 +50,8 @@ def _scalar_value(node: yaml.Node) -> Any:
 class ConfigNode:
     """One node of a YAML document with its location."""
 
-    __slots__ = ("_children", "_kind", "_value", "column", "file", "line", "path")
+    __slots__ = ("_children", "_kind", "_value", "column", "file", "key_column", "key_line",
+                 "line", "path")
 
     def __init__(self, kind: str, value: Any, file: str, line: int, column: int, path: str) -> None:
         self._kind = kind
@@ -75,16 +79,19 @@ class ConfigNode:
     def parse(cls, text: str, file: str = "<config>") -> ConfigNode:
         try:
             root = yaml.compose(text, Loader=yaml.SafeLoader)
+            if root is None:
+                return cls(_SCALAR, None, file, 1, 1, "")
+            return cls._from_yaml(root, file, "")
         except yaml.MarkedYAMLError as exc:
             mark = exc.problem_mark or exc.context_mark
             line, col = (mark.line + 1, mark.column + 1) if mark else (0, 0)
             problem = exc.problem or exc.context or "invalid YAML"
+            ctx = exc.context_mark
+            if exc.problem_mark is not None and ctx is not None and ctx.line != mark.line:
+                problem += f" ({exc.context or 'construct'} started at line {ctx.line + 1})"
             raise ConfigError(f"invalid YAML: {problem}", file, line, col) from None
         except yaml.YAMLError as exc:
             raise ConfigError(f"invalid YAML: {exc}", file) from None
-        if root is None:
-            return cls(_SCALAR, None, file, 1, 1, "")
-        return cls._from_yaml(root, file, "")
 
     @classmethod
     def _from_yaml(cls, node: yaml.Node, file: str, path: str) -> ConfigNode:
@@ -97,7 +104,10 @@ class ConfigNode:
                 if key in children:
                     raise ConfigError(f"duplicate key {key!r}", file, knode.start_mark.line + 1,
                                       knode.start_mark.column + 1, child_path)
-                children[key] = cls._from_yaml(vnode, file, child_path)
+                child = cls._from_yaml(vnode, file, child_path)
+                child.key_line = knode.start_mark.line + 1
+                child.key_column = knode.start_mark.column + 1
+                children[key] = child
             return cls(_MAP, children, file, line, col, path)
         if isinstance(node, yaml.SequenceNode):
             items = [cls._from_yaml(v, file, f"{path}[{i}]") for i, v in enumerate(node.value)]
@@ -189,8 +199,8 @@ class ConfigNode:
                 close = difflib.get_close_matches(key, allowed, n=1)
                 hint = (f"; did you mean {close[0]!r}?" if close
                         else f"; allowed: {', '.join(sorted(allowed))}")
-                raise ConfigError(f"unknown key {key!r}{hint}", child.file, child.line,
-                                  child.column, child.path)
+                raise ConfigError(f"unknown key {key!r}{hint}", child.file, child.key_line,
+                                  child.key_column, child.path)
 
     # ---- lists ------------------------------------------------------------------------------
 
