@@ -1,1 +1,57 @@
-"""evaluate."""
+"""Scoring the black box against injected faults (thesis section 6.2; docs/evaluation.md)."""
+
+from blackbox.evaluate.campaign import (
+    KIND_SETS,
+    CampaignResult,
+    CampaignSettings,
+    RunResult,
+    delay_summary,
+    parse_kinds,
+    run_campaign,
+    run_one,
+)
+from blackbox.evaluate.metrics import (
+    DEFAULT_GRACE,
+    THESIS_AFTER,
+    THESIS_BEFORE,
+    Confusion,
+    DiagnosisScore,
+    Episode,
+    FaultOutcome,
+    KindSummary,
+    RunScore,
+    ThesisResult,
+    by_kind,
+    episodes,
+    fault_components,
+    percentile,
+    resource_components,
+    score_run,
+)
+
+__all__ = [
+    "DEFAULT_GRACE",
+    "KIND_SETS",
+    "THESIS_AFTER",
+    "THESIS_BEFORE",
+    "CampaignResult",
+    "CampaignSettings",
+    "Confusion",
+    "DiagnosisScore",
+    "Episode",
+    "FaultOutcome",
+    "KindSummary",
+    "RunResult",
+    "RunScore",
+    "ThesisResult",
+    "by_kind",
+    "delay_summary",
+    "episodes",
+    "fault_components",
+    "parse_kinds",
+    "percentile",
+    "resource_components",
+    "run_campaign",
+    "run_one",
+    "score_run",
+]
