@@ -254,7 +254,7 @@ class CircuitDiagnoser:
                                                              int]:
         """Minimum-cardinality diagnoses found within ``limit`` seconds."""
         start = time.perf_counter()
-        deadline = start + 0.98 * limit
+        deadline = start + 0.9 * limit
         facts = self.facts(observations)
 
         def prover(path: frozenset[str]) -> frozenset[str] | None:
