@@ -165,12 +165,23 @@ class ThesisRobot:
             raise RuntimeError(f"setParam {key}: {msg}")
 
     def stop(self) -> None:
-        for name in list(self.nodes):
-            proc = self.nodes[name]
-            with contextlib.suppress(OSError):
-                os.kill(proc.pid, signal.SIGCONT)
-            self.stop_node(name)
-        self.stop_master()
+        """Interrupt every node and the master at once, then wait for them (SIGKILL at 5 s)."""
+        procs = list(self.nodes.values()) + ([self.core] if self.core is not None else [])
+        self.nodes.clear()
+        self.core = None
+        for proc in procs:
+            if proc.poll() is None:
+                with contextlib.suppress(OSError):
+                    os.killpg(proc.pid, signal.SIGCONT)
+                    os.killpg(proc.pid, signal.SIGINT)
+        deadline = time.monotonic() + 5.0
+        for proc in procs:
+            try:
+                proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(OSError):
+                    os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(timeout=5.0)
 
     def __enter__(self) -> ThesisRobot:
         return self

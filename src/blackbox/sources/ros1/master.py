@@ -172,6 +172,7 @@ class GraphPoller:
         self.state = SystemState()
         self.types: dict[str, str] = {}
         self.master_ok: bool | None = None
+        self._registered: set[str] = set()
 
     def close(self) -> None:
         self._pool.shutdown(wait=False, cancel_futures=True)
@@ -181,44 +182,60 @@ class GraphPoller:
         return st.uri if st is not None else None
 
     def refresh(self) -> None:
-        """One round: ask the master and probe every node (see :meth:`snapshot`)."""
-        self._refresh_master()
-        registered = self.state.node_names()
-        for name in registered - self.nodes.keys():
+        """One round: ask the master and probe every node (see :meth:`snapshot`).
+
+        A node that is still alive but no longer registered (the master restarted; rospy
+        and roscpp nodes do not register again) keeps its last known topics.
+        """
+        previous = self.state
+        fresh = self._refresh_master()
+        if fresh is not None:
+            self._registered = fresh.node_names()
+        for name in self._registered - self.nodes.keys():
             self.nodes[name] = NodeState(name)
         for name, st in self.nodes.items():
-            st.registered = name in registered
+            st.registered = name in self._registered
         self._probe(list(self.nodes.values()))
         for name in [n for n, st in self.nodes.items() if not st.registered and not st.alive]:
             del self.nodes[name]
+        if fresh is None:
+            return
+        orphans = {n for n, st in self.nodes.items() if st.alive and not st.registered}
+        for group, old in ((fresh.publishers, previous.publishers),
+                           (fresh.subscribers, previous.subscribers)):
+            for topic, members in old.items():
+                kept = orphans.intersection(members)
+                if kept:
+                    group[topic] = tuple(sorted(kept.union(group.get(topic, ()))))
+        self.state = fresh
 
     def snapshot(self, now: float) -> GraphSnapshot:
         nodes = {n: NodeInfo(n, st.alive, st.pid if st.alive else None,
                              host_of(st.uri) if st.uri else None)
                  for n, st in sorted(self.nodes.items())}
-        names = sorted(self.state.publishers.keys() | self.state.subscribers.keys()
-                       | self.types.keys())
+        names = sorted(self.state.publishers.keys() | self.state.subscribers.keys())
         topics = {t: TopicInfo(t, self.types.get(t, ""), self.state.publishers.get(t, ()),
                                self.state.subscribers.get(t, ()))
                   for t in names}
         return GraphSnapshot(now, nodes, topics)
 
-    def _refresh_master(self) -> None:
+    def _refresh_master(self) -> SystemState | None:
+        """The master's current state, or ``None`` (and a report) when it is unreachable."""
         try:
             state = self.master.system_state()
             topics = state.publishers.keys() | state.subscribers.keys()
             if not topics <= self.types.keys() or self.master_ok is not True:
-                self.types = self.master.topic_types()
+                self.types.update(self.master.topic_types())
         except RosApiError as exc:
             if self.master_ok is not False:
                 self._report("master_lost", self.master.uri,
                              f"ROS master unreachable, keeping the last known graph: {exc}")
             self.master_ok = False
-            return
+            return None
         if self.master_ok is False:
             self._report("master_back", self.master.uri, "ROS master reachable again")
         self.master_ok = True
-        self.state = state
+        return state
 
     def _probe(self, states: Iterable[NodeState]) -> None:
         futures = [(st, self._pool.submit(self._probe_one, st)) for st in states]
