@@ -143,12 +143,16 @@ def _json_default(value: Any) -> Any:
     return str(value)
 
 
+_ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_json_default)
+_LENIENT = json.JSONEncoder(separators=(",", ":"), default=_json_default)
+
+
 def dumps(payload: dict[str, Any]) -> str:
     """Compact JSON; non-finite floats become strings because JSON has no NaN."""
     try:
-        return json.dumps(payload, separators=(",", ":"), allow_nan=False, default=_json_default)
+        return _ENCODER.encode(payload)
     except ValueError:
-        return json.dumps(_finite(payload), separators=(",", ":"), default=_json_default)
+        return _LENIENT.encode(_finite(payload))
 
 
 def _finite(value: Any) -> Any:
@@ -305,20 +309,26 @@ class Store:
         return int(row[0] or 0) + 1
 
     def _insert(self, rows: Sequence[Row], numbered: list[Row] | None = None) -> list[int]:
+        if not rows:
+            return []
         db = self._db
-        cur = db.cursor()
-        ids: list[int] = []
+        channel_id = self._channel_id
+        params = []
+        version: int | None = None
         for r in rows:
             if r.kind == "config" and r.payload.get("version") is None:
-                r.payload["version"] = self._next_config_version()
+                version = self._next_config_version() if version is None else version + 1
+                r.payload["version"] = version
                 if numbered is not None:
                     numbered.append(r)
-            cid = self._channel_id(r.channel) if r.channel is not None else None
-            cur.execute("INSERT INTO entries (time, kind, channel, code, payload) "
-                        "VALUES (?, ?, ?, ?, ?)",
-                        (r.time, KINDS[r.kind], cid, r.code, dumps(r.payload)))
-            ids.append(int(cur.lastrowid or 0))
-        return ids
+            params.append((r.time, KINDS[r.kind],
+                           channel_id(r.channel) if r.channel is not None else None,
+                           r.code, dumps(r.payload)))
+        db.executemany("INSERT INTO entries (time, kind, channel, code, payload) "
+                       "VALUES (?, ?, ?, ?, ?)", params)
+        # Inside one write transaction AUTOINCREMENT ids are consecutive.
+        last = int(db.execute("SELECT last_insert_rowid()").fetchone()[0])
+        return list(range(last - len(rows) + 1, last + 1))
 
     def _rollback(self) -> None:
         with contextlib.suppress(sqlite3.Error):

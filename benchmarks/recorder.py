@@ -1,0 +1,108 @@
+"""Recorder benchmark: sustained write rate, pipeline-side cost, bytes per operating hour.
+
+1. ``Store.append`` of typical sample rows in batches (the writer thread's work), with
+   ``durability`` full (fsync per commit) and normal; sustained rows/s over ``--rows``.
+2. ``Recorder`` end to end: observations handed to ``on_observations`` (every one a state
+   change, so every one is written) until all are committed; the pipeline-side cost per
+   observation and the sustained records/s through the writer thread.
+3. ``RingBuffer.offer`` cost per raw message.
+4. Bytes per operating hour at the default policy for the thesis robot (3 nodes, 10
+   observers at 1 Hz) and a 100-topic robot (250 observers at 1 Hz), measured by recording
+   a simulated hour through the real policy and store (``blackbox log capacity``).
+
+    .venv/bin/python benchmarks/recorder.py [--rows 500000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import sqlite3
+import tempfile
+import time
+from pathlib import Path
+
+from blackbox.model import Code, Observation, Resource
+from blackbox.record import Recorder, SnapshotConfig
+from blackbox.record.retention import estimate_capacity, hundred_topic_robot, thesis_robot
+from blackbox.record.snapshot import RingBuffer
+from blackbox.record.store import Row, Store
+from blackbox.sources.base import MessageArrival
+
+
+def store_rate(tmp: Path, rows: int, batch: int, durability: str) -> float:
+    channels = [(f"/robot/topic_{k:03d}", "hz", f'{{"topic":"/robot/topic_{k:03d}"}}')
+                for k in range(100)]
+    store = Store.open(tmp / f"store-{batch}-{durability}.db", durability=durability)
+    payload = {"values": {"period": 0.066712, "period_deviation": 0.001234}, "states": [1]}
+    t0 = time.perf_counter()
+    for start in range(0, rows, batch):
+        store.append([Row(1.7e9 + i * 0.001, "sample", channels[i % 100], 0, payload)
+                      for i in range(start, min(rows, start + batch))])
+    elapsed = time.perf_counter() - t0
+    store.close()
+    return rows / elapsed
+
+
+def recorder_rate(tmp: Path, observations: int) -> tuple[float, float]:
+    rec = Recorder(tmp / "recorder.db", robot_id="bench", snapshot=None,
+                   queue_limit=observations * 2)
+    resources = [Resource(topic=f"/robot/topic_{k:03d}") for k in range(100)]
+    batches = []
+    for b in range(observations // 100):
+        code = Code.GENERAL_OK if b % 2 else Code.NO_STATE_FITS
+        batches.append([Observation(1.7e9 + b, "hz", r, code, values={"period": 0.0667})
+                        for r in resources])
+    written_before = rec.written
+    t0 = time.perf_counter()
+    for batch in batches:
+        rec.on_observations(batch[0].time, batch)
+    handed = time.perf_counter() - t0
+    while rec.written - written_before < observations:
+        time.sleep(0.01)
+    total = time.perf_counter() - t0
+    rec.close()
+    return handed / observations * 1e6, observations / total
+
+
+def ring_cost(messages: int) -> float:
+    ring = RingBuffer(SnapshotConfig(before=10.0, max_bytes=64 * 1024 * 1024))
+    data = b"m" * 2000
+    arrivals = [MessageArrival(1.7e9 + i * 0.001, f"/t{i % 20}", "/p", 2000, raw=lambda: data)
+                for i in range(messages)]
+    t0 = time.perf_counter()
+    for a in arrivals:
+        ring.offer(a)
+    return (time.perf_counter() - t0) / messages * 1e9
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rows", type=int, default=500_000)
+    args = parser.parse_args()
+    print(f"machine: {platform.machine()}, {platform.processor() or 'cpu'}, "
+          f"Python {platform.python_version()}, SQLite {sqlite3.sqlite_version}")
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        print("\n| writer | batch | durability | sustained records/s |")
+        print("|---|---:|---|---:|")
+        for batch, durability in ((1000, "full"), (10000, "full"), (1000, "normal")):
+            rate = store_rate(tmp, args.rows, batch, durability)
+            print(f"| Store.append | {batch} | {durability} | {rate:,.0f} |")
+        per_obs, rate = recorder_rate(tmp, 200_000)
+        print(f"| Recorder (on_observations -> committed) | 1 s commits | full | {rate:,.0f} |")
+        print(f"\npipeline-side cost per observation (policy + queue): {per_obs:.2f} us")
+        print(f"ring buffer offer per raw message: {ring_cost(200_000):.0f} ns")
+        print("\n| robot | observers | entries/h | bytes/h | 4000 h need | hours in 1 GB |")
+        print("|---|---:|---:|---:|---:|---:|")
+        for name, observers in (("thesis (3 nodes, 10 observers, 1 Hz)", thesis_robot()),
+                                ("100 topics + 25 nodes (250 observers, 1 Hz)",
+                                 hundred_topic_robot())):
+            est = estimate_capacity(observers, 10**9, workdir=tmp)
+            print(f"| {name} | {est.observers} | {est.entries_per_hour:,.0f} | "
+                  f"{est.bytes_per_hour:,.0f} | {4000 * est.bytes_per_hour / 1e9:.3f} GB | "
+                  f"{est.hours:,.0f} |")
+
+
+if __name__ == "__main__":
+    main()
