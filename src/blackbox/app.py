@@ -10,7 +10,7 @@ import dataclasses
 import signal
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,6 +18,7 @@ from pathlib import Path
 from blackbox.config.loader import LoadedConfig, build_observers, load_config
 from blackbox.config.node import ConfigError
 from blackbox.diagnose.live import DiagnosisSettings, LiveDiagnoser
+from blackbox.model import Observation
 from blackbox.output.jsonlines import JsonLinesSink
 from blackbox.output.live import LiveStatusView
 from blackbox.pipeline import Pipeline, RunStats
@@ -48,6 +49,8 @@ class RunOptions:
     ground_truth: Path | None = None
     diagnosis: bool = True
     record: Path | None = None
+    dds: bool = False
+    dds_domain: int | None = None
     extra_sinks: list[Sink] = field(default_factory=list)
 
 
@@ -130,12 +133,32 @@ def build(options: RunOptions) -> BlackBox:
         sinks.append(recorder)
         observers.append(ProbeObserver(
             "recorder", lambda now: dataclasses.replace(recorder.health(), time=now)))
+    pipelines: list[Pipeline] = []
+    if options.dds or "transport" in config.sections:
+        sinks.append(open_dds(options, config, recorder,
+                              lambda: pipelines[0].evaluate_all() if pipelines else []))
     pipeline = Pipeline(source, observers, sinks, diagnoser=diagnoser)
+    pipelines.append(pipeline)
     if recorder is not None:
         recorder.on_self_event = pipeline.emit_event
         recorder.record_config(Path(options.config).read_text(encoding="utf-8"),
                                source=str(options.config))
     return BlackBox(config, pipeline, options)
+
+
+def open_dds(options: RunOptions, config: LoadedConfig, recorder: Recorder | None,
+             on_ibit: Callable[[], Sequence[Observation]]) -> Sink:
+    """The UCMS health publisher; log requests are answered from the recorder's store."""
+    from blackbox.health.describe import describe_observer
+    from blackbox.transport.publisher import DdsHealthSink, transport_options
+
+    kwargs = transport_options(config.sections.get("transport"))
+    if options.dds_domain is not None:
+        kwargs["domain_id"] = options.dds_domain
+    if recorder is not None:
+        kwargs.setdefault("log_store_path", recorder.path)
+    descriptions = [describe_observer(entry) for entry in config.observers]
+    return DdsHealthSink(config.robot_id, descriptions=descriptions, on_ibit=on_ibit, **kwargs)
 
 
 def open_recorder(options: RunOptions, config: LoadedConfig, source: Source) -> Recorder:

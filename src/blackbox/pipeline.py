@@ -147,19 +147,23 @@ class Pipeline:
     def step(self, until: float) -> list[Observation]:
         """Dispatch all events up to ``until`` and evaluate the observers due by then."""
         events = self.source.poll(until)
-        self._dispatch(events)
-        observations: list[Observation] = []
-        while self._queue and self._queue[0][0] <= until:
-            due, index = heapq.heappop(self._queue)
-            observer = self.observers[index]
-            observations.extend(self._evaluate(observer, due))
-            heapq.heappush(self._queue, (due + observer.interval, index))
-        if observations:
-            self._publish(until, observations)
+        with self.lock:
+            self._dispatch(events)
+            observations: list[Observation] = []
+            while self._queue and self._queue[0][0] <= until:
+                due, index = heapq.heappop(self._queue)
+                observer = self.observers[index]
+                observations.extend(self._evaluate(observer, due))
+                heapq.heappush(self._queue, (due + observer.interval, index))
+            if observations:
+                self._publish(until, observations)
         return observations
 
     def evaluate_all(self, now: float | None = None) -> list[Observation]:
-        """Evaluate every observer now (initiated built-in test); does not reschedule."""
+        """Evaluate every observer now (initiated built-in test); does not reschedule.
+
+        Safe to call from another thread (the DDS run_IBIT service): it waits for the
+        current step to finish."""
         t = self.source.now() if now is None else now
         with self.lock:
             result: list[Observation] = []

@@ -38,6 +38,10 @@ def add_run_arguments(p: argparse.ArgumentParser, default_config: Path = DEFAULT
                    help="write the black box's own events as JSON lines")
     p.add_argument("--record", type=Path, default=None, metavar="DB",
                    help="keep the health log in this SQLite file (see docs/recorder.md)")
+    p.add_argument("--dds", action="store_true",
+                   help="publish UCMS health over DDS (loopback unless configured; docs/health.md)")
+    p.add_argument("--domain", type=int, default=None, metavar="ID",
+                   help="DDS domain id (default: transport.domain_id, else 0)")
     p.add_argument("--quiet", action="store_true", help="no live status view")
 
 
@@ -47,7 +51,7 @@ def options_from_args(args: argparse.Namespace) -> RunOptions:
         simulated_clock=args.simulated_clock, observations=args.observations,
         diagnoses=args.diagnoses, events=args.events, live=not args.quiet,
         faults=args.faults, seed=args.seed, ground_truth=args.ground_truth,
-        record=args.record,
+        record=args.record, dds=args.dds, dds_domain=args.domain,
     )
 
 
