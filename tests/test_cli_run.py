@@ -87,7 +87,7 @@ def test_bad_configuration_and_unknown_source_exit_2_without_traceback(tmp_path:
     assert "unknown source" in result.stderr and "Traceback" not in result.stderr
 
 
-def test_demo_runs_fast_with_random_faults_and_records_them(tmp_path: Path) -> None:
+def test_fast_demo_runs_with_random_faults_and_records_them(tmp_path: Path) -> None:
     result = blackbox("demo", "--fast", "--duration", "120", "--out", str(tmp_path))
     assert result.returncode == 0, result.stderr
     truth = read_records(tmp_path / "ground_truth.jsonl")
@@ -111,3 +111,12 @@ def test_run_keeps_a_health_log_with_failures_and_their_snapshots(tmp_path: Path
     assert detected and detected[0]["payload"]["components"] == ["/usb_cam"]
     snapshots = list((tmp_path / "bb.db.snapshots").glob("*.mcap"))
     assert snapshots, "a failure writes the flight-recorder snapshot"
+
+
+def test_demo_runs_black_box_and_station_as_two_processes_over_dds(tmp_path: Path) -> None:
+    result = blackbox("demo", "--duration", "8", "--out", str(tmp_path), timeout=90)
+    assert result.returncode == 0, result.stderr
+    assert "robot thesis-robot" in result.stdout  # the station saw the robot over DDS
+    assert "/usb_cam" in result.stdout
+    assert (tmp_path / "blackbox.db").exists()
+    assert "8.0 s observed" in (tmp_path / "blackbox.log").read_text()
