@@ -144,6 +144,7 @@ def test_imported_configuration_is_handed_over_without_restart(tmp_path: Path) -
     rec = Recorder(log, robot_id="r1", commit_interval=0.05, snapshot=None,
                    on_config=applied.append)
     rec.record_config("observers: []\n", "startup")
+    wait_for(lambda: rec.written >= 2)  # start event and startup configuration committed
     assert main(["log", "import", "--db", str(log), str(THESIS), "--note", "new thresholds"]) == 0
     wait_for(lambda: bool(applied), lambda: rec.on_observations(T0, []))
     rec.close()

@@ -17,7 +17,7 @@ import time as _time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 SCHEMA_VERSION = 2
 
@@ -71,19 +71,19 @@ class LogEntry:
         }
 
 
-@dataclass(frozen=True, slots=True)
-class Row:
+class Row(NamedTuple):
     """An entry before it has an id: what the recorder hands to :meth:`Store.append`.
 
     ``channel`` is the identity of the observed characteristic (entity, characteristic,
-    resource JSON); rows without one are robot-wide.
+    resource JSON); rows without one are robot-wide. A named tuple because the pipeline
+    thread makes one per logged observation and this is the cheapest record to build.
     """
 
     time: float
     kind: str
     channel: tuple[str | None, str | None, str] | None = None
     code: int | None = None
-    payload: dict[str, Any] = field(default_factory=dict)
+    payload: dict[str, Any] = {}  # shared default: rows without a payload never mutate it
 
 
 def _script(db: sqlite3.Connection, sql: str) -> None:
