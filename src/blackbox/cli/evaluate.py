@@ -142,16 +142,22 @@ def print_report(result: CampaignResult, out: TextIO) -> None:
     _table(out, ("measure", "this campaign", "thesis 1-10", "thesis 11-20 (re-tuned)"), rows)
     w("(thesis columns as printed in Tables 6.7/6.8; its accuracies equal TP/(TP+FP+FN).)\n\n")
 
+    seen_by: dict[str, Counter[str]] = {}
+    for o in result.outcomes:
+        if o.detected_by is not None:
+            seen_by.setdefault(o.fault.kind, Counter())[o.detected_by[0]] += 1
     rows = []
     for k in result.kinds:
         d = delay_summary(k.delays)
+        by = ", ".join(f"{name} {n}" for name, n in seen_by.get(k.kind, Counter()).most_common())
         rows.append((k.kind, str(k.faults), str(k.detected), _num(k.recall), _secs(d["p50"]),
-                     _secs(d["p90"]), _secs(d["max"])))
+                     _secs(d["p90"]), _secs(d["max"]), by or "-"))
     d = delay_summary(result.delays())
     rows.append(("all", str(len(result.outcomes)), str(c.tp), _num(c.recall), _secs(d["p50"]),
-                 _secs(d["p90"]), _secs(d["max"])))
+                 _secs(d["p90"]), _secs(d["max"]), ""))
     w("detection per fault kind (delay: first related faulty observation - fault start)\n")
-    _table(out, ("kind", "faults", "detected", "recall", "delay p50", "p90", "max"), rows)
+    _table(out, ("kind", "faults", "detected", "recall", "delay p50", "p90", "max",
+                 "first seen by"), rows)
 
     missed = Counter(f"{o.fault.kind} on {o.fault.component}"
                      for o in result.outcomes if not o.detected)
