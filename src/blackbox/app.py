@@ -15,10 +15,10 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from blackbox.config.loader import LoadedConfig, build_observers, load_config
+from blackbox.config.loader import LoadedConfig, build_observers, load_config, load_config_text
 from blackbox.config.node import ConfigError
 from blackbox.diagnose.live import DiagnosisSettings, LiveDiagnoser
-from blackbox.model import Observation
+from blackbox.model import BlackBoxEvent, Observation
 from blackbox.output.jsonlines import JsonLinesSink
 from blackbox.output.live import LiveStatusView
 from blackbox.pipeline import Pipeline, RunStats
@@ -122,17 +122,16 @@ def build(options: RunOptions) -> BlackBox:
     if options.events is not None:
         sinks.append(JsonLinesSink(options.events, observations=False, diagnoses=False))
     sinks.extend(options.extra_sinks)
-    base_dir = Path(options.config).parent
-    settings = DiagnosisSettings.from_config(config.sections.get("diagnosis"), base_dir)
-    diagnoser = (LiveDiagnoser(observers, settings)
-                 if options.diagnosis and settings.enabled else None)
     source = open_robot(options)
     recorder = None
     if options.record is not None or "recorder" in config.sections:
         recorder = open_recorder(options, config, source)
         sinks.append(recorder)
-        observers.append(ProbeObserver(
-            "recorder", lambda now: dataclasses.replace(recorder.health(), time=now)))
+        observers.append(recorder_probe(recorder))
+    base_dir = Path(options.config).parent
+    settings = DiagnosisSettings.from_config(config.sections.get("diagnosis"), base_dir)
+    diagnoser = (LiveDiagnoser(observers, settings)
+                 if options.diagnosis and settings.enabled else None)
     pipelines: list[Pipeline] = []
     if options.dds or "transport" in config.sections:
         sinks.append(open_dds(options, config, recorder,
@@ -141,9 +140,31 @@ def build(options: RunOptions) -> BlackBox:
     pipelines.append(pipeline)
     if recorder is not None:
         recorder.on_self_event = pipeline.emit_event
+        recorder.on_config = lambda version: apply_config(pipeline, version.text,
+                                                          f"imported version {version.version}")
         recorder.record_config(Path(options.config).read_text(encoding="utf-8"),
                                source=str(options.config))
     return BlackBox(config, pipeline, options)
+
+
+def recorder_probe(recorder: Recorder) -> ProbeObserver:
+    """The recorder's own health as an observation on the source's clock."""
+    health = recorder.health()
+    return ProbeObserver("recorder", health.resource,
+                         lambda now: dataclasses.replace(recorder.health(), time=now))
+
+
+def apply_config(pipeline: Pipeline, text: str, name: str) -> None:
+    """Validate an imported configuration and swap its observers in without a restart.
+
+    Raises ``ConfigError`` or ``ValueError`` when it cannot be applied; the recorder logs
+    that as ``config_rejected`` and the running observers stay as they were.
+    """
+    observers = build_observers(load_config_text(text, name))
+    recorder = next((o for o in pipeline.observers if isinstance(o, ProbeObserver)), None)
+    pipeline.replace_observers([*observers, *([recorder] if recorder else [])])
+    pipeline.emit_event(BlackBoxEvent(pipeline.source.now(), "config_applied",
+                                      f"{name}: {len(observers)} observers now active"))
 
 
 def open_dds(options: RunOptions, config: LoadedConfig, recorder: Recorder | None,
@@ -168,7 +189,8 @@ def open_recorder(options: RunOptions, config: LoadedConfig, source: Source) -> 
         kwargs["path"] = options.record
     kwargs.setdefault("snapshot_format", "ros1" if options.source.startswith("ros1") else "mcap")
     Path(kwargs["path"]).parent.mkdir(parents=True, exist_ok=True)
-    return Recorder(**kwargs, robot_id=config.robot_id, schema_lookup=source.schema)
+    return Recorder(**kwargs, robot_id=config.robot_id, schema_lookup=source.schema,
+                    clock=source.now)
 
 
 @contextmanager

@@ -26,6 +26,7 @@ from blackbox.observe.base import Observer
 from blackbox.sinks import Sink
 from blackbox.sources.base import (
     GraphSnapshot,
+    Interest,
     MessageArrival,
     NetworkSample,
     ResourceSample,
@@ -81,8 +82,16 @@ class Pipeline:
         self._reported: set[tuple[str, str]] = set()
         self._started = False
         self._closed = False
+        self._interest = Interest()
         self.latest_graph: GraphSnapshot | None = None
         self.lock = threading.Lock()
+        self._index_observers()
+
+    def _index_observers(self) -> None:
+        self._by_topic.clear()
+        self._by_node_resources.clear()
+        self._network = []
+        self._graph = []
         for obs in self.observers:
             interest = obs.interest()
             for topic in interest.topics | interest.decoded:
@@ -93,6 +102,33 @@ class Pipeline:
                 self._network.append(obs)
             self._graph.append(obs)
 
+    def replace_observers(self, observers: Sequence[Observer]) -> None:
+        """Swap in a new set of observers without a restart (an imported configuration).
+
+        The source keeps what it was asked for at start, so the new observers may only need
+        topics, nodes and data the running source already delivers; otherwise this raises
+        ``ValueError`` naming what would need a restart.
+        """
+        new = merge_interests(o.interest() for o in observers)
+        old = self._interest
+        missing = sorted((new.topics - old.topics) | (new.decoded - old.decoded)
+                         | (new.resources - old.resources))
+        if missing or (new.network and not old.network):
+            raise ValueError("the new configuration needs data the running source does not "
+                             f"deliver ({', '.join(missing) or 'network'}); restart to apply")
+        with self.lock:
+            now = self.source.now()
+            self.observers = list(observers)
+            self._index_observers()
+            self._queue = [(now + o.interval, i) for i, o in enumerate(self.observers)]
+            heapq.heapify(self._queue)
+            if self.latest_graph is not None:
+                for obs in self._graph:
+                    obs.on_graph(self.latest_graph)
+            retarget = getattr(self.diagnoser, "replace_observers", None)
+            if retarget is not None:
+                retarget(self.observers, self.latest_graph)
+
     # ---- lifecycle -------------------------------------------------------------------------
 
     def start(self) -> None:
@@ -100,6 +136,7 @@ class Pipeline:
             return
         self._started = True
         interest = merge_interests(o.interest() for o in self.observers)
+        self._interest = interest
         self.source.start(interest)
         now = self.source.now()
         self.stats.started = now

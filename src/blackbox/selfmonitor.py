@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from blackbox.model import Observation
+from blackbox.model import Observation, Resource
 from blackbox.observe.base import ObserverBase
 from blackbox.sources.base import Interest
 
@@ -17,9 +17,10 @@ from blackbox.sources.base import Interest
 class ProbeObserver(ObserverBase):
     """Evaluates a health probe of one of the black box's own components."""
 
-    def __init__(self, type_name: str, probe: Callable[[float], Observation],
-                 interval: float = 1.0) -> None:
+    def __init__(self, type_name: str, resource: Resource,
+                 probe: Callable[[float], Observation], interval: float = 1.0) -> None:
         self.type_name = type_name  # type: ignore[misc]
+        self.resource = resource
         self.probe = probe
         self.interval = interval
 
@@ -30,4 +31,4 @@ class ProbeObserver(ObserverBase):
         return [self.probe(now)]
 
     def describe(self) -> str:
-        return f"{self.type_name}: the black box's own {self.type_name} health"
+        return f"{self.type_name} {self.resource.label()}: the black box's own health"

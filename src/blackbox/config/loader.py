@@ -86,7 +86,22 @@ def document_kind(root: ConfigNode) -> DocumentKind:
 
 def load_config(path: str | Path) -> LoadedConfig:
     """Read an observer configuration in the native or the tug_observers format."""
-    root = read_document(path)
+    return config_from_document(read_document(path))
+
+
+def load_config_text(text: str, name: str) -> LoadedConfig:
+    """A configuration from text (an imported version); ``name`` appears in errors."""
+    try:
+        root = ConfigNode.parse(text, name)
+    except (ValueError, RecursionError) as exc:
+        raise ConfigError(f"invalid YAML: {exc}", name) from None
+    if root.is_null or not root.is_map:
+        raise root.error(f"not a configuration: {_WHAT_IS_EXPECTED}")
+    return config_from_document(root)
+
+
+def config_from_document(root: ConfigNode) -> LoadedConfig:
+    """Interpret a parsed YAML document as a configuration."""
     kind = document_kind(root)
     file = root.file
     if kind == "diagnosis":

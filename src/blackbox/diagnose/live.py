@@ -94,6 +94,15 @@ class LiveDiagnoser:
         if self._latest:
             self.engine.update(graph.time, list(self._latest.values()))
 
+    def replace_observers(self, observers: Sequence[ObservedResource],
+                          graph: GraphSnapshot | None) -> None:
+        """New observers (an imported configuration): derive the model again."""
+        self.observers = list(observers)
+        self._latest.clear()
+        self._structure = None
+        if graph is not None:
+            self.on_graph(graph)
+
     def update(self, now: float, observations: Sequence[Observation]) -> Diagnosis | None:
         for obs in observations:
             self._latest[obs.key()] = obs
