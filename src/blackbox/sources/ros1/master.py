@@ -8,8 +8,12 @@ registers anything anywhere, so the robot never sees the black box in its graph.
 
 from __future__ import annotations
 
+import errno
 import http.client
+import os
+import selectors
 import socket
+import time
 import xmlrpc.client
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
@@ -162,7 +166,8 @@ class GraphPoller:
     """
 
     def __init__(self, master_uri: str, report: Report, probe_timeout: float = 0.5,
-                 master_timeout: float = 1.0, max_workers: int = 8) -> None:
+                 master_timeout: float = 1.0, max_workers: int = 8,
+                 master_period: float = 1.0) -> None:
         self.master = MasterClient(master_uri, master_timeout)
         self._report = report
         self._probe_timeout = probe_timeout
@@ -172,6 +177,8 @@ class GraphPoller:
         self.state = SystemState()
         self.types: dict[str, str] = {}
         self.master_ok: bool | None = None
+        self._master_period = master_period
+        self._next_master = 0.0
         self._registered: set[str] = set()
 
     def close(self) -> None:
@@ -182,13 +189,20 @@ class GraphPoller:
         return st.uri if st is not None else None
 
     def refresh(self) -> None:
-        """One round: ask the master and probe every node (see :meth:`snapshot`).
+        """One round: probe every node, and ask the master every ``master_period`` s.
+
+        Liveness needs a fast probe; the graph's structure changes rarely, so the master
+        is asked less often (and every round while it is unreachable).
 
         A node that is still alive but no longer registered (the master restarted; rospy
         and roscpp nodes do not register again) keeps its last known topics.
         """
         previous = self.state
-        fresh = self._refresh_master()
+        fresh = None
+        now = time.monotonic()
+        if now >= self._next_master or self.master_ok is not True:
+            self._next_master = now + self._master_period
+            fresh = self._refresh_master()
         if fresh is not None:
             self._registered = fresh.node_names()
         for name in self._registered - self.nodes.keys():
@@ -238,16 +252,26 @@ class GraphPoller:
         return state
 
     def _probe(self, states: Iterable[NodeState]) -> None:
-        futures = [(st, self._pool.submit(self._probe_one, st)) for st in states]
-        for st, fut in futures:
-            was_alive, old_reason = st.alive, st.reason
+        states = list(states)
+        quick = probe_pids({st.name: st.uri for st in states if st.uri}, self._probe_timeout)
+        slow = [(st, self._pool.submit(self._probe_one, st, quick.get(st.name)))
+                for st in states if not isinstance(quick.get(st.name), int)]
+        results: dict[str, int | Exception] = {
+            n: r for n, r in quick.items() if isinstance(r, int)}
+        for st, fut in slow:
             try:
-                st.pid = fut.result()
-                st.alive, st.reason = True, ""
-            except RosApiError as exc:
-                st.alive, st.reason = False, str(exc)
+                results[st.name] = fut.result()
             except Exception as exc:  # a probe must never take the poller down
-                st.alive, st.reason = False, f"probe failed: {exc!r}"
+                results[st.name] = exc
+        for st in states:
+            was_alive, old_reason = st.alive, st.reason
+            result = results[st.name]
+            if isinstance(result, int):
+                st.pid, st.alive, st.reason = result, True, ""
+            else:
+                st.alive = False
+                st.reason = (str(result) if isinstance(result, RosApiError)
+                             else f"probe failed: {result!r}")
             if was_alive and not st.alive:
                 self._report("node_dead", st.name, f"node {st.name} stopped answering its "
                              f"slave API: {st.reason}")
@@ -255,14 +279,9 @@ class GraphPoller:
                 self._report("node_alive", st.name, f"node {st.name} answers again "
                              f"(pid {st.pid})")
 
-    def _probe_one(self, st: NodeState) -> int:
-        """getPid on the known URI; on failure look the node up again (it may have restarted)."""
-        first_error: RosApiError | None = None
-        if st.uri is not None:
-            try:
-                return probe_pid(st.uri, self._probe_timeout)
-            except RosApiError as exc:
-                first_error = exc
+    def _probe_one(self, st: NodeState, first: int | RosApiError | None) -> int:
+        """After a failed quick probe: look the node up again (it may have restarted)."""
+        first_error = first if isinstance(first, RosApiError) else None
         if self.master_ok is False or not st.registered:
             raise first_error or RosApiError(f"{st.name}: no slave URI known")
         try:
@@ -273,3 +292,103 @@ class GraphPoller:
             raise first_error
         st.uri = uri
         return probe_pid(uri, self._probe_timeout)
+
+
+_GET_PID = xmlrpc.client.dumps((CALLER_ID,), "getPid").encode()
+_MAX_REPLY = 64 * 1024
+
+
+def _http_request(uri: str, body: bytes) -> tuple[tuple[str, int], bytes]:
+    parts = urlsplit(uri)
+    if not parts.hostname or parts.port is None:
+        raise RosApiError(f"not an http://HOST:PORT/ URI: {uri!r}")
+    head = (f"POST {parts.path or '/'} HTTP/1.0\r\nHost: {parts.hostname}:{parts.port}\r\n"
+            f"User-Agent: blackbox\r\nContent-Type: text/xml\r\n"
+            f"Content-Length: {len(body)}\r\n\r\n")
+    return (parts.hostname, parts.port), head.encode() + body
+
+
+def _parse_pid(uri: str, reply: bytes) -> int:
+    head, sep, body = reply.partition(b"\r\n\r\n")
+    if not sep or not head.startswith(b"HTTP/1.") or b" 200 " not in head.split(b"\r\n")[0]:
+        raise RosApiError(f"getPid on {uri}: not an HTTP 200 reply: {reply[:60]!r}")
+    try:
+        (value,), _ = xmlrpc.client.loads(body)
+    except Exception as exc:
+        raise RosApiError(f"getPid on {uri}: malformed reply ({_describe(exc)})") from None
+    if not (isinstance(value, list) and len(value) == 3 and value[0] == 1
+            and isinstance(value[2], int)):
+        raise RosApiError(f"getPid on {uri}: unexpected reply {str(value)[:80]!r}")
+    return value[2]
+
+
+def probe_pids(uris: dict[str, str], timeout: float) -> dict[str, int | RosApiError]:
+    """``getPid`` on many nodes at once from one thread, each within ``timeout`` seconds.
+
+    The liveness probe runs several times a second for every node, so it avoids a thread
+    and an HTTP client per call: one non-blocking socket per node, one selector.
+    """
+    results: dict[str, int | RosApiError] = {}
+    sel = selectors.DefaultSelector()
+    pending: dict[socket.socket, tuple[str, str, bytes, bytearray]] = {}
+    try:
+        for name, uri in uris.items():
+            try:
+                address, request = _http_request(uri, _GET_PID)
+                infos = socket.getaddrinfo(*address, type=socket.SOCK_STREAM)
+                sock = socket.socket(infos[0][0], socket.SOCK_STREAM)
+            except (OSError, RosApiError) as exc:
+                results[name] = (exc if isinstance(exc, RosApiError)
+                                 else RosApiError(f"getPid on {uri}: {_describe(exc)}"))
+                continue
+            sock.setblocking(False)
+            err = sock.connect_ex(infos[0][4])
+            if err not in (0, errno.EINPROGRESS):
+                sock.close()
+                results[name] = RosApiError(f"getPid on {uri}: {os.strerror(err).lower()}")
+                continue
+            pending[sock] = (name, uri, request, bytearray())
+            sel.register(sock, selectors.EVENT_WRITE)
+        deadline = time.monotonic() + timeout
+        while pending:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            for key, mask in sel.select(left):
+                sock = key.fileobj  # type: ignore[assignment]
+                name, uri, request, buf = pending[sock]
+                error: str | None = None
+                try:
+                    if mask & selectors.EVENT_WRITE:
+                        err = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
+                        if err:
+                            error = os.strerror(err).lower()
+                        else:
+                            sock.sendall(request)
+                            sel.modify(sock, selectors.EVENT_READ)
+                            continue
+                    else:
+                        chunk = sock.recv(65536)
+                        if chunk and len(buf) + len(chunk) <= _MAX_REPLY:
+                            buf += chunk
+                            continue
+                        if chunk:
+                            error = f"reply larger than {_MAX_REPLY} bytes"
+                except OSError as exc:
+                    error = _describe(exc)
+                sel.unregister(sock)
+                sock.close()
+                del pending[sock]
+                if error is not None:
+                    results[name] = RosApiError(f"getPid on {uri}: {error}")
+                else:
+                    try:
+                        results[name] = _parse_pid(uri, bytes(buf))
+                    except RosApiError as exc:
+                        results[name] = exc
+        for sock, (name, uri, _, _) in pending.items():
+            results[name] = RosApiError(f"getPid on {uri}: no answer (timed out)")
+            sock.close()
+    finally:
+        sel.close()
+    return results
