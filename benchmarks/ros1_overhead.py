@@ -89,9 +89,13 @@ def blackbox(config: Path, port: int, log: Path) -> subprocess.Popen[bytes]:
                                 stdout=out, stderr=subprocess.STDOUT, env=env, cwd=ROOT)
 
 
-def summary_messages(log: Path) -> int | None:
+def summary_rate(log: Path) -> float | None:
+    """Messages per second over the run, from ``blackbox run``'s closing summary."""
     m = re.search(r"([\d.,]+) s observed, ([\d,]+) messages", log.read_text(errors="replace"))
-    return int(m.group(2).replace(",", "")) if m else None
+    if not m:
+        return None
+    seconds = float(m.group(1).replace(",", ""))
+    return int(m.group(2).replace(",", "")) / seconds if seconds > 0 else None
 
 
 def thesis_phases(seconds: float, warmup: float, work: Path) -> list[Usage]:
@@ -112,11 +116,9 @@ def thesis_phases(seconds: float, warmup: float, work: Path) -> list[Usage]:
                             seconds)
         finally:
             stop(bb)
-        started = warmup + usage.seconds
-        count = summary_messages(log)
-        if count is not None:
-            usage.note = (f"{count} messages in about {started:.0f} s "
-                          f"(robot publishes {15 + 33.3 + 15:.1f}/s)")
+        rate = summary_rate(log)
+        if rate is not None:
+            usage.note = f"received {rate:.1f} msg/s (the robot publishes {15 + 33.3 + 15:.1f})"
         out.append(usage)
     return out
 
@@ -155,11 +157,10 @@ def load_phase(seconds: float, warmup: float, work: Path, topics: int, rate: flo
             pub_cpu = sum(proc.cpu_percent(None) for proc in procs)
         finally:
             stop(bb)
-        count = summary_messages(log)
-        total = warmup + usage.seconds
-        if count is not None:
+        received = summary_rate(log)
+        if received is not None:
             usage.note = (f"{per * processes} topics x {rate:g} Hz from {processes} rospy "
-                          f"processes: received {count / total:.0f} msg/s of "
+                          f"processes: received {received:.0f} msg/s of "
                           f"{per * processes * rate:.0f} offered; publishers used "
                           f"{pub_cpu:.0f} % CPU")
         out.append(usage)
