@@ -18,6 +18,7 @@ from blackbox.observe.filters.window import (
     DEVIATION_TYPES,
     MIN_MAX,
     STD_DEVIATION,
+    SortedWindowFilter,
     Window,
     WindowFilter,
 )
@@ -31,6 +32,7 @@ __all__ = [
     "MeanFilter",
     "MedianFilter",
     "NoFilter",
+    "SortedWindowFilter",
     "Window",
     "WindowFilter",
     "build_filter",

@@ -9,42 +9,30 @@ samples, all of them are averaged.
 
 from __future__ import annotations
 
-from math import fsum, isfinite
-
-from sortedcontainers import SortedList
+from math import fsum
 
 from blackbox.config.node import ConfigNode
 from blackbox.observe.filters import params
-from blackbox.observe.filters.window import STD_DEVIATION, WindowFilter
+from blackbox.observe.filters.window import STD_DEVIATION, SortedWindowFilter
 
 
-class KMeansFilter(WindowFilter):
-    """O(log n) per sample (sorted list), O(k) per ``get``."""
+class KMeansFilter(SortedWindowFilter):
+    """O(log n) per sample, O(k) per ``get``."""
 
     type_name = "kmeans"
-    __slots__ = ("_sorted", "k_size")
+    __slots__ = ("k_size",)
 
     def __init__(self, window_size: int, k_size: int, deviation: str = STD_DEVIATION) -> None:
         if not 1 <= k_size <= window_size:
             raise ValueError(f"k_size must be in [1, window_size], got {k_size}")
         super().__init__(window_size, deviation)
         self.k_size = k_size
-        self._sorted: SortedList = SortedList()
 
     @classmethod
     def from_config(cls, node: ConfigNode) -> KMeansFilter:
         node.check_keys(("type", "window_size", "k_size", "deviation"))
         size = params.window_size(node)
         return cls(size, params.k_size(node, size), params.deviation_type(node))
-
-    def update(self, x: float) -> None:
-        if not isfinite(x):
-            self.rejected += 1
-            return
-        evicted = self._window.push(x)
-        if evicted is not None:
-            self._sorted.remove(evicted)
-        self._sorted.add(x)
 
     def get(self) -> float | None:
         s = self._sorted
@@ -56,10 +44,6 @@ class KMeansFilter(WindowFilter):
         k = min(self.k_size, n)
         start = (n - k) // 2
         return fsum(s.islice(start, start + k)) / k
-
-    def reset(self) -> None:
-        super().reset()
-        self._sorted.clear()
 
     def describe(self) -> str:
         return f"kmeans (central {self.k_size} of {self._describe_window()})"

@@ -17,6 +17,8 @@ from collections import deque
 from math import fsum, isfinite, sqrt
 from typing import ClassVar, Final, Self
 
+from sortedcontainers import SortedList
+
 from blackbox.observe.base import Summary
 
 STD_DEVIATION: Final = "std_deviation"
@@ -248,3 +250,30 @@ class WindowFilter:
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.describe()}>"
+
+
+class SortedWindowFilter(WindowFilter):
+    """A window mirrored in a sorted list, for filters that take order statistics.
+
+    A sample costs O(log n) (one insertion, one removal when the window slides), never a
+    sort.
+    """
+
+    __slots__ = ("_sorted",)
+
+    def __init__(self, window_size: int, deviation: str = STD_DEVIATION) -> None:
+        super().__init__(window_size, deviation)
+        self._sorted: SortedList = SortedList()
+
+    def update(self, x: float) -> None:
+        if not isfinite(x):
+            self.rejected += 1
+            return
+        evicted = self._window.push(x)
+        if evicted is not None:
+            self._sorted.remove(evicted)
+        self._sorted.add(x)
+
+    def reset(self) -> None:
+        super().reset()
+        self._sorted.clear()
