@@ -10,6 +10,8 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from blackbox.model import BlackBoxEvent
+
 
 @dataclass(frozen=True, slots=True)
 class NodeInfo:
@@ -118,7 +120,9 @@ class TopicSchema:
     md5sum: str = ""
 
 
-Event = GraphSnapshot | MessageArrival | ResourceSample | NetworkSample
+Event = GraphSnapshot | MessageArrival | ResourceSample | NetworkSample | BlackBoxEvent
+"""What ``Source.poll`` returns; a ``BlackBoxEvent`` reports trouble on the robot side
+(a lost master, a garbage publisher) and goes to every sink."""
 
 
 @dataclass(frozen=True, slots=True)
