@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -30,6 +31,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fast", action="store_true",
                    help="simulated clock, in one process: five robot minutes in a few seconds")
     p.add_argument("--seed", type=int, default=7)
+    p.add_argument("--source", choices=["sim", "ros1"], default="sim",
+                   help="sim: the simulated thesis robot (default); ros1: the real thesis robot "
+                   "as rospy nodes under Debian's ROS 1 (scripts/ros1_robot), faults injected "
+                   "on the real processes")
     p.add_argument("--domain", type=int, default=None,
                    help="DDS domain of the demo (default: derived from the process id)")
     p.add_argument("--out", type=Path, default=Path("out/demo"),
@@ -45,10 +50,18 @@ def demo_command(args: argparse.Namespace) -> int:
     return two_process_demo(args, out)
 
 
-def run_arguments(args: argparse.Namespace, out: Path, duration: float) -> list[str]:
-    return ["--config", str(DEMO_CONFIG), "--source", "sim:thesis", "--duration", str(duration),
-            "--faults", "random", "--seed", str(args.seed),
-            "--ground-truth", str(out / "ground_truth.jsonl"),
+ROS1_ROBOT = Path(__file__).resolve().parents[3] / "scripts" / "ros1_robot" / "inject.py"
+ROS1_CONFIG = Path(__file__).resolve().parent.parent / "configs" / "thesis.yaml"
+
+
+def run_arguments(args: argparse.Namespace, out: Path, duration: float,
+                  port: int | None = None) -> list[str]:
+    if port is None:
+        robot = ["--config", str(DEMO_CONFIG), "--source", "sim:thesis", "--faults", "random",
+                 "--seed", str(args.seed), "--ground-truth", str(out / "ground_truth.jsonl")]
+    else:
+        robot = ["--config", str(ROS1_CONFIG), "--source", f"ros1://127.0.0.1:{port}"]
+    return [*robot, "--duration", str(duration),
             "--observations", str(out / "observations.jsonl"),
             "--diagnoses", str(out / "diagnoses.jsonl"), "--events", str(out / "events.jsonl"),
             "--record", str(out / "blackbox.db")]
@@ -69,35 +82,70 @@ def fast_demo(args: argparse.Namespace, out: Path) -> int:
     return 0
 
 
+def start_ros1_robot(args: argparse.Namespace, out: Path) -> tuple[subprocess.Popen, int]:
+    """roscore, the three thesis nodes and the fault injector, on a free loopback port."""
+    if not ROS1_ROBOT.exists() or not Path("/usr/bin/roscore").exists():
+        raise SystemExit("demo --source ros1 needs a source checkout (scripts/ros1_robot) and "
+                         "Debian's ROS 1 (make system-deps)")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    robot = subprocess.Popen(
+        [sys.executable, str(ROS1_ROBOT), "--port", str(port), "--duration", str(args.duration),
+         "--seed", str(args.seed), "--truth", str(out / "ground_truth.jsonl"),
+         "--log-dir", str(out / "ros1-logs")],
+        stdout=(out / "robot.log").open("w"), stderr=subprocess.STDOUT)
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and robot.poll() is None:
+        with socket.socket() as probe:
+            if probe.connect_ex(("127.0.0.1", port)) == 0:
+                break
+        time.sleep(0.2)
+    return robot, port
+
+
 def two_process_demo(args: argparse.Namespace, out: Path) -> int:
     domain = args.domain if args.domain is not None else 100 + os.getpid() % 100
     blackbox = [sys.executable, "-m", "blackbox"]
+    processes: list[subprocess.Popen] = []
+    port = None
+    if args.source == "ros1":
+        ros1, port = start_ros1_robot(args, out)
+        processes.append(ros1)
+        time.sleep(2.0)  # let the nodes register before the black box looks
     log = (out / "blackbox.log").open("w")
-    robot = subprocess.Popen(
-        [*blackbox, "run", *run_arguments(args, out, args.duration), "--dds",
+    box = subprocess.Popen(
+        [*blackbox, "run", *run_arguments(args, out, args.duration, port), "--dds",
          "--domain", str(domain), "--quiet"], stdout=log, stderr=subprocess.STDOUT)
-    print(f"demo: black box (pid {robot.pid}) watching the simulated thesis robot, publishing "
-          f"on DDS domain {domain}; station below. Ctrl-C to stop.", file=sys.stderr)
+    what = "the simulated thesis robot" if port is None else f"the ROS 1 thesis robot (:{port})"
+    print(f"demo: black box (pid {box.pid}) watching {what}, publishing on DDS domain "
+          f"{domain}; station below. Ctrl-C to stop.", file=sys.stderr)
     station = subprocess.Popen([*blackbox, "listen", "--domain", str(domain),
                                 "--duration", str(args.duration + 2.0)])
+    processes += [station, box]
     try:
         station.wait()
-        robot.wait(timeout=10)
+        box.wait(timeout=10)
     except KeyboardInterrupt:
-        for proc in (station, robot):
+        for proc in processes:
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
         deadline = time.monotonic() + 10
-        for proc in (station, robot):
+        for proc in processes:
             try:
                 proc.wait(timeout=max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
                 proc.kill()
     finally:
-        for proc in (station, robot):
+        for proc in processes:
             if proc.poll() is None:
-                proc.kill()
+                proc.send_signal(signal.SIGINT)
+                try:
+                    proc.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
         log.close()
+    robot = box
     print(f"demo: black box exited with {robot.returncode}; health log {out}/blackbox.db "
           f"(try: blackbox log query --db {out}/blackbox.db --kind failure), "
           f"black box output in {out}/blackbox.log", file=sys.stderr)
