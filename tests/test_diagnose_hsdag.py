@@ -90,6 +90,11 @@ def test_case_plain_reiter_hs_tree_gets_wrong():
     assert brute_force(family, "abcd") == truth
     assert reiter_hs_tree(family) == {fs("b", "c", "d")}  # {a, b, c} is lost
     assert set(minimal_hitting_sets(family).sets) == truth
+    # Learnt lazily, the conflicts arrive in this order: {a, b} labels the root, then {b}
+    # relabels it (Greiner's pruning removes the edge a); the answer is still complete.
+    lazy = minimal_hitting_sets(family, lazy=True)
+    assert set(lazy.sets) == truth
+    assert set(lazy.conflicts) == {fs("b"), fs("c"), fs("a", "d")}  # {a, b}, {b, d} redundant
 
 
 def test_agrees_with_brute_force_on_random_families():
@@ -98,6 +103,42 @@ def test_agrees_with_brute_force_on_random_families():
         family = [frozenset(rng.sample("abcde", rng.randint(1, 4)))
                   for _ in range(rng.randint(1, 7))]
         assert set(minimal_hitting_sets(family).sets) == brute_force(family, "abcde"), family
+
+
+def test_agrees_with_brute_force_when_conflicts_are_learnt_non_minimal():
+    # The lazy prover hands out the first set the path misses, often a superset of another:
+    # relabelling and pruning happen, and must lose nothing.
+    rng = random.Random(11)
+    universe = "abcdefgh"
+    for _ in range(300):
+        family = [frozenset(rng.sample(universe, rng.randint(1, 5)))
+                  for _ in range(rng.randint(1, 10))]
+        truth = brute_force(family, universe)
+        assert set(minimal_hitting_sets(family, lazy=True).sets) == truth, family
+        assert set(minimal_hitting_sets(family).sets) == truth, family
+        smallest = min(map(len, truth))
+        assert set(minimal_hitting_sets(family, minimum_only=True, lazy=True).sets) == {
+            h for h in truth if len(h) == smallest}, family
+        assert set(minimal_hitting_sets(family, max_cardinality=2).sets) == {
+            h for h in truth if len(h) <= 2}, family
+
+
+def test_anytime_result_is_a_prefix_by_cardinality():
+    # Whatever the budget, what comes back is minimal, and every smaller hitting set is in it.
+    rng = random.Random(5)
+    universe = "abcdefgh"
+    family = [frozenset(rng.sample(universe, rng.randint(2, 4))) for _ in range(9)]
+    truth = brute_force(family, universe)
+    for budget in range(1, 200, 7):
+        clock = iter(range(10**6)).__next__  # one unit per look
+        res = minimal_hitting_sets(family, deadline=budget, clock=clock)
+        got = set(res.sets)
+        assert got <= truth
+        if not res.complete and got:
+            largest = max(map(len, got))
+            assert {h for h in truth if len(h) < largest} <= got
+        if res.complete:
+            assert got == truth
 
 
 def test_cardinality_bound():
