@@ -12,10 +12,12 @@ from blackbox.diagnose.dxc import (
     Circuit,
     CircuitDiagnoser,
     Gate,
+    best_diagnosis,
     load_catalog,
     load_scenario,
     score,
     utility,
+    utility_matrix,
 )
 
 DXC = Path(__file__).resolve().parents[1] / "data" / "shared" / "benchmarks" / "dxc"
@@ -82,6 +84,31 @@ def test_score_averages_pairs_and_normalises():
     assert score([], [fs("g1")], 33, 1.0) == pytest.approx(1 - 34 / 66)  # no fault = {{}}
 
 
+def test_utility_matrix_matches_the_pairwise_utility():
+    ws = [fs("a", "b"), fs(), fs("c")]
+    ts = [fs("a"), fs("b", "c", "d")]
+    m = utility_matrix(ws, ts, 10)
+    assert m.shape == (3, 2)
+    for i, w in enumerate(ws):
+        for j, t in enumerate(ts):
+            assert m[i, j] == pytest.approx(utility(w, t, 10))
+
+
+def test_best_diagnosis_maximises_the_mean_utility_against_all_candidates():
+    # f = 10. {a,b} vs {a,c}: n = nbar = 1, N = 2: 1 - 3/20 - 9/20 = 0.4;
+    # vs {d,e}: n = nbar = 2: 1 - 6/30 - 18/30 = 0.2. Means: {a,b} and {a,c} (1 + 0.4 + 0.2)/3,
+    # {d,e} (1 + 0.2 + 0.2)/3; the tie goes to name order.
+    candidates = [fs("d", "e"), fs("a", "c"), fs("a", "b")]
+    assert best_diagnosis(candidates, 10) == fs("a", "b")
+    truth = candidates
+    norm = score(truth, truth, 10, 1.0)
+    assert norm == pytest.approx((3 * 1 + 2 * 0.4 + 4 * 0.2) / 9)  # all pairs of T
+    # the central candidate alone scores above 1: 0.5333 / 0.5111
+    assert score([fs("a", "b")], truth, 10, norm) == pytest.approx((1.6 / 3) / norm)
+    assert score([fs("a", "b")], truth, 10, norm) > 1.0
+    assert best_diagnosis([fs("x")], 10) == fs("x")
+
+
 @needs_dxc
 def test_normalization_factor_is_the_score_of_the_ambiguity_group():
     s = load_scenario(DXC / "scenarios/74L85/74L85.000.scn")
@@ -95,9 +122,17 @@ def test_normalization_factor_is_the_score_of_the_ambiguity_group():
 def test_catalog_and_scenario_on_74L85():
     circuit = load_catalog(DXC / "models/74L85.xml")
     assert len(circuit.gates) == 33 and len(circuit.ports) == 14
-    r = CircuitDiagnoser(circuit).run(load_scenario(DXC / "scenarios/74L85/74L85.000.scn"))
-    assert set(r.diagnoses) == {fs("gate107"), fs("gate97")}
+    d = CircuitDiagnoser(circuit)
+    scenario = load_scenario(DXC / "scenarios/74L85/74L85.000.scn")
+    r = d.run(scenario, report="all")
+    assert set(r.diagnoses) == {fs("gate107"), fs("gate97")} and r.minimum == 2
     assert r.score == pytest.approx(1.0)
+    # Two symmetric candidates: either alone has the same expected utility as both.
+    best = d.run(scenario)
+    assert best.diagnoses == (fs("gate107"),) and best.minimum == 2
+    assert best.score == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="report"):
+        d.run(scenario, report="some")
 
 
 @needs_dxc

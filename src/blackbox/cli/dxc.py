@@ -7,7 +7,13 @@ import os
 from pathlib import Path
 
 from blackbox.config.node import ConfigError
-from blackbox.diagnose.dxc import BASELINES, CircuitDiagnoser, load_catalog, load_scenario
+from blackbox.diagnose.dxc import (
+    BASELINES,
+    REPORTS,
+    CircuitDiagnoser,
+    load_catalog,
+    load_scenario,
+)
 
 
 def _default_root() -> Path:
@@ -23,6 +29,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                           "print the benchmark score")
     p.add_argument("--model", required=True, help="circuit name, e.g. 74L85 or c432")
     p.add_argument("--limit", type=float, default=1.0, help="seconds per scenario (default 1)")
+    p.add_argument("--report", choices=REPORTS, default="best",
+                   help="what to report per scenario: the minimum-cardinality diagnosis of "
+                        "highest expected score (best, default) or all of them")
     p.add_argument("--scenarios", type=int, default=None, metavar="N",
                    help="only the first N scenarios")
     p.add_argument("--root", type=Path, default=None,
@@ -46,11 +55,13 @@ def run(args: argparse.Namespace) -> int:
     gates = len(diagnoser.circuit.gates)
     print(f"model {args.model}: {gates} gates, {len(files)} scenarios, "
           f"{args.limit:g} s limit per scenario")
-    print(f"{'scenario':<14} {'score':>6} {'diagnoses':>9} {'card':>4} {'seconds':>8}  status")
+    print(f"reporting: {args.report}")
+    print(f"{'scenario':<14} {'score':>6} {'reported':>8} {'minimum':>7} {'card':>4} "
+          f"{'seconds':>8}  status")
     scores: list[float] = []
     slowest = 0.0
     for f in files:
-        r = diagnoser.run(load_scenario(f), args.limit)
+        r = diagnoser.run(load_scenario(f), args.limit, args.report)
         slowest = max(slowest, r.seconds)
         card = len(r.diagnoses[0]) if r.diagnoses else 0
         status = "complete" if r.complete else "time limit (best so far)"
@@ -60,8 +71,8 @@ def run(args: argparse.Namespace) -> int:
         else:
             scores.append(r.score)
             shown = f"{r.score:.3f}"
-        print(f"{r.scenario:<14} {shown:>6} {len(r.diagnoses):>9} {card:>4} {r.seconds:>8.3f}"
-              f"  {status}")
+        print(f"{r.scenario:<14} {shown:>6} {len(r.diagnoses):>8} {r.minimum:>7} {card:>4} "
+              f"{r.seconds:>8.3f}  {status}")
     if scores:
         print(f"mean score {sum(scores) / len(scores):.3f} over {len(scores)} scored scenarios; "
               f"slowest scenario {slowest:.3f} s")
