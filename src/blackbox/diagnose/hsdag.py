@@ -126,11 +126,8 @@ class _Conflicts:
         self.by_size[size] |= i
         return removed
 
-    def label(self, path: int) -> tuple[int, int]:
-        """``(conflict, 0)`` with the smallest live conflict disjoint from ``path``, or, when
-        ``path`` hits them all, ``(0, private)``: the elements of ``path`` that have a live
-        conflict meeting ``path`` there alone. When that is all of ``path``, no proper subset
-        of it hits every known conflict."""
+    def masks(self, path: int) -> tuple[int, int]:
+        """Conflicts (index masks) meeting ``path`` at least once and at least twice."""
         containing = self.containing
         once = twice = 0
         x = path
@@ -140,6 +137,14 @@ class _Conflicts:
             twice |= once & m
             once |= m
             x ^= b
+        return once, twice
+
+    def label(self, path: int, once: int, twice: int) -> tuple[int, int]:
+        """``(conflict, 0)`` with the smallest live conflict disjoint from ``path``, or, when
+        ``path`` hits them all, ``(0, private)``: the elements of ``path`` that have a live
+        conflict meeting ``path`` there alone. When that is all of ``path``, no proper subset
+        of it hits every known conflict. ``once``, ``twice`` are :meth:`masks` of ``path``."""
+        containing = self.containing
         free = self.live & ~once
         if free:
             for size in self._sizes:
@@ -176,9 +181,12 @@ def hs_dag(prover: Prover[T], *, conflicts: Iterable[frozenset[T]] = (),
             return HittingSets((), True, (c,), 0, 1)
         known.add(elements.encode(c))
     found: list[int] = []
+    found_set: set[int] = set()
     found_with: dict[int, int] = {}  # element bit -> mask over indices into ``found``
     labels: dict[int, int] = {}
-    level: dict[int, int] = {0: 0}  # path -> an element bit by which it was reached
+    # path -> (an element bit by which it was reached, masks of the path, number of known
+    # conflicts the masks cover)
+    level: dict[int, tuple[int, int, int, int]] = {0: (0, 0, 0, 0)}
     calls = 0
     nodes = 1
     complete = True
@@ -191,7 +199,21 @@ def hs_dag(prover: Prover[T], *, conflicts: Iterable[frozenset[T]] = (),
         return HittingSets(tuple(sets), complete, tuple(known_sets), calls, nodes)
 
     def closed(path: int, needed: int) -> bool:
-        """Whether ``path`` contains a hitting set found earlier that contains ``needed``."""
+        """Whether ``path`` contains a hitting set found earlier that contains ``needed``.
+
+        Such a set is ``path`` minus a non-empty part of the other elements: with few of
+        those, look the candidates up; otherwise scan the found sets holding ``needed``."""
+        optional = path & ~needed
+        if 0 < optional.bit_count() <= 4:
+            bits = list(_bits(optional))
+            for r in range(1, 1 << len(bits)):
+                drop = 0
+                for j, b in enumerate(bits):
+                    if r >> j & 1:
+                        drop |= b
+                if path & ~drop in found_set:
+                    return True
+            return False
         if not needed:
             return any(h & path == h for h in found)
         candidates = -1
@@ -211,11 +233,15 @@ def hs_dag(prover: Prover[T], *, conflicts: Iterable[frozenset[T]] = (),
     while level:
         expand: list[int] = []
         relabelled = False
-        for path, via in level.items():
+        masks: dict[int, tuple[int, int, int]] = {}
+        for path, (via, once, twice, covered) in level.items():
             if deadline is not None and clock() >= deadline:
                 complete = False
                 return result()
-            label, private = known.label(path)
+            if covered != len(known.sets):
+                once, twice = known.masks(path)
+                covered = len(known.sets)
+            label, private = known.label(path, once, twice)
             if not label:
                 # A found hitting set inside ``path`` holds ``via`` (else it would lie inside
                 # the parent, which hits no hitting set) and every element with a private
@@ -227,6 +253,7 @@ def hs_dag(prover: Prover[T], *, conflicts: Iterable[frozenset[T]] = (),
                 if answer is None:
                     i = 1 << len(found)
                     found.append(path)
+                    found_set.add(path)
                     for b in _bits(path):
                         found_with[b] = found_with.get(b, 0) | i
                     continue
@@ -240,6 +267,7 @@ def hs_dag(prover: Prover[T], *, conflicts: Iterable[frozenset[T]] = (),
                 if removed:
                     relabelled |= _relabel(labels, removed, label)
             labels[path] = label
+            masks[path] = (once, twice, covered)
             expand.append(path)
         if minimum_only and found:
             break
@@ -247,12 +275,15 @@ def hs_dag(prover: Prover[T], *, conflicts: Iterable[frozenset[T]] = (),
             expand = _reachable_only(labels, expand)
         if bound is not None and k >= bound:
             break
-        nxt: dict[int, int] = {}
+        nxt: dict[int, tuple[int, int, int, int]] = {}
+        containing = known.containing
         for path in expand:
+            once, twice, covered = masks[path]
             for b in _bits(labels[path]):
                 child = path | b
                 if child not in nxt:
-                    nxt[child] = b
+                    m = containing.get(b, 0)
+                    nxt[child] = (b, once | m, twice | once & m, covered)
         nodes += len(nxt)
         level = nxt
         k += 1
