@@ -8,8 +8,8 @@ summary's filtered value.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import ClassVar, Protocol
+from dataclasses import dataclass, fields
+from typing import ClassVar, Protocol, Self
 
 from blackbox.config.node import ConfigNode
 from blackbox.observe.base import Summary
@@ -31,9 +31,20 @@ def _g(v: float) -> str:
 
 
 class _OnValue:
-    """``Check.test`` for a value check: the check applied to the filtered value."""
+    """``Check.test`` for a value check: the check applied to the filtered value.
+
+    Also reads a value check from configuration: each of its dataclass fields is a finite
+    number under its own name. A check whose numbers need more (a positive width, ordered
+    bounds) overrides ``from_config``.
+    """
 
     __slots__ = ()
+
+    @classmethod
+    def from_config(cls, node: ConfigNode) -> Self:
+        names = tuple(f.name for f in fields(cls))
+        node.check_keys(("type", *names))
+        return cls(*(params.number(node, name) for name in names))
 
     def passes(self, x: float) -> bool:
         raise NotImplementedError
@@ -53,7 +64,7 @@ class GaussCheck(_OnValue):
             raise ValueError(f"std_deviation must be > 0, got {self.std_deviation}")
 
     @classmethod
-    def from_config(cls, node: ConfigNode) -> GaussCheck:
+    def from_config(cls, node: ConfigNode) -> Self:
         node.check_keys(("type", "mean", "std_deviation"))
         return cls(params.number(node, "mean"), params.positive(node, "std_deviation"))
 
@@ -69,11 +80,6 @@ class ExactCheck(_OnValue):
     type_name: ClassVar[str] = "exact"
     exact: float
 
-    @classmethod
-    def from_config(cls, node: ConfigNode) -> ExactCheck:
-        node.check_keys(("type", "exact"))
-        return cls(params.number(node, "exact"))
-
     def passes(self, x: float) -> bool:
         return x == self.exact
 
@@ -85,11 +91,6 @@ class ExactCheck(_OnValue):
 class NotCheck(_OnValue):
     type_name: ClassVar[str] = "not"
     exact_not: float
-
-    @classmethod
-    def from_config(cls, node: ConfigNode) -> NotCheck:
-        node.check_keys(("type", "exact_not"))
-        return cls(params.number(node, "exact_not"))
 
     def passes(self, x: float) -> bool:
         return x != self.exact_not
@@ -103,11 +104,6 @@ class GreaterThanCheck(_OnValue):
     type_name: ClassVar[str] = "greater_than"
     greater_than: float
 
-    @classmethod
-    def from_config(cls, node: ConfigNode) -> GreaterThanCheck:
-        node.check_keys(("type", "greater_than"))
-        return cls(params.number(node, "greater_than"))
-
     def passes(self, x: float) -> bool:
         return x > self.greater_than
 
@@ -120,11 +116,6 @@ class LessThanCheck(_OnValue):
     type_name: ClassVar[str] = "less_than"
     less_than: float
 
-    @classmethod
-    def from_config(cls, node: ConfigNode) -> LessThanCheck:
-        node.check_keys(("type", "less_than"))
-        return cls(params.number(node, "less_than"))
-
     def passes(self, x: float) -> bool:
         return x < self.less_than
 
@@ -133,8 +124,9 @@ class LessThanCheck(_OnValue):
 
 
 @dataclass(frozen=True, slots=True)
-class InBetweenCheck(_OnValue):
-    type_name: ClassVar[str] = "in_between"
+class _Interval(_OnValue):
+    """The two bounds of an interval check, ``lower_bound < upper_bound``."""
+
     lower_bound: float
     upper_bound: float
 
@@ -143,9 +135,14 @@ class InBetweenCheck(_OnValue):
             raise ValueError("lower_bound must be < upper_bound")
 
     @classmethod
-    def from_config(cls, node: ConfigNode) -> InBetweenCheck:
+    def from_config(cls, node: ConfigNode) -> Self:
         node.check_keys(("type", "lower_bound", "upper_bound"))
         return cls(*params.bounds(node))
+
+
+@dataclass(frozen=True, slots=True)
+class InBetweenCheck(_Interval):
+    type_name: ClassVar[str] = "in_between"
 
     def passes(self, x: float) -> bool:
         return self.lower_bound < x < self.upper_bound
@@ -155,19 +152,8 @@ class InBetweenCheck(_OnValue):
 
 
 @dataclass(frozen=True, slots=True)
-class NotInBetweenCheck(_OnValue):
+class NotInBetweenCheck(_Interval):
     type_name: ClassVar[str] = "not_in_between"
-    lower_bound: float
-    upper_bound: float
-
-    def __post_init__(self) -> None:
-        if not self.lower_bound < self.upper_bound:
-            raise ValueError("lower_bound must be < upper_bound")
-
-    @classmethod
-    def from_config(cls, node: ConfigNode) -> NotInBetweenCheck:
-        node.check_keys(("type", "lower_bound", "upper_bound"))
-        return cls(*params.bounds(node))
 
     def passes(self, x: float) -> bool:
         return x < self.lower_bound or x > self.upper_bound
