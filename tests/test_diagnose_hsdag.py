@@ -123,6 +123,18 @@ def test_agrees_with_brute_force_when_conflicts_are_learnt_non_minimal():
             h for h in truth if len(h) <= 2}, family
 
 
+def test_agrees_with_brute_force_on_ten_elements():
+    # Wider paths: closing then has to look past many elements without private conflicts.
+    rng = random.Random(2)
+    universe = "abcdefghij"
+    for _ in range(100):
+        family = [frozenset(rng.sample(universe, rng.randint(1, 4)))
+                  for _ in range(rng.randint(3, 14))]
+        truth = brute_force(family, universe)
+        assert set(minimal_hitting_sets(family).sets) == truth, family
+        assert set(minimal_hitting_sets(family, lazy=True).sets) == truth, family
+
+
 def test_anytime_result_is_a_prefix_by_cardinality():
     # Whatever the budget, what comes back is minimal, and every smaller hitting set is in it.
     rng = random.Random(5)
