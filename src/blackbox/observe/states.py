@@ -109,8 +109,8 @@ def evaluate_states(states: Sequence[StateSpec], summaries: Mapping[str, Summary
     return states_code(states, fitting), fitting
 
 
-def describe_states(states: Sequence[StateSpec]) -> str:
-    """One line per state for ``check-config``."""
+def describe_states(states: Sequence[StateSpec], separator: str = "\n") -> str:
+    """One line per state for ``check-config``, or the states joined by ``separator``."""
     if not states:
         return "no states: always GENERAL_OK"
-    return "\n".join(spec.describe() for spec in states)
+    return separator.join(spec.describe() for spec in states)

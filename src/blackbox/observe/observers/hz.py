@@ -31,7 +31,7 @@ from blackbox.observe.observers.entry import (
 )
 from blackbox.observe.observers.quantity import (
     FilteredQuantity,
-    describe_states,
+    describe_states_inline,
     judge,
     number,
 )
@@ -105,7 +105,7 @@ class HzObserver(ObserverBase):
     def describe(self) -> str:
         group = ",".join(self.publishers) if self.publishers else "all publishers"
         return (f"hz {self.topic} [{group}]: {self.period.describe()}; "
-                f"{describe_states(self.states)}, every {self.interval:g} s")
+                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
 
 
 @register(OBSERVERS, "hz")

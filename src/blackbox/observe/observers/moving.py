@@ -32,7 +32,7 @@ from blackbox.observe.observers.entry import (
 from blackbox.observe.observers.quantity import (
     FilteredQuantity,
     SampleProblems,
-    describe_states,
+    describe_states_inline,
     judge,
     number,
 )
@@ -182,7 +182,7 @@ class MovingObserver(ObserverBase):
     def describe(self) -> str:
         filters = ", ".join(q.describe() for q in self.axes.values())
         return (f"moving {self.source.describe()}: {filters}; "
-                f"{describe_states(self.states)}, every {self.interval:g} s")
+                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
 
 
 @register(OBSERVERS, "moving")

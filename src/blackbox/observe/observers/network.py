@@ -17,7 +17,7 @@ from blackbox.observe.observers.entry import COMMON_KEYS, read_every, read_name,
 from blackbox.observe.observers.quantity import (
     FilteredQuantity,
     byte_count,
-    describe_states,
+    describe_states_inline,
     judge,
 )
 from blackbox.observe.states import StateSpec, parse_states
@@ -76,7 +76,7 @@ class NetworkObserver(ObserverBase):
 
     def describe(self) -> str:
         return (f"network {self.interface}: {self.rx.describe()}, {self.tx.describe()}; "
-                f"{describe_states(self.states)}, every {self.interval:g} s")
+                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
 
 
 @register(OBSERVERS, "network")

@@ -15,7 +15,7 @@ from typing import Any
 
 from blackbox.model import Code, Observation, Resource, State
 from blackbox.observe.base import Filter, Summary
-from blackbox.observe.states import StateSpec, evaluate_states
+from blackbox.observe.states import StateSpec, describe_states, evaluate_states
 from blackbox.sources.base import MessageArrival
 
 
@@ -136,10 +136,9 @@ def fits_phrase(states: Sequence[StateSpec], fitting: Sequence[State]) -> str:
     return f"fits no state (expected {expected})"
 
 
-def describe_states(states: Sequence[StateSpec]) -> str:
-    if not states:
-        return "no states"
-    return "; ".join(s.describe() for s in states)
+def describe_states_inline(states: Sequence[StateSpec]) -> str:
+    """The states in an observer's one-line ``describe()``."""
+    return describe_states(states, "; ") if states else "no states"
 
 
 def number(x: float) -> str:

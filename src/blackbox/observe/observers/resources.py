@@ -17,7 +17,7 @@ from blackbox.observe.observers.entry import COMMON_KEYS, read_every, read_name,
 from blackbox.observe.observers.quantity import (
     FilteredQuantity,
     byte_count,
-    describe_states,
+    describe_states_inline,
     judge,
 )
 from blackbox.observe.states import StateSpec, parse_states
@@ -75,7 +75,7 @@ class ResourcesObserver(ObserverBase):
 
     def describe(self) -> str:
         return (f"resources {self.node}: {self.cpu.describe()}, {self.memory.describe()}; "
-                f"{describe_states(self.states)}, every {self.interval:g} s")
+                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
 
 
 @register(OBSERVERS, "resources")

@@ -24,7 +24,7 @@ from blackbox.observe.observers.entry import COMMON_KEYS, read_every, read_name,
 from blackbox.observe.observers.quantity import (
     FilteredQuantity,
     SampleProblems,
-    describe_states,
+    describe_states_inline,
     judge,
     number,
 )
@@ -89,7 +89,7 @@ class ScoresObserver(ObserverBase):
 
     def describe(self) -> str:
         return (f"scores {self.topic} field {self.field}: {self.score.describe()}; "
-                f"{describe_states(self.states)}, every {self.interval:g} s")
+                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
 
 
 @register(OBSERVERS, "scores")

@@ -27,7 +27,7 @@ from blackbox.observe.observers.entry import (
 from blackbox.observe.observers.quantity import (
     FilteredQuantity,
     SampleProblems,
-    describe_states,
+    describe_states_inline,
     judge,
     number,
 )
@@ -116,7 +116,7 @@ class TimestampObserver(ObserverBase):
     def describe(self) -> str:
         group = ",".join(self.publishers) if self.publishers else "all publishers"
         return (f"timestamp {self.topic} [{group}]: {self.age.describe()}; "
-                f"{describe_states(self.states)}, every {self.interval:g} s")
+                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
 
 
 @register(OBSERVERS, "timestamp")

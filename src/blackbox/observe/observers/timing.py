@@ -30,7 +30,7 @@ from blackbox.observe.observers.entry import (
 )
 from blackbox.observe.observers.quantity import (
     FilteredQuantity,
-    describe_states,
+    describe_states_inline,
     judge,
     number,
 )
@@ -110,7 +110,7 @@ class TimingObserver(ObserverBase):
         shot = ", single shot" if self.single_shot else ""
         return (f"timing {self.topic_a} [{_group_text(self.publishers_a)}] -> {self.topic_b} "
                 f"[{_group_text(self.publishers_b)}]{shot}: {self.delay.describe()}; "
-                f"{describe_states(self.states)}, every {self.interval:g} s")
+                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
 
 
 @register(OBSERVERS, "timing")

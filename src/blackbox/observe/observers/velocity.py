@@ -35,7 +35,7 @@ from blackbox.observe.observers.moving import (
 from blackbox.observe.observers.quantity import (
     FilteredQuantity,
     SampleProblems,
-    describe_states,
+    describe_states_inline,
     judge,
 )
 from blackbox.observe.states import StateSpec, parse_states
@@ -172,7 +172,7 @@ class VelocityObserver(ObserverBase):
         filters = ", ".join(q.describe() for q in self.axes.values())
         return (f"velocity {self.source_a.describe()} vs {self.source_b.describe()}: "
                 f"acceleration over {self.acceleration_window_size} messages; {filters}; "
-                f"{describe_states(self.states)}, every {self.interval:g} s")
+                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
 
 
 @register(OBSERVERS, "velocity")
