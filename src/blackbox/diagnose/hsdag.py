@@ -176,7 +176,7 @@ def hs_dag(prover: Prover[T], *, conflicts: Iterable[frozenset[T]] = (),
     """
     elements: _Elements[T] = _Elements()
     known = _Conflicts()
-    for c in sorted({frozenset(c) for c in conflicts}, key=_sort_key):
+    for c in sorted(dict.fromkeys(map(frozenset, conflicts)), key=len):
         if not c:
             return HittingSets((), True, (c,), 0, 1)
         known.add(elements.encode(c))
@@ -195,7 +195,7 @@ def hs_dag(prover: Prover[T], *, conflicts: Iterable[frozenset[T]] = (),
 
     def result() -> HittingSets[T]:
         sets = sorted((elements.decode(h) for h in found), key=_sort_key)
-        known_sets = sorted((elements.decode(c) for c in known.live_sets()), key=_sort_key)
+        known_sets = sorted((elements.decode(c) for c in known.live_sets()), key=len)
         return HittingSets(tuple(sets), complete, tuple(known_sets), calls, nodes)
 
     def closed(path: int, needed: int) -> bool:
