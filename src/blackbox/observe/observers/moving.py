@@ -145,13 +145,11 @@ class MovingObserver(ObserverBase):
         self.resource = Resource(topic=source.topic)
         self._feeds = [(AXES.index(axis), q.update) for axis, q in self.axes.items()]
         self._problems = SampleProblems()
-        self._seen = 0
 
     def interest(self) -> Interest:
         return Interest(decoded=frozenset({self.source.topic}))
 
     def on_message(self, msg: MessageArrival) -> None:
-        self._seen += 1
         value = self._problems.value_of(msg)
         if value is None:
             return
@@ -164,13 +162,9 @@ class MovingObserver(ObserverBase):
             update(components[index])
 
     def evaluate(self, now: float) -> list[Observation]:
-        problems, seen = self._problems, self._seen
-        self._seen = 0
-        if problems.count:
-            observation = problems.observation(now, self.type_name, self.resource, seen,
-                                               {"skipped": float(problems.count)})
-            problems.clear()
-            return [observation]
+        skipped = self._problems.report(now, self.type_name, self.resource)
+        if skipped is not None:
+            return [skipped]
         summaries = {axis: q.summary() for axis, q in self.axes.items()}
         if any(s is None for s in summaries.values()):
             return [Observation(now, self.type_name, self.resource, Code.NOT_AVAILABLE,

@@ -62,17 +62,17 @@ class Verdict:
 
 
 class SampleProblems:
-    """Messages since the last evaluation that gave no sample, and the latest reason why.
+    """Messages since the last evaluation: how many arrived, how many gave no sample, and
+    the latest reason why.
 
     Used by the observers that read values out of messages (scores, timestamp, motion).
     """
 
-    __slots__ = ("count", "reason", "undecodable")
+    __slots__ = ("count", "reason", "seen", "undecodable")
 
     def __init__(self) -> None:
-        self.count = 0
-        self.reason = ""
-        self.undecodable = False
+        self.seen = 0
+        self.clear()
 
     def add(self, reason: str, undecodable: bool = False) -> None:
         self.count += 1
@@ -85,11 +85,12 @@ class SampleProblems:
         self.undecodable = False
 
     def value_of(self, msg: MessageArrival, label: str = "") -> Any:
-        """``msg.value``, or ``None`` after recording why there is none.
+        """Counts ``msg`` as seen; ``msg.value``, or ``None`` after recording why there is none.
 
         A decoder failing on malformed bytes is the robot's garbage, never the black box's
         crash: it becomes an unreadable message like any other.
         """
+        self.seen += 1
         prefix = f"{label}: " if label else ""
         try:
             value = msg.value
@@ -100,13 +101,23 @@ class SampleProblems:
             self.add(f"{prefix}the source cannot decode this topic", undecodable=True)
         return value
 
-    def observation(self, now: float, observer: str, resource: Resource, seen: int,
-                    values: dict[str, float]) -> Observation:
-        """The observation reporting the skipped messages (``seen`` messages in all)."""
+    def report(self, now: float, observer: str, resource: Resource,
+               values: Mapping[str, float] | None = None) -> Observation | None:
+        """The observation reporting the messages skipped since the last evaluation (with
+        ``values`` after the ``skipped`` count), ``None`` when none was. Either way the next
+        evaluation counts afresh.
+        """
+        seen, self.seen = self.seen, 0
+        if not self.count:
+            return None
         code = Code.NOT_AVAILABLE if self.undecodable else Code.GENERAL_ERROR
         message = (f"{self.count} of {seen} messages since the last evaluation unreadable: "
                    f"{self.reason}")
-        return Observation(now, observer, resource, code, values=values, message=message)
+        observation = Observation(now, observer, resource, code,
+                                  values={"skipped": float(self.count), **(values or {})},
+                                  message=message)
+        self.clear()
+        return observation
 
 
 def summary_values(summaries: Mapping[str, Summary | None]) -> dict[str, float]:

@@ -49,13 +49,11 @@ class ScoresObserver(ObserverBase):
         self.resource = Resource(topic=topic)
         self._read: Callable[[Any], float] = compile_field_path(field)
         self._problems = SampleProblems()
-        self._seen = 0
 
     def interest(self) -> Interest:
         return Interest(decoded=frozenset({self.topic}))
 
     def on_message(self, msg: MessageArrival) -> None:
-        self._seen += 1
         value = self._problems.value_of(msg)
         if value is None:
             return
@@ -70,16 +68,11 @@ class ScoresObserver(ObserverBase):
         self.score.update(x)
 
     def evaluate(self, now: float) -> list[Observation]:
-        problems, seen = self._problems, self._seen
-        self._seen = 0
         summary = self.score.summary()
-        if problems.count:
-            values = {"skipped": float(problems.count)}
-            if summary is not None:
-                values["score"] = summary.value
-            observation = problems.observation(now, self.type_name, self.resource, seen, values)
-            problems.clear()
-            return [observation]
+        skipped = self._problems.report(now, self.type_name, self.resource,
+                                        None if summary is None else {"score": summary.value})
+        if skipped is not None:
+            return [skipped]
         if summary is None:
             return [Observation(now, self.type_name, self.resource, Code.NOT_AVAILABLE,
                                 message="waiting for first message")]

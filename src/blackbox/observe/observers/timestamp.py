@@ -73,7 +73,6 @@ class TimestampObserver(ObserverBase):
         self.resource = Resource(topic=topic, publishers=self.publishers)
         self._group = frozenset(self.publishers)
         self._problems = SampleProblems()
-        self._seen = 0
 
     def interest(self) -> Interest:
         return Interest(decoded=frozenset({self.topic}))
@@ -81,7 +80,6 @@ class TimestampObserver(ObserverBase):
     def on_message(self, msg: MessageArrival) -> None:
         if self._group and msg.publisher not in self._group:
             return
-        self._seen += 1
         value = self._problems.value_of(msg)
         if value is None:
             return
@@ -96,16 +94,11 @@ class TimestampObserver(ObserverBase):
         self.age.update(msg.time - stamp)
 
     def evaluate(self, now: float) -> list[Observation]:
-        problems, seen = self._problems, self._seen
-        self._seen = 0
         summary = self.age.summary()
-        if problems.count:
-            values = {"skipped": float(problems.count)}
-            if summary is not None:
-                values["age"] = summary.value
-            observation = problems.observation(now, self.type_name, self.resource, seen, values)
-            problems.clear()
-            return [observation]
+        skipped = self._problems.report(now, self.type_name, self.resource,
+                                        None if summary is None else {"age": summary.value})
+        if skipped is not None:
+            return [skipped]
         if summary is None:
             return [Observation(now, self.type_name, self.resource, Code.NOT_AVAILABLE,
                                 message="waiting for first message")]

@@ -120,7 +120,6 @@ class VelocityObserver(ObserverBase):
         self._b = AccelerationEstimate(source_b, names, acceleration_window_size)
         self._updates = [q.update for q in self.axes.values()]
         self._problems = SampleProblems()
-        self._seen = 0
 
     def interest(self) -> Interest:
         return Interest(decoded=frozenset({self.source_a.topic, self.source_b.topic}))
@@ -129,7 +128,6 @@ class VelocityObserver(ObserverBase):
         estimates = [e for e in (self._a, self._b) if e.source.topic == msg.topic]
         if not estimates:
             return
-        self._seen += 1
         value = self._problems.value_of(msg, msg.topic)
         if value is None:
             return
@@ -150,13 +148,9 @@ class VelocityObserver(ObserverBase):
             update(a_i - b_i)
 
     def evaluate(self, now: float) -> list[Observation]:
-        problems, seen = self._problems, self._seen
-        self._seen = 0
-        if problems.count:
-            observation = problems.observation(now, self.type_name, self.resource, seen,
-                                               {"skipped": float(problems.count)})
-            problems.clear()
-            return [observation]
+        skipped = self._problems.report(now, self.type_name, self.resource)
+        if skipped is not None:
+            return [skipped]
         summaries = {axis: q.summary() for axis, q in self.axes.items()}
         if any(s is None for s in summaries.values()):
             waiting = ", ".join(f"{e.source.topic} {min(e.messages, e.needed)} of {e.needed}"
