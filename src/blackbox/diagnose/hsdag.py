@@ -17,11 +17,14 @@ subset test is a handful of machine-word operations. Three observations keep the
 
 * A node is labelled with the smallest known conflict it does not hit, found with one mask
   per element ("conflicts containing e"): the conflicts disjoint from a path are the live ones
-  outside the union of its elements' masks. Only when none is left is the prover asked.
+  outside the union of its elements' masks, a union a child gets from its parent with one
+  more OR. Only when none is left is the prover asked.
 * Reiter's closing rule (a path containing a known hitting set is closed) can only apply to a
   path that hits every known conflict, and only when some element of it has no *private*
   known conflict (one that meets the path in that element alone); otherwise the path is
-  minimal for the known conflicts and cannot contain a smaller hitting set.
+  minimal for the known conflicts and cannot contain a smaller hitting set. A hitting set
+  inside the path must hold the private elements and the element the path was reached by,
+  which leaves few candidates to look up.
 * A strictly smaller new conflict relabels the nodes whose label contains it; the edges for
   the dropped elements disappear with the old label, and nodes no longer reachable from the
   root are pruned before their level is expanded (Greiner's pruning, batched per level).
