@@ -1,4 +1,5 @@
-"""Reading the keys every observer entry shares, with one clear error per mistake."""
+"""Reading the keys every observer entry shares, with one clear error per mistake, and
+saying a publisher group back in ``describe()``."""
 
 from __future__ import annotations
 
@@ -36,6 +37,11 @@ def read_publishers(node: ConfigNode, key: str = "publishers") -> tuple[str, ...
     if len(set(names)) != len(names):
         raise child.error(f"{key} lists a publisher twice")
     return names
+
+
+def describe_publishers(publishers: tuple[str, ...]) -> str:
+    """A publisher group as ``describe()`` shows it."""
+    return ",".join(publishers) if publishers else "all publishers"
 
 
 def read_bool(node: ConfigNode, key: str, default: bool) -> bool:

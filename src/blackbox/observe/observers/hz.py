@@ -24,6 +24,7 @@ from blackbox.model import Code, Observation, Resource
 from blackbox.observe.base import OBSERVERS, ObserverBase, register
 from blackbox.observe.observers.entry import (
     COMMON_KEYS,
+    describe_publishers,
     read_every,
     read_name,
     read_publishers,
@@ -103,7 +104,7 @@ class HzObserver(ObserverBase):
                            values=values or {}, message=why)
 
     def describe(self) -> str:
-        group = ",".join(self.publishers) if self.publishers else "all publishers"
+        group = describe_publishers(self.publishers)
         return (f"hz {self.topic} [{group}]: {self.period.describe()}; "
                 f"{describe_states_inline(self.states)}, every {self.interval:g} s")
 

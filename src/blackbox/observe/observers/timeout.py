@@ -24,7 +24,13 @@ from typing import ClassVar
 from blackbox.config.node import ConfigNode
 from blackbox.model import Code, Observation, Resource
 from blackbox.observe.base import OBSERVERS, ObserverBase, register
-from blackbox.observe.observers.entry import COMMON_KEYS, read_every, read_name, read_publishers
+from blackbox.observe.observers.entry import (
+    COMMON_KEYS,
+    describe_publishers,
+    read_every,
+    read_name,
+    read_publishers,
+)
 from blackbox.sources.base import Interest, MessageArrival
 
 DEFAULT_MAX_TIMEOUTS_IN_A_ROW = 1
@@ -106,7 +112,7 @@ class TimeoutObserver(ObserverBase):
         return f"{what} ({limit}, {in_a_row} in a row)"
 
     def describe(self) -> str:
-        group = ",".join(self.publishers) if self.publishers else "all publishers"
+        group = describe_publishers(self.publishers)
         return (f"timeout {self.topic} [{group}]: no message for {self.timeout:g} s, "
                 f"max {self.max_timeouts_in_a_row} in a row, checked every "
                 f"{self.interval:g} s, reported every {self.every:g} s")

@@ -19,6 +19,7 @@ from blackbox.observe.base import OBSERVERS, ObserverBase, register
 from blackbox.observe.fieldpath import compile_field_access
 from blackbox.observe.observers.entry import (
     COMMON_KEYS,
+    describe_publishers,
     read_every,
     read_name,
     read_publishers,
@@ -107,7 +108,7 @@ class TimestampObserver(ObserverBase):
                             verdict.values, f"age {number(summary.value)} s {verdict.fits}")]
 
     def describe(self) -> str:
-        group = ",".join(self.publishers) if self.publishers else "all publishers"
+        group = describe_publishers(self.publishers)
         return (f"timestamp {self.topic} [{group}]: {self.age.describe()}; "
                 f"{describe_states_inline(self.states)}, every {self.interval:g} s")
 

@@ -22,6 +22,7 @@ from blackbox.model import Code, Observation, Resource
 from blackbox.observe.base import OBSERVERS, ObserverBase, register
 from blackbox.observe.observers.entry import (
     COMMON_KEYS,
+    describe_publishers,
     read_bool,
     read_every,
     read_name,
@@ -36,10 +37,6 @@ from blackbox.observe.observers.quantity import (
 )
 from blackbox.observe.states import StateSpec, parse_states
 from blackbox.sources.base import Interest, MessageArrival
-
-
-def _group_text(publishers: tuple[str, ...]) -> str:
-    return ",".join(publishers) if publishers else "all publishers"
 
 
 class TimingObserver(ObserverBase):
@@ -108,8 +105,10 @@ class TimingObserver(ObserverBase):
 
     def describe(self) -> str:
         shot = ", single shot" if self.single_shot else ""
-        return (f"timing {self.topic_a} [{_group_text(self.publishers_a)}] -> {self.topic_b} "
-                f"[{_group_text(self.publishers_b)}]{shot}: {self.delay.describe()}; "
+        group_a = describe_publishers(self.publishers_a)
+        group_b = describe_publishers(self.publishers_b)
+        return (f"timing {self.topic_a} [{group_a}] -> {self.topic_b} [{group_b}]{shot}: "
+                f"{self.delay.describe()}; "
                 f"{describe_states_inline(self.states)}, every {self.interval:g} s")
 
 
