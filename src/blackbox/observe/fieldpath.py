@@ -46,7 +46,8 @@ def _shown(steps: list[_Step], upto: int) -> str:
     return out or "message"
 
 
-def _describe(value: Any) -> str:
+def describe_value(value: Any) -> str:
+    """A value's type and its repr cut to 40 characters, for error messages."""
     text = repr(value)
     if len(text) > 40:
         text = text[:37] + "..."
@@ -77,7 +78,7 @@ def compile_field_access(path: str) -> Callable[[Any], Any]:
                                  f"{_shown(steps, n)}") from None
             except (TypeError, ValueError):
                 raise ValueError(f"field path {path!r}: {_shown(steps, n)} is "
-                                 f"{_describe(value)}, cannot take [{key}]") from None
+                                 f"{describe_value(value)}, cannot take [{key}]") from None
         return value
 
     return access
@@ -101,6 +102,6 @@ def compile_field_path(path: str) -> Callable[[Any], float]:
             kind = value.dtype.kind
             if kind in "biuf":
                 return float(value)
-        raise ValueError(f"field path {path!r}: value is {_describe(value)}, not a number")
+        raise ValueError(f"field path {path!r}: value is {describe_value(value)}, not a number")
 
     return number

@@ -16,7 +16,7 @@ from typing import Any, ClassVar
 from blackbox.config.node import ConfigNode
 from blackbox.model import Code, Observation, Resource
 from blackbox.observe.base import OBSERVERS, ObserverBase, register
-from blackbox.observe.fieldpath import compile_field_access
+from blackbox.observe.fieldpath import compile_field_access, describe_value
 from blackbox.observe.observers.entry import (
     COMMON_KEYS,
     describe_publishers,
@@ -53,9 +53,7 @@ def stamp_seconds(stamp: Any) -> float:
         sec, nsec = _part(stamp, sec_name), _part(stamp, nsec_name)
         if isinstance(sec, Real) and isinstance(nsec, Real):
             return float(sec) + float(nsec) * 1e-9
-    shown = repr(stamp)
-    shown = shown if len(shown) <= 40 else shown[:37] + "..."
-    raise ValueError(f"header.stamp is {type(stamp).__name__} {shown}, not a time "
+    raise ValueError(f"header.stamp is {describe_value(stamp)}, not a time "
                      "(sec/nanosec, secs/nsecs or seconds)")
 
 
