@@ -38,7 +38,6 @@ class NetworkObserver(ObserverBase):
         self.interval = every
         self.resource = Resource(interface=interface)
         self._previous: NetworkSample | None = None
-        self._resets = 0
 
     def interest(self) -> Interest:
         return Interest(network=True)
@@ -55,7 +54,6 @@ class NetworkObserver(ObserverBase):
         d_rx = sample.rx_bytes - previous.rx_bytes
         d_tx = sample.tx_bytes - previous.tx_bytes
         if d_rx < 0 or d_tx < 0:
-            self._resets += 1
             return
         dt = sample.time - previous.time
         self.rx.update(d_rx / dt)
