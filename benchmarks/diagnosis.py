@@ -1,7 +1,7 @@
 """Diagnosis benchmarks: re-diagnosis latency, HS-DAG vs PySAT Hitman, DXC scores.
 
 Run from the repository root: ``.venv/bin/python benchmarks/diagnosis.py [--quick]``.
-Prints Markdown tables (the numbers in docs/benchmarks/diagnosis.md come from here).
+Prints Markdown tables (the numbers in docs/benchmarks.md (section Diagnosis) come from here).
 """
 
 from __future__ import annotations
