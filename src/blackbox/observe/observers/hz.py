@@ -90,9 +90,10 @@ class HzObserver(ObserverBase):
                 note = f"; no message for {silent:.3g} s (counted as a provisional period)"
         verdict = judge(self.states, {"period": summary})
         values = dict(verdict.values)
-        rate = f" ({1.0 / summary.value:.3g} Hz)" if summary.value > 0 else ""
+        rate = ""
         if summary.value > 0:
             values["rate_hz"] = 1.0 / summary.value
+            rate = f" ({values['rate_hz']:.3g} Hz)"
         values["silent_for"] = silent
         message = f"period {number(summary.value)} s{rate} {verdict.fits}{note}"
         return [Observation(now, self.type_name, self.resource, verdict.code, verdict.states,
