@@ -70,7 +70,7 @@ def master_uri_from_spec(spec: str, environ: dict[str, str] | os._Environ[str] =
 class Ros1Source:
     """A live ROS 1 robot, observed without registering anything with its master."""
 
-    def __init__(self, master_uri: str, *, graph_period: float = 0.3,
+    def __init__(self, master_uri: str, *, graph_period: float = 0.45,
                  probe_timeout: float = 0.5, resource_period: float = 1.0,
                  idle_grace: float = 2.0, queue_limit: int = 200_000,
                  backoff_min: float = 0.1, backoff_max: float = 2.0,
