@@ -120,3 +120,37 @@ def test_demo_runs_black_box_and_station_as_two_processes_over_dds(tmp_path: Pat
     assert "/usb_cam" in result.stdout
     assert (tmp_path / "blackbox.db").exists()
     assert "8.0 s observed" in (tmp_path / "blackbox.log").read_text()
+
+
+def test_log_import_reaches_a_running_black_box_without_restart(tmp_path: Path) -> None:
+    db, out = tmp_path / "bb.db", tmp_path / "obs.jsonl"
+    proc = subprocess.Popen([*BLACKBOX, "run", "--quiet", "--record", str(db),
+                             "--observations", str(out), "--duration", "30"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and (not out.exists() or out.stat().st_size == 0):
+            time.sleep(0.1)
+        thesis = Path(__file__).resolve().parent.parent / "src/blackbox/configs/thesis.yaml"
+        stricter = tmp_path / "stricter.yaml"
+        stricter.write_text(thesis.read_text().replace("mean: 15.0, std_deviation: 0.5",
+                                                       "mean: 20.0, std_deviation: 0.5"))
+        imported = blackbox("log", "import", "--db", str(db), str(stricter),
+                            "--note", "tighter signal")
+        assert imported.returncode == 0, imported.stderr
+
+        def scores_failing() -> bool:
+            return any(r["observer"] == "scores" and r["faulty"] for r in read_records(out))
+
+        while time.monotonic() < deadline + 20 and not scores_failing():
+            time.sleep(0.2)
+        assert scores_failing(), "the imported thresholds were never applied"
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=15)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    events = blackbox("log", "query", "--db", str(db), "--kind", "blackbox_event",
+                      "--format", "jsonl")
+    kinds = [json.loads(line)["payload"].get("event") for line in events.stdout.splitlines()]
+    assert "config_applied" in kinds

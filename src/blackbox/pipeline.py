@@ -84,7 +84,8 @@ class Pipeline:
         self._closed = False
         self._interest = Interest()
         self.latest_graph: GraphSnapshot | None = None
-        self.lock = threading.Lock()
+        # Re-entrant: an imported configuration is applied from inside a sink call of step().
+        self.lock = threading.RLock()
         self._index_observers()
 
     def _index_observers(self) -> None:
