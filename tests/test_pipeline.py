@@ -157,3 +157,20 @@ def test_evaluate_all_runs_every_observer_now() -> None:
     result = pipeline.evaluate_all()
     assert {o.resource.topic for o in result} == {"/a", "/b"}
     assert all(o.time == 0.5 for o in result)
+
+
+def test_evaluate_all_includes_the_standing_verdict_of_an_observer_reporting_at_its_own_pace(
+) -> None:
+    class EveryOtherTime(CountingObserver):
+        calls = 0
+
+        def evaluate(self, now: float) -> list[Observation]:
+            self.calls += 1
+            return super().evaluate(now) if self.calls % 2 else []
+
+    quiet = EveryOtherTime("/b")
+    pipeline = Pipeline(MemorySource(arrivals("/b", [0.1])), [quiet])
+    pipeline.start()
+    pipeline.step(1.0)  # first call reports
+    result = pipeline.evaluate_all(1.5)  # second call reports nothing: the standing verdict
+    assert [(o.resource.topic, o.time) for o in result] == [("/b", 1.0)]
