@@ -5,6 +5,11 @@ resource). Each one contributes an assumption literal: OK, failed, or nothing at
 code is ``NOT_AVAILABLE`` (the observer has no data yet, so it is neither evidence of a fault
 nor of health). Every other negative code counts as a failure.
 
+Fault propagation through a node depends on the failure mode (``docs/diagnosis.md``). Whether
+a node's output rate needs an input is an assumption literal per edge (``depends``): fixed by
+configuration, or learnt: once the node has been seen publishing at rate for
+``learn_after`` seconds while that input was silent, the edge no longer carries silence.
+
 When that assignment changes, the engine recomputes the minimal diagnoses with the HS-DAG
 over conflicts from the SAT solver, reusing every earlier conflict whose supporting
 observations still hold, and a cache of whole results for assignments seen before (a flapping
@@ -21,13 +26,17 @@ from pathlib import Path
 
 from blackbox.diagnose.hsdag import hs_dag
 from blackbox.diagnose.robot_model import (
+    Edge,
+    Explanation,
     NodeSpec,
     ObservationSpec,
     ObservedResource,
+    Propagation,
     RobotModel,
     TopicStructure,
     build_model,
     derive_robot_model,
+    is_rate_type,
     load_robot_model,
 )
 from blackbox.diagnose.sat import ConsistencyChecker, Theory
@@ -54,11 +63,14 @@ class DiagnosisEngine:
     ``priors`` maps component names (or kinds: ``node``, ``hardware``, ``topic``,
     ``interface``) to prior fault probabilities in (0, 1). ``max_cardinality`` bounds the
     size of a diagnosis, ``time_budget`` (seconds) the search of one re-diagnosis.
+    ``propagation`` says how input faults reach a node's outputs; ``independent`` are edges
+    already learnt not to carry silence (an engine rebuilt for a changed graph keeps them).
     """
 
     def __init__(self, model: RobotModel, priors: Mapping[str, float] | None = None, *,
                  max_cardinality: int | None = None, time_budget: float = 0.1,
-                 cache_size: int = 256) -> None:
+                 cache_size: int = 256, propagation: Propagation | None = None,
+                 independent: Iterable[Edge] = ()) -> None:
         self.priors = dict(priors or {})
         for name, p in self.priors.items():
             if not 0.0 < p < 1.0:
@@ -66,6 +78,9 @@ class DiagnosisEngine:
         self.max_cardinality = max_cardinality
         self.time_budget = time_budget
         self._cache_size = cache_size
+        self.propagation = propagation if propagation is not None else Propagation()
+        self._independent: set[Edge] = set(independent)
+        self._evidence: dict[Edge, float] = {}
         self._latest: dict[Key, Observation] = {}
         self._current = Diagnosis(time=0.0, candidates=(), explanation="No observations yet.")
         self._build(model)
@@ -85,32 +100,98 @@ class DiagnosisEngine:
 
     def _build(self, model: RobotModel) -> None:
         self.model = model
-        self.structure = TopicStructure(model)
+        self.structure = st = TopicStructure(model)
         th = Theory()
         self.theory = th
-        for t in model.topics:
-            ex = self.structure.producers(t, (), rate=True)
-            th.add([th.var(("good", t)), *(th.ab(c) for c in ex.components),
-                    *(-th.var(("good", i)) for i in ex.inputs)])
+        self._depends: dict[Edge, int] = {}
         self._slot: dict[Key, int] = {}
-        mentions: dict[str, list[int]] = {}
+        self._known: dict[Key, int] = {}
+        for t in model.topics:
+            self._rate_clause(th.var(("live", t)), st.producers(t, (), rate=True))
+            self._value_clause(th.var(("right", t)), st.producers(t, (), rate=False))
+        mentions: dict[str, list[ObservationSpec]] = {}
         for spec in model.observations:
             ok = th.var(("ok", spec.key()))
             self._slot[spec.key()] = ok
-            ex = self.structure.explain(spec)
-            comps = ex.components
-            if not comps and not ex.inputs:
-                comps = tuple(t for t in (spec.resource.topic, spec.resource.topic_b) if t)
-            th.add([ok, *(th.ab(c) for c in comps), *(-th.var(("good", i)) for i in ex.inputs)])
-            for t in self.structure.mentions(spec):
-                mentions.setdefault(t, []).append(ok)
-        for t, oks in mentions.items():
-            th.add([th.var(("good", t)), *(-ok for ok in oks)])
+            ex = st.explain(spec)
+            if not ex.components and not ex.inputs:
+                ex = Explanation(tuple(t for t in (spec.resource.topic, spec.resource.topic_b)
+                                       if t), ())
+            if is_rate_type(spec.type):
+                self._rate_clause(ok, ex)
+            else:
+                self._value_clause(ok, ex)
+            for t in st.mentions(spec):
+                mentions.setdefault(t, []).append(spec)
+        for t, specs in mentions.items():
+            rate = [s for s in specs if is_rate_type(s.type)]
+            value = [s for s in specs if not is_rate_type(s.type)]
+            self._exonerate(th.var(("live", t)), rate, value)
+            self._exonerate(th.var(("right", t)), value, rate)
+        self._watch = self._learning_evidence(mentions)
         self.checker = ConsistencyChecker(th, model.components)
         self._conflicts: dict[frozenset[str], frozenset[int]] = {}
         self._cache: OrderedDict[frozenset[int], tuple[tuple[frozenset[str], ...], bool]] = (
             OrderedDict())
         self._facts_key: frozenset[int] | None = None
+
+    def _silenced(self, edge: Edge) -> int:
+        """A helper literal: the edge's input is not live *and* the output's rate needs it."""
+        th = self.theory
+        silenced = th.var(("silenced", edge))
+        if edge not in self._depends:
+            self._depends[edge] = th.var(("depends", edge))
+            th.add([-silenced, -th.var(("live", edge.input))])
+            th.add([-silenced, self._depends[edge]])
+        return silenced
+
+    def _rate_clause(self, head: int, ex: Explanation) -> None:
+        """``head`` holds unless a component is abnormal or an input silences an output."""
+        th = self.theory
+        th.add(dict.fromkeys([head, *(th.ab(c) for c in ex.components),
+                              *(self._silenced(e) for e in ex.edges)]))
+
+    def _value_clause(self, head: int, ex: Explanation) -> None:
+        """``head`` holds unless a component is abnormal or an input's values are wrong (or,
+        where configured, an input is not live)."""
+        th = self.theory
+        stale = [-th.var(("live", e.input)) for e in ex.edges
+                 if self.propagation.value_from_rate_of(e.node)]
+        th.add(dict.fromkeys([head, *(th.ab(c) for c in ex.components),
+                              *(-th.var(("right", i)) for i in ex.inputs), *stale]))
+
+    def _exonerate(self, mode: int, covering: Sequence[ObservationSpec],
+                   others: Sequence[ObservationSpec]) -> None:
+        """A mode holds when all its observations are OK; a mode no observer covers holds as
+        soon as any observation of the topic has data."""
+        th = self.theory
+        if covering:
+            th.add([mode, *(-self._slot[s.key()] for s in covering)])
+            return
+        for s in others:
+            known = self._known.get(s.key())
+            if known is None:
+                known = self._known[s.key()] = th.var(("known", s.key()))
+            th.add([mode, -known])
+
+    def _learning_evidence(self, mentions: Mapping[str, Sequence[ObservationSpec]]
+                           ) -> list[tuple[Edge, list[Key], list[Key], list[Key]]]:
+        """Per learnable edge: the observations that say its output is at rate, those that
+        say its input is silent (time-outs), and the liveness of the input's publishers."""
+        out = []
+        activated = {s.resource.node: s.key() for s in self.model.observations
+                     if s.type == "activated" and s.resource.node}
+        for edge in self._depends:
+            if self.propagation.rate_of(edge.node) != "learn":
+                continue
+            at_rate = [s.key() for s in mentions.get(edge.output, ()) if is_rate_type(s.type)]
+            timeouts = [s.key() for s in mentions.get(edge.input, ()) if s.type == "timeout"]
+            pubs = self.model.publishers(edge.input)
+            alive = [activated[p] for p in pubs] if pubs and all(p in activated
+                                                                  for p in pubs) else []
+            if at_rate and (timeouts or alive):
+                out.append((edge, at_rate, timeouts, alive))
+        return out
 
     def _ensure_slot(self, obs: Observation) -> None:
         """Observations the model did not declare extend it (and rebuild the clauses)."""
@@ -140,6 +221,16 @@ class DiagnosisEngine:
             return (len(s), -odds, sorted(s))
         return tuple(sorted(sets, key=key))
 
+    @property
+    def independent(self) -> frozenset[Edge]:
+        """Edges learnt not to carry silence: the node published at rate without the input."""
+        return frozenset(self._independent)
+
+    def depends(self, edge: Edge) -> bool:
+        """Whether silence of ``edge.input`` is taken to silence ``edge.output``."""
+        mode = self.propagation.rate_of(edge.node)
+        return mode == "always" or (mode == "learn" and edge not in self._independent)
+
     def _facts(self) -> list[int]:
         facts = []
         for key, obs in self._latest.items():
@@ -147,7 +238,29 @@ class DiagnosisEngine:
             if value is not None:
                 ok = self._slot[key]
                 facts.append(ok if value else -ok)
+                if key in self._known:
+                    facts.append(self._known[key])
+        facts.extend(v if self.depends(e) else -v for e, v in self._depends.items())
         return sorted(facts)
+
+    def _learn(self, now: float) -> None:
+        """Watch for a node publishing at rate while an input is silent."""
+        def fact(key: Key) -> bool | None:
+            obs = self._latest.get(key)
+            return None if obs is None else observation_fact(obs.code)
+
+        for edge, at_rate, timeouts, alive in self._watch:
+            if edge in self._independent:
+                continue
+            silent = (any(fact(k) is False for k in timeouts)
+                      or (alive and all(fact(k) is False for k in alive)))
+            if silent and all(fact(k) is True for k in at_rate):
+                since = self._evidence.setdefault(edge, now)
+                if now - since >= self.propagation.learn_after:
+                    self._independent.add(edge)
+                    del self._evidence[edge]
+            else:
+                self._evidence.pop(edge, None)
 
     def _search(self, facts: list[int]) -> tuple[tuple[frozenset[str], ...], bool]:
         key = frozenset(facts)
@@ -180,6 +293,7 @@ class DiagnosisEngine:
         for obs in observations:
             self._ensure_slot(obs)
             self._latest[obs.key()] = obs
+        self._learn(now)
         facts = self._facts()
         fkey = frozenset(facts)
         if fkey == self._facts_key:

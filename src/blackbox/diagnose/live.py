@@ -13,6 +13,18 @@ Configured by the native ``diagnosis:`` section::
       priors: {/usb_cam: 0.2, topic: 0.005}   # component names or kinds -> probability
       max_cardinality: 4        # largest diagnosis searched
       time_budget: 0.1          # seconds per re-diagnosis (anytime: best so far)
+      propagation:              # how an input's fault reaches a node's outputs
+        rate: learn             # learn | always | never: does a silent input silence the node?
+        learn_after: 3.0        # seconds of "input silent, output at rate" before learning never
+        value_from_rate: false  # may a silent or off-rate input make the node's values wrong?
+        nodes:                  # per-node overrides of rate and value_from_rate
+          /Signal_generator: {rate: never}
+
+``propagation.rate``: ``always`` means a node stops publishing when an input falls silent,
+so the input's silence explains the node's; ``never`` means it publishes on its own clock;
+``learn`` (default) assumes ``always`` until the node is seen publishing at rate while the
+input is silent for ``learn_after`` seconds. A value failure of an output is explained by
+an input only through a value failure of that input, unless ``value_from_rate`` is true.
 """
 
 from __future__ import annotations
@@ -23,7 +35,12 @@ from pathlib import Path
 
 from blackbox.config.node import ConfigNode
 from blackbox.diagnose.engine import DiagnosisEngine
-from blackbox.diagnose.robot_model import ObservedResource
+from blackbox.diagnose.robot_model import (
+    RATE_MODES,
+    NodePropagation,
+    ObservedResource,
+    Propagation,
+)
 from blackbox.model import Diagnosis, Observation
 from blackbox.sources.base import GraphSnapshot
 
@@ -35,12 +52,14 @@ class DiagnosisSettings:
     priors: Mapping[str, float] = field(default_factory=dict)
     max_cardinality: int | None = 4
     time_budget: float = 0.1
+    propagation: Propagation = field(default_factory=Propagation)
 
     @classmethod
     def from_config(cls, node: ConfigNode | None, base_dir: Path) -> DiagnosisSettings:
         if node is None:
             return cls()
-        node.check_keys(["enabled", "model", "priors", "max_cardinality", "time_budget"])
+        node.check_keys(["enabled", "model", "priors", "max_cardinality", "time_budget",
+                         "propagation"])
         enabled = node["enabled"].bool() if node.get("enabled") is not None else True
         model = None
         if node.get("model") is not None:
@@ -56,7 +75,33 @@ class DiagnosisSettings:
                     is not None else 4)
         budget = (node["time_budget"].float(min=0.0, min_exclusive=True)
                   if node.get("time_budget") is not None else 0.1)
-        return cls(enabled, model, priors, max_card, budget)
+        propagation = (_propagation(node["propagation"]) if node.get("propagation")
+                       is not None else Propagation())
+        return cls(enabled, model, priors, max_card, budget, propagation)
+
+
+def _modes(node: ConfigNode) -> NodePropagation:
+    """``rate`` and ``value_from_rate`` of a ``propagation`` section or one of its nodes."""
+    rate = node["rate"].str(RATE_MODES) if node.get("rate") is not None else None
+    stale = node["value_from_rate"].bool() if node.get("value_from_rate") is not None else None
+    return NodePropagation(rate, stale)
+
+
+def _propagation(node: ConfigNode) -> Propagation:
+    node.check_keys(["rate", "value_from_rate", "learn_after", "nodes"])
+    default = Propagation()
+    own = _modes(node)
+    learn_after = (node["learn_after"].float(min=0.0) if node.get("learn_after") is not None
+                   else default.learn_after)
+    nodes: dict[str, NodePropagation] = {}
+    if node.get("nodes") is not None:
+        for name, item in node["nodes"].items():
+            item.check_keys(["rate", "value_from_rate"])
+            nodes[name] = _modes(item)
+    return Propagation(
+        default.rate if own.rate is None else own.rate,
+        default.value_from_rate if own.value_from_rate is None else own.value_from_rate,
+        learn_after, nodes)
 
 
 def _structure(graph: GraphSnapshot) -> frozenset[tuple[str, tuple[str, ...], tuple[str, ...]]]:
@@ -79,8 +124,12 @@ class LiveDiagnoser:
                                                           **self._engine_kwargs())
 
     def _engine_kwargs(self) -> dict[str, object]:
-        return {"max_cardinality": self.settings.max_cardinality,
-                "time_budget": self.settings.time_budget}
+        kwargs: dict[str, object] = {"max_cardinality": self.settings.max_cardinality,
+                                     "time_budget": self.settings.time_budget,
+                                     "propagation": self.settings.propagation}
+        if self.engine is not None:
+            kwargs["independent"] = self.engine.independent
+        return kwargs
 
     def on_graph(self, graph: GraphSnapshot) -> None:
         if self.settings.model is not None:

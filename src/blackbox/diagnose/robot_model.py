@@ -5,19 +5,24 @@ The model comes from a tug_diagnosis YAML file (``nodes`` with ``pub_topic``/``s
 node names devices behind a driver node) or is derived from a live :class:`GraphSnapshot`
 plus the observers' resources, with no extra file.
 
-Clauses (weak fault model plus one exoneration rule; see ``docs/diagnosis.md``):
+A topic fails in one of two *modes*, each with its own variable (weak fault model; see
+``docs/diagnosis.md``):
 
-* ``good(T)`` means topic ``T`` delivers right messages at the right rate. It holds when the
-  topic (the transport), its publishers, their hardware and all their input topics are good:
-  ``not AB(T) and not AB(p) and not AB(h) and good(I) ... -> good(T)``.
-* *rate* observations (``hz``, ``timeout``, ``timestamp``, ``timing``) on ``T`` hold when the
-  topic and the publishers of the observed group (with hardware and inputs) are healthy;
-  *value* observations (``scores``, ``velocity``, ``moving``) the same without ``AB(T)``:
-  a transport delays or drops messages but does not change their content.
-* ``activated`` and ``resources`` hold when their node is healthy; ``network`` when its
-  interface is.
-* Exoneration: when every observation mentioning ``T`` is known and OK, ``good(T)`` holds, so
-  upstream components cannot explain symptoms downstream of a healthy-looking topic.
+* ``live(T)``: messages arrive at the right rate. It holds when the topic (the transport),
+  its publishers, their hardware and those input topics whose silence silences the
+  publisher (see :class:`Propagation`) are healthy and live.
+* ``right(T)``: the messages carry right values. It holds when the publishers, their
+  hardware and the values of their inputs are right; a transport delays or drops messages
+  but does not change them, and an input's rate failure reaches the values only where
+  configured (``value_from_rate``).
+* *rate* observations (``hz``, ``timeout``, ``timestamp``, ``timing``) on ``T`` fail only when
+  ``live`` fails for the observed publisher group, *value* observations (``scores``,
+  ``velocity``, ``moving``) only when ``right`` fails; ``activated`` and ``resources`` when
+  their node is faulty, ``network`` when its interface is.
+* Exoneration: when the observations of a mode on ``T`` are all known and OK, that mode
+  holds; when no observer covers a mode of an observed topic (some observation of ``T`` has
+  data), that mode is taken to hold. So a silent camera topic explains a silent signal, not
+  a wrong signal value, unless a value observer of the camera topic says so.
 
 Topics in a feedback loop are treated as one unit (their strongly connected component), so a
 cycle of healthy nodes can never "explain" a symptom by itself.
@@ -34,12 +39,18 @@ from blackbox.config.node import ConfigNode
 from blackbox.model import Resource
 from blackbox.sources.base import GraphSnapshot
 
+RATE_MODES = ("learn", "always", "never")
 RATE_TYPES = frozenset({"hz", "timeout", "timestamp", "timing"})
 VALUE_TYPES = frozenset({"scores", "velocity", "moving", "movement"})
 NODE_TYPES = frozenset({"activated", "resources"})
 NETWORK_TYPES = frozenset({"network"})
 OBSERVATION_TYPES = RATE_TYPES | VALUE_TYPES | NODE_TYPES | NETWORK_TYPES
 PAIR_TYPES = frozenset({"timing", "velocity"})
+
+
+def is_rate_type(observer: str) -> bool:
+    """Whether observations of this type judge the rate (``live``) rather than the values."""
+    return observer not in VALUE_TYPES
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,6 +70,51 @@ class ObservationSpec:
 
     def key(self) -> tuple[str, Resource]:
         return (self.type, self.resource)
+
+
+@dataclass(frozen=True, slots=True)
+class NodePropagation:
+    """How faults of a node's inputs reach its outputs; ``None`` falls back to the default.
+
+    ``rate``: ``always`` (the node stops publishing when an input falls silent), ``never``
+    (it publishes on its own clock), ``learn`` (assume ``always`` until the node is seen
+    publishing at rate while an input is silent). ``value_from_rate``: a silent or off-rate
+    input may make the node's output values wrong (stale or default values).
+    """
+
+    rate: str | None = None
+    value_from_rate: bool | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Propagation:
+    """Fault propagation through the nodes; defaults for every node plus per-node overrides.
+
+    ``learn_after`` is how many seconds the evidence for ``learn`` (input silent, output at
+    rate) must last: a node that stops after its own input time-out looks independent
+    until then.
+    """
+
+    rate: str = "learn"
+    value_from_rate: bool = False
+    learn_after: float = 3.0
+    nodes: Mapping[str, NodePropagation] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for mode in (self.rate, *(n.rate for n in self.nodes.values() if n.rate)):
+            if mode not in RATE_MODES:
+                raise ValueError(f"rate propagation must be one of {', '.join(RATE_MODES)}, "
+                                 f"got {mode!r}")
+
+    def rate_of(self, node: str) -> str:
+        own = self.nodes.get(node)
+        return own.rate if own is not None and own.rate is not None else self.rate
+
+    def value_from_rate_of(self, node: str) -> bool:
+        own = self.nodes.get(node)
+        if own is not None and own.value_from_rate is not None:
+            return own.value_from_rate
+        return self.value_from_rate
 
 
 @dataclass(frozen=True, slots=True)
@@ -220,12 +276,22 @@ def derive_robot_model(graph: GraphSnapshot, observed: Sequence[ObservedResource
 # ---- clauses ---------------------------------------------------------------------------------
 
 @dataclass(frozen=True, slots=True)
+class Edge:
+    """``node`` publishes ``output`` and subscribes ``input``: a path for faults."""
+
+    node: str
+    output: str
+    input: str
+
+
+@dataclass(frozen=True, slots=True)
 class Explanation:
     """Who may be to blame for an observation: ``components`` directly, ``inputs`` via the
-    ``good`` variable of upstream topics."""
+    health of upstream topics; ``edges`` say through which node each input is reached."""
 
     components: tuple[str, ...]
     inputs: tuple[str, ...]
+    edges: tuple[Edge, ...] = ()
 
 
 def _scc(model: RobotModel) -> dict[str, frozenset[str]]:
@@ -298,7 +364,7 @@ class TopicStructure:
                                       if p in self._node)
         topics = sorted(loop) if cyclic else [topic]
         comps: list[str] = []
-        inputs: list[str] = []
+        edges: list[Edge] = []
         for t in topics:
             if rate or cyclic:
                 comps.append(t)
@@ -311,8 +377,10 @@ class TopicStructure:
                 if spec is None:
                     continue
                 comps.extend(spec.hardware)
-                inputs.extend(i for i in spec.sub if i not in loop)
-        return Explanation(tuple(dict.fromkeys(comps)), tuple(dict.fromkeys(inputs)))
+                edges.extend(Edge(p, t, i) for i in spec.sub if i not in loop)
+        edges = list(dict.fromkeys(edges))
+        return Explanation(tuple(dict.fromkeys(comps)),
+                           tuple(dict.fromkeys(e.input for e in edges)), tuple(edges))
 
     def explain(self, spec: ObservationSpec) -> Explanation:
         r = spec.resource
@@ -320,12 +388,13 @@ class TopicStructure:
             return Explanation((r.node,) if r.node else (), ())
         if spec.type in NETWORK_TYPES or (r.interface and not r.topic):
             return Explanation((f"iface:{r.interface}",), ())
-        rate = spec.type not in VALUE_TYPES
+        rate = is_rate_type(spec.type)
         parts = [self.producers(r.topic, r.publishers, rate)] if r.topic else []
         if r.topic_b:
             parts.append(self.producers(r.topic_b, (), rate))
         return Explanation(tuple(dict.fromkeys(c for p in parts for c in p.components)),
-                           tuple(dict.fromkeys(i for p in parts for i in p.inputs)))
+                           tuple(dict.fromkeys(i for p in parts for i in p.inputs)),
+                           tuple(dict.fromkeys(e for p in parts for e in p.edges)))
 
     def mentions(self, spec: ObservationSpec) -> tuple[str, ...]:
         """Topics whose every aspect this observation covers (for exoneration)."""
