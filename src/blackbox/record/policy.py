@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from fnmatch import fnmatchcase
 from typing import Any
 
-from blackbox.model import Observation, Resource
+from blackbox.model import Observation, Resource, State
 
 _EPS = 1e-6
 
@@ -78,52 +78,79 @@ class Decision:
 
 @dataclass(slots=True)
 class _Track:
+    """One characteristic's logging state, with its four possible decisions made once."""
+
     rule: PolicyRule
     channel: tuple[str | None, str | None, str]
+    change: Decision
+    fault: Decision
+    fault_started: Decision
+    sample: Decision
+    fixed_interval: bool
     code: int | None = None
-    states: tuple[int, ...] = ()
+    states: tuple[State, ...] | None = None
+    numbers: tuple[int, ...] = ()
     logged: float = float("-inf")
     boost_until: float = float("-inf")
 
 
 class PolicyTracker:
-    """Applies a :class:`LoggingPolicy` to a stream of observations, one per call."""
+    """Applies a :class:`LoggingPolicy` to a stream of observations, one per call.
+
+    Runs on the pipeline thread for every observation, so a characteristic's rule,
+    channel and decisions are looked up once and kept in its track.
+    """
 
     def __init__(self, policy: LoggingPolicy) -> None:
         self.policy = policy
         self._tracks: dict[tuple[str, Resource], _Track] = {}
 
-    def _track(self, obs: Observation) -> _Track:
-        key = obs.key()
-        track = self._tracks.get(key)
-        if track is None:
-            entity = entity_of(obs.resource)
-            resource = json.dumps(obs.resource.to_dict(), sort_keys=True, separators=(",", ":"))
-            track = _Track(self.policy.rule_for(entity, obs.observer),
-                           (entity, obs.observer, resource))
-            self._tracks[key] = track
+    def _new_track(self, obs: Observation) -> _Track:
+        entity = entity_of(obs.resource)
+        resource = json.dumps(obs.resource.to_dict(), sort_keys=True, separators=(",", ":"))
+        channel = (entity, obs.observer, resource)
+        rule = self.policy.rule_for(entity, obs.observer)
+        boost = rule.on_fault
+        track = _Track(rule, channel,
+                       change=Decision("observation", channel, False, False),
+                       fault=Decision("exceedance", channel, False, False),
+                       fault_started=Decision("exceedance", channel, True,
+                                              boost is not None and boost.snapshot),
+                       sample=Decision("sample", channel, False, False),
+                       fixed_interval=not rule.states)
+        self._tracks[(obs.observer, obs.resource)] = track
         return track
 
     def decide(self, obs: Observation) -> Decision | None:
-        track = self._track(obs)
-        rule = track.rule
+        track = self._tracks.get((obs.observer, obs.resource))
+        if track is None:
+            track = self._new_track(obs)
         code = int(obs.code)
-        states = tuple(s.number for s in obs.states)
         t = obs.time
-        if code != track.code or states != track.states:
+        states = obs.states
+        changed = code != track.code
+        if states != track.states:  # equal tuples of the same State objects compare fast
+            numbers = tuple(s.number for s in states)
+            changed = changed or numbers != track.numbers
+            track.states, track.numbers = states, numbers
+        if changed:
             was_faulty = track.code is not None and track.code < 0
-            started = code < 0 and not was_faulty
-            boost = rule.on_fault
-            if started and boost is not None:
+            track.code, track.logged = code, t
+            if code >= 0:
+                return track.change
+            if was_faulty:
+                return track.fault
+            boost = track.rule.on_fault
+            if boost is not None:
                 track.boost_until = t + boost.duration
-            track.code, track.states, track.logged = code, states, t
-            kind = "exceedance" if code < 0 else "observation"
-            return Decision(kind, track.channel, started,
-                            started and boost is not None and boost.snapshot)
-        interval = self._interval(track, obs)
+            return track.fault_started
+        if track.fixed_interval and t >= track.boost_until:
+            interval = track.rule.interval
+        else:
+            interval = self._interval(track, obs)
         if interval is not None and t - track.logged >= interval - _EPS:
             track.logged = t
-            return Decision("sample", track.channel, False, False)
+            return track.sample
         return None
 
     @staticmethod
@@ -152,3 +179,4 @@ def observation_payload(obs: Observation, full: bool) -> dict[str, Any]:
         if obs.message:
             payload["message"] = obs.message
     return payload
+

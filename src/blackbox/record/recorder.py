@@ -1,10 +1,11 @@
 """The black box recorder: a sink that keeps the health log, whatever happens to the disk.
 
-The pipeline thread only decides what to keep (policy), appends rows to an in-memory
-queue and feeds the snapshot ring buffer: nothing on that path touches the disk, so a
-slow, full or broken disk never delays observation. A background writer thread commits
-the queue every ``commit_interval`` seconds in one transaction (so a crash loses at most
-that interval), enforces the disk budget and writes snapshot files.
+The pipeline thread only decides what to keep (policy), appends the kept observations
+to an in-memory queue and feeds the snapshot ring buffer: nothing on that path touches
+the disk or encodes anything, so a slow, full or broken disk never delays observation.
+A background writer thread encodes the queue and commits it every ``commit_interval``
+seconds in one transaction (so a crash loses at most that interval), enforces the disk
+budget and writes snapshot files.
 
 When writing fails (disk full, I/O error, corrupt file) the recorder keeps accepting
 records into a bounded backlog, counts what it must drop, reports itself faulty through
@@ -43,13 +44,17 @@ from blackbox.record.snapshot import (
     RingBuffer,
     SnapshotConfig,
 )
-from blackbox.record.store import Row, StorageError, Store, StoreCorrupt
+from blackbox.record.store import Channel, Row, StorageError, Store, StoreCorrupt, dumps
 from blackbox.sinks import SinkBase
 from blackbox.sources.base import MessageArrival, TopicSchema
 
 COMPONENT = "blackbox/recorder"
 RESOURCE = Resource(node="/blackbox/recorder")
 DEFAULT_BUDGET = 1024**3
+
+#: A row on its way to the store. The pipeline thread queues logged observations as the
+#: observation itself, which is immutable; the writer thread encodes it (see _encoded).
+Pending = tuple[float, str, Channel | None, int | None, "dict[str, Any] | str | Observation"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -144,7 +149,7 @@ class Recorder(SinkBase):
         self._last_failure: frozenset[str] = frozenset()
 
         # Shared between the threads: deque appends and pops are atomic.
-        self._queue: deque[list[Row] | Capture] = deque()
+        self._queue: deque[list[Pending] | Capture] = deque()
         self._queued_rows = 0
         self._count_lock = threading.Lock()
         self._self_events: deque[BlackBoxEvent] = deque()
@@ -157,7 +162,7 @@ class Recorder(SinkBase):
         self._error_since: float | None = None
 
         # Writer side only.
-        self._backlog: list[Row] = []
+        self._backlog: list[Pending] = []
         self._store: Store | None = None
         self._next_retry = 0.0
         self._seen_config_id = 0
@@ -183,19 +188,20 @@ class Recorder(SinkBase):
     # ---- sink -------------------------------------------------------------------------------
 
     def on_observations(self, now: float, observations: Sequence[Observation]) -> None:
-        rows: list[Row] = []
+        rows: list[Pending] = []
         decide = self._tracker.decide
         for obs in observations:
             d = decide(obs)
             if d is None:
                 continue
-            full = d.kind != "sample"
-            payload = observation_payload(obs, full)
             if d.snapshot and self.ring is not None:
+                payload = observation_payload(obs, True)
                 path = self._trigger_snapshot(obs.time, f"{obs.observer} {obs.resource.label()}")
                 if path:
                     payload["snapshot"] = path
-            rows.append(Row(obs.time, d.kind, d.channel, int(obs.code), payload))
+                rows.append((obs.time, d.kind, d.channel, int(obs.code), payload))
+            else:
+                rows.append((obs.time, d.kind, d.channel, obs.code, obs))
         if rows:
             self._queue_rows(rows)
         self._after_call(now)
@@ -271,9 +277,9 @@ class Recorder(SinkBase):
 
     # ---- pipeline-thread helpers --------------------------------------------------------------
 
-    def _queue_rows(self, rows: list[Row], force: bool = False) -> None:
+    def _queue_rows(self, rows: list[Pending], force: bool = False) -> None:
         if not force and self._queued_rows + len(rows) > self.queue_limit:
-            kept = [r for r in rows if r.kind != "sample"]
+            kept = [r for r in rows if r[1] != "sample"]
             self.dropped += len(rows) - len(kept)
             rows = kept
             if self._queued_rows + len(rows) > self.queue_limit * 5 // 4:
@@ -339,8 +345,12 @@ class Recorder(SinkBase):
 
     def _run(self) -> None:
         next_retention = 0.0
+        # Commits start every commit_interval, however long the previous one took, so a
+        # crash loses at most that interval (or the one commit that runs late under load).
+        next_commit = _time.monotonic() + self.commit_interval
         while True:
-            stopping = self._stop.wait(self.commit_interval)
+            stopping = self._stop.wait(max(0.0, next_commit - _time.monotonic()))
+            next_commit = max(next_commit + self.commit_interval, _time.monotonic())
             try:
                 self._write_pending()
                 now = _time.monotonic()
@@ -358,17 +368,23 @@ class Recorder(SinkBase):
 
     def _take_queue(self) -> list[Capture]:
         captures: list[Capture] = []
+        backlog = self._backlog
         while self._queue:
             item = self._queue.popleft()
             if isinstance(item, Capture):
                 captures.append(item)
-            else:
-                with self._count_lock:
-                    self._queued_rows -= len(item)
-                self._backlog.extend(item)
+                continue
+            with self._count_lock:
+                self._queued_rows -= len(item)
+            for row in item:
+                obs = row[4]
+                if type(obs) is Observation:
+                    kind = row[1]
+                    row = (row[0], kind, row[2], int(obs.code), _encoded(obs, kind))
+                backlog.append(row)
         limit = self.queue_limit
-        if len(self._backlog) > limit:
-            kept = [r for r in self._backlog if r.kind != "sample"]
+        if len(backlog) > limit:
+            kept = [r for r in backlog if r[1] != "sample"]
             if len(kept) > limit:
                 kept = kept[-limit:]
             self.dropped += len(self._backlog) - len(kept)
@@ -559,6 +575,15 @@ class Recorder(SinkBase):
             payload.update(messages=result.messages, bytes=result.bytes,
                            topics=list(result.topics), skipped_topics=list(result.skipped_topics))
         self._backlog.append(Row(capture.trigger, "snapshot", None, None, payload))
+
+
+def _encoded(obs: Observation, kind: str) -> str:
+    """A logged observation's payload as JSON; never raises, so no row can block the log."""
+    try:
+        return dumps(observation_payload(obs, kind != "sample"))
+    except (TypeError, ValueError, RecursionError) as exc:
+        return dumps({"code_name": obs.code.name, "message": obs.message,
+                      "unencodable": f"{type(exc).__name__}: {exc}"})
 
 
 # ---- the native `recorder:` section ------------------------------------------------------------

@@ -71,19 +71,23 @@ class LogEntry:
         }
 
 
+Channel = tuple[str | None, str | None, str]
+
+
 class Row(NamedTuple):
     """An entry before it has an id: what the recorder hands to :meth:`Store.append`.
 
     ``channel`` is the identity of the observed characteristic (entity, characteristic,
-    resource JSON); rows without one are robot-wide. A named tuple because the pipeline
-    thread makes one per logged observation and this is the cheapest record to build.
+    resource JSON); rows without one are robot-wide. ``payload`` is a dictionary, or its
+    JSON text when the caller encoded it already. Any tuple of these five fields is
+    accepted where a row is: the recorder's hot path builds plain tuples.
     """
 
     time: float
     kind: str
-    channel: tuple[str | None, str | None, str] | None = None
+    channel: Channel | None = None
     code: int | None = None
-    payload: dict[str, Any] = {}  # shared default: rows without a payload never mutate it
+    payload: dict[str, Any] | str = {}  # shared default: rows without a payload never mutate it
 
 
 def _script(db: sqlite3.Connection, sql: str) -> None:
@@ -143,16 +147,37 @@ def _json_default(value: Any) -> Any:
     return str(value)
 
 
-_ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_json_default)
-_LENIENT = json.JSONEncoder(separators=(",", ":"), default=_json_default)
+def _reusable(encoder: json.JSONEncoder) -> Callable[[Any], str]:
+    """``encoder.encode``, minus building a new C encoder for every call.
+
+    ``JSONEncoder.encode`` makes its C encoder afresh each time, which is a third of
+    the cost of a small payload; the writer thread encodes every logged record. Without
+    the C accelerator (another Python implementation) the plain method is used.
+    """
+    make = getattr(json.encoder, "c_make_encoder", None)
+    if make is None:
+        return encoder.encode
+    iterencode = make(None, encoder.default, json.encoder.encode_basestring_ascii, None,
+                      encoder.key_separator, encoder.item_separator, encoder.sort_keys,
+                      encoder.skipkeys, encoder.allow_nan)
+
+    def encode(value: Any) -> str:
+        return "".join(iterencode(value, 0))
+
+    return encode
 
 
-def dumps(payload: dict[str, Any]) -> str:
+_ENCODE = _reusable(json.JSONEncoder(separators=(",", ":"), allow_nan=False,
+                                     default=_json_default))
+_ENCODE_LENIENT = _reusable(json.JSONEncoder(separators=(",", ":"), default=_json_default))
+
+
+def dumps(value: Any) -> str:
     """Compact JSON; non-finite floats become strings because JSON has no NaN."""
     try:
-        return _ENCODER.encode(payload)
+        return _ENCODE(value)
     except ValueError:
-        return _LENIENT.encode(_finite(payload))
+        return _ENCODE_LENIENT(_finite(value))
 
 
 def _finite(value: Any) -> Any:
@@ -177,7 +202,7 @@ class Store:
         self._db = db
         self.path = path
         self.readonly = readonly
-        self._channels: dict[tuple[str | None, str | None, str], int] = {}
+        self._channels: dict[Channel, int] = {}
 
     # ---- opening --------------------------------------------------------------------------
 
@@ -272,7 +297,7 @@ class Store:
 
     # ---- writing --------------------------------------------------------------------------
 
-    def _channel_id(self, key: tuple[str | None, str | None, str]) -> int:
+    def _channel_id(self, key: Channel) -> int:
         cid = self._channels.get(key)
         if cid is None:
             db = self._db
@@ -290,15 +315,15 @@ class Store:
         number inside the transaction, so concurrent writers never share a version.
         """
         db = self._db
-        numbered: list[Row] = []
+        numbered: list[dict[str, Any]] = []
         db.execute("BEGIN IMMEDIATE")
         try:
             ids = self._insert(rows, numbered)
             db.execute("COMMIT")
         except BaseException:
             self._rollback()
-            for r in numbered:
-                r.payload["version"] = None
+            for payload in numbered:
+                payload["version"] = None
             raise
         return ids
 
@@ -308,22 +333,27 @@ class Store:
             "WHERE kind = ?", (KINDS["config"],)).fetchone()
         return int(row[0] or 0) + 1
 
-    def _insert(self, rows: Sequence[Row], numbered: list[Row] | None = None) -> list[int]:
+    def _insert(self, rows: Sequence[Row],
+                numbered: list[dict[str, Any]] | None = None) -> list[int]:
         if not rows:
             return []
         db = self._db
-        channel_id = self._channel_id
+        channels = self._channels
+        kinds = KINDS
         params = []
         version: int | None = None
-        for r in rows:
-            if r.kind == "config" and r.payload.get("version") is None:
-                version = self._next_config_version() if version is None else version + 1
-                r.payload["version"] = version
-                if numbered is not None:
-                    numbered.append(r)
-            params.append((r.time, KINDS[r.kind],
-                           channel_id(r.channel) if r.channel is not None else None,
-                           r.code, dumps(r.payload)))
+        for row in rows:
+            time, kind, channel, code, payload = row
+            if type(payload) is not str:
+                if kind == "config" and payload.get("version") is None:
+                    version = self._next_config_version() if version is None else version + 1
+                    payload["version"] = version
+                    if numbered is not None:
+                        numbered.append(payload)
+                payload = dumps(payload)
+            if channel is not None:
+                channel = channels.get(channel) or self._channel_id(channel)
+            params.append((time, kinds[kind], channel, code, payload))
         db.executemany("INSERT INTO entries (time, kind, channel, code, payload) "
                        "VALUES (?, ?, ?, ?, ?)", params)
         # Inside one write transaction AUTOINCREMENT ids are consecutive.
