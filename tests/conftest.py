@@ -2,8 +2,38 @@
 
 from __future__ import annotations
 
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
+
+from blackbox.app import RunOptions, build
 
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT / "data" / "shared"
 """Vendored copies of the shared reference inputs (tug configs, thesis setup, DXC)."""
+
+
+def wait_for(condition: Callable[[], bool], timeout: float, step: float = 0.05) -> bool:
+    """Poll ``condition`` until it holds or ``timeout`` seconds pass (bounded waiting)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(step)
+    return bool(condition())
+
+
+@contextmanager
+def black_box_running(options: RunOptions) -> Iterator[None]:
+    """A black box built from ``options`` running in a thread, stopped on exit."""
+    box = build(options)
+    stop = threading.Event()
+    thread = threading.Thread(target=box.run, args=(stop,), daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join(timeout=5)

@@ -12,9 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from blackbox.app import RunOptions, build
+from blackbox.app import RunOptions
 from blackbox.model import Observation, Resource
 from blackbox.sinks import SinkBase
+from conftest import black_box_running, wait_for
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros1_robot"))
 from inject import Injector
@@ -63,14 +64,6 @@ class Collected(SinkBase):
                     if o.observer == observer and o.resource == resource and o.time >= since]
 
 
-def wait_for(cond, timeout: float) -> bool:  # type: ignore[no-untyped-def]
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        if cond():
-            return True
-        time.sleep(0.05)
-    return False
-
 
 @pytest.fixture
 def running(tmp_path: Path) -> Iterator[tuple[ThesisRobot, Collected]]:
@@ -78,18 +71,13 @@ def running(tmp_path: Path) -> Iterator[tuple[ThesisRobot, Collected]]:
     config.write_text(CONFIG)
     robot = ThesisRobot(free_port(), log_dir=tmp_path / "logs").start()
     sink = Collected()
-    box = build(RunOptions(config=config, source=f"ros1://127.0.0.1:{robot.port}", live=False,
-                           extra_sinks=[sink]))
-    stop = threading.Event()
-    thread = threading.Thread(target=box.run, args=(stop,), daemon=True)
-    thread.start()
+    options = RunOptions(config=config, source=f"ros1://127.0.0.1:{robot.port}", live=False,
+                         extra_sinks=[sink])
     try:
-        yield robot, sink
+        with black_box_running(options):
+            yield robot, sink
     finally:
-        stop.set()
-        thread.join(timeout=5)
         robot.stop()
-
 
 CASES = [
     ("kill", "/Signal_generator", {}, "activated", Resource(node="/Signal_generator")),

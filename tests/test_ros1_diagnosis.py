@@ -6,15 +6,15 @@ from __future__ import annotations
 import shutil
 import sys
 import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from blackbox.app import DEFAULT_CONFIG, RunOptions, build
+from blackbox.app import DEFAULT_CONFIG, RunOptions
 from blackbox.model import Diagnosis
 from blackbox.sinks import SinkBase
+from conftest import black_box_running, wait_for
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros1_robot"))
 from inject import Injector
@@ -38,32 +38,19 @@ class Diagnoses(SinkBase):
             return self.records[-1] if self.records else None
 
 
-def wait_for(cond, timeout: float) -> bool:  # type: ignore[no-untyped-def]
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        if cond():
-            return True
-        time.sleep(0.05)
-    return False
-
 
 @pytest.fixture
 def running(tmp_path: Path) -> Iterator[tuple[ThesisRobot, Diagnoses]]:
     robot = ThesisRobot(free_port(), log_dir=tmp_path / "logs").start()
     sink = Diagnoses()
     # The shipped thesis observers (windows of 50): the diagnosis must not depend on tuning.
-    box = build(RunOptions(config=DEFAULT_CONFIG, source=f"ros1://127.0.0.1:{robot.port}",
-                           live=False, extra_sinks=[sink]))
-    stop = threading.Event()
-    thread = threading.Thread(target=box.run, args=(stop,), daemon=True)
-    thread.start()
+    options = RunOptions(config=DEFAULT_CONFIG, source=f"ros1://127.0.0.1:{robot.port}",
+                         live=False, extra_sinks=[sink])
     try:
-        yield robot, sink
+        with black_box_running(options):
+            yield robot, sink
     finally:
-        stop.set()
-        thread.join(timeout=5)
         robot.stop()
-
 
 def healthy(sink: Diagnoses) -> bool:
     latest = sink.latest()
