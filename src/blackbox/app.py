@@ -14,6 +14,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from blackbox.config.loader import LoadedConfig, build_observers, load_config, load_config_text
 from blackbox.config.node import ConfigError
@@ -27,6 +28,9 @@ from blackbox.selfmonitor import ProbeObserver
 from blackbox.sinks import Sink
 from blackbox.sources import open_source
 from blackbox.sources.base import Source
+
+if TYPE_CHECKING:
+    from blackbox.sources.sim import Fault
 
 DEFAULT_CONFIG = Path(__file__).parent / "configs" / "thesis.yaml"
 
@@ -44,7 +48,8 @@ class RunOptions:
     events: Path | None = None
     live: bool = True
     live_interactive: bool | None = None
-    faults: str | None = None
+    faults: str | Sequence[Fault] | None = None
+    """A fault schedule file, ``"random"`` for a seeded campaign, or faults (simulator)."""
     seed: int = 1
     ground_truth: Path | None = None
     diagnosis: bool = True

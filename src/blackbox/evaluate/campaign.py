@@ -15,10 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from blackbox.app import DEFAULT_CONFIG
-from blackbox.config.loader import build_observers, load_config
-from blackbox.config.node import ConfigError
-from blackbox.diagnose.live import DiagnosisSettings, LiveDiagnoser
+from blackbox.app import DEFAULT_CONFIG, RunOptions, build
 from blackbox.evaluate.metrics import (
     DEFAULT_GRACE,
     THESIS_AFTER,
@@ -33,12 +30,11 @@ from blackbox.evaluate.metrics import (
     score_run,
 )
 from blackbox.model import Diagnosis, Observation
-from blackbox.pipeline import Pipeline, RunStats
+from blackbox.pipeline import RunStats
 from blackbox.sinks import SinkBase
 from blackbox.sources.sim import (
     FAULT_KINDS,
     THESIS_FAULT_KINDS,
-    SimulatedSource,
     open_sim,
     random_campaign,
 )
@@ -209,16 +205,6 @@ def run_one(settings: CampaignSettings, index: int) -> RunResult:
     source and :class:`ConfigError` for a bad configuration file."""
     started = time.perf_counter()
     seed = settings.seed + index
-    config = load_config(settings.config)
-    observers = build_observers(config)
-    if not observers:
-        raise ConfigError("the configuration observes nothing", str(settings.config))
-    diagnoser = None
-    if settings.diagnosis:
-        diagnosis = DiagnosisSettings.from_config(config.sections.get("diagnosis"),
-                                                  Path(settings.config).parent)
-        if diagnosis.enabled:
-            diagnoser = LiveDiagnoser(observers, diagnosis)
     try:
         robot = open_sim(settings.source, seed=seed, realtime=False, start_time=0.0)
     except ValueError as exc:
@@ -226,14 +212,18 @@ def run_one(settings: CampaignSettings, index: int) -> RunResult:
     faults = random_campaign(robot.topology, settings.duration - settings.tail, seed,
                              settings.kinds, mean_gap=settings.mean_gap,
                              warmup=settings.warmup, min_separation=settings.separation)
-    source = SimulatedSource(robot.topology, faults, seed=seed, realtime=False,
-                             start_time=0.0, name=robot.name)
     sink = _Collector()
-    stats = Pipeline(source, observers, [sink], diagnoser=diagnoser).run(settings.duration)
+    box = build(RunOptions(config=Path(settings.config), source=settings.source,
+                           duration=settings.duration, simulated_clock=True, faults=faults,
+                           seed=seed, live=False, diagnosis=settings.diagnosis,
+                           extra_sinks=[sink]))
+    source = box.pipeline.source
+    stats = box.run()
+    diagnosed = box.pipeline.diagnoser is not None
     publishers = {t.name: t.publisher for t in robot.topology.topics.values()}
     score = score_run(source.ground_truth, sink.observations, publishers,
                       start=stats.started, end=stats.ended, grace=settings.grace,
-                      diagnoses=sink.diagnoses if diagnoser is not None else None)
+                      diagnoses=sink.diagnoses if diagnosed else None)
     return RunResult(index, seed, score, stats, time.perf_counter() - started)
 
 
