@@ -1,12 +1,11 @@
 #!/usr/bin/env bash
-# Install the Debian packages the tests need (real ROS 1, Chromium) when they are missing.
+# Install the Debian packages the tests need (real ROS 1) when they are missing.
 # Runs as root in CI; elsewhere it uses sudo if it can and otherwise says what is missing.
 set -euo pipefail
 ros_pkgs=(ros-core python3-rospy python3-std-msgs python3-sensor-msgs python3-diagnostic-msgs
           ros-diagnostic-msgs python3-rosbag topic-tools)
-browser_pkgs=(chromium)
 missing=()
-for p in "${ros_pkgs[@]}" "${browser_pkgs[@]}"; do
+for p in "${ros_pkgs[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
 if [ ${#missing[@]} -eq 0 ]; then
