@@ -48,6 +48,7 @@ DEFAULT_PRIORS = {"node": 0.05, "hardware": 0.05, "topic": 0.01, "interface": 0.
 before the topic it publishes (the transport rarely fails on its own)."""
 
 Key = tuple[str, Resource]
+Watch = tuple[Edge, list[Key], list[Key], list[Key]]
 
 
 def observation_fact(code: Code) -> bool | None:
@@ -82,6 +83,7 @@ class DiagnosisEngine:
         self._independent: set[Edge] = set(independent)
         self._evidence: dict[Edge, float] = {}
         self._latest: dict[Key, Observation] = {}
+        self._failed_keys: set[Key] = set()
         self._current = Diagnosis(time=0.0, candidates=(), explanation="No observations yet.")
         self._build(model)
 
@@ -128,7 +130,10 @@ class DiagnosisEngine:
             value = [s for s in specs if not is_rate_type(s.type)]
             self._exonerate(th.var(("live", t)), rate, value)
             self._exonerate(th.var(("right", t)), value, rate)
-        self._watch = self._learning_evidence(mentions)
+        self._watch, self._silencing = self._learning_evidence(mentions)
+        self._depends_facts: list[int] | None = None
+        self._literals = {k: self._literals_of(k, observation_fact(o.code))
+                          for k, o in self._latest.items()}
         self.checker = ConsistencyChecker(th, model.components)
         self._conflicts: dict[frozenset[str], frozenset[int]] = {}
         self._cache: OrderedDict[frozenset[int], tuple[tuple[frozenset[str], ...], bool]] = (
@@ -175,10 +180,12 @@ class DiagnosisEngine:
             th.add([mode, -known])
 
     def _learning_evidence(self, mentions: Mapping[str, Sequence[ObservationSpec]]
-                           ) -> list[tuple[Edge, list[Key], list[Key], list[Key]]]:
-        """Per learnable edge: the observations that say its output is at rate, those that
-        say its input is silent (time-outs), and the liveness of the input's publishers."""
-        out = []
+                           ) -> tuple[dict[str, list[Watch]], dict[Key, list[str]]]:
+        """Per input topic, its learnable edges with the observations that say the output
+        is at rate, those that say the input is silent (time-outs) and the liveness of the
+        input's publishers; and which failed observations may mean which topic is silent."""
+        watch: dict[str, list[Watch]] = {}
+        silencing: dict[Key, list[str]] = {}
         activated = {s.resource.node: s.key() for s in self.model.observations
                      if s.type == "activated" and s.resource.node}
         for edge in self._depends:
@@ -186,12 +193,14 @@ class DiagnosisEngine:
                 continue
             at_rate = [s.key() for s in mentions.get(edge.output, ()) if is_rate_type(s.type)]
             timeouts = [s.key() for s in mentions.get(edge.input, ()) if s.type == "timeout"]
-            pubs = self.model.publishers(edge.input)
-            alive = [activated[p] for p in pubs] if pubs and all(p in activated
-                                                                  for p in pubs) else []
+            pubs = self.structure.publishers(edge.input)
+            alive = ([activated[p] for p in pubs] if pubs and all(p in activated for p in pubs)
+                     else [])
             if at_rate and (timeouts or alive):
-                out.append((edge, at_rate, timeouts, alive))
-        return out
+                watch.setdefault(edge.input, []).append((edge, at_rate, timeouts, alive))
+                for k in (*timeouts, *alive):
+                    silencing.setdefault(k, []).append(edge.input)
+        return watch, silencing
 
     def _ensure_slot(self, obs: Observation) -> None:
         """Observations the model did not declare extend it (and rebuild the clauses)."""
@@ -232,16 +241,18 @@ class DiagnosisEngine:
         return mode == "always" or (mode == "learn" and edge not in self._independent)
 
     def _facts(self) -> list[int]:
-        facts = []
-        for key, obs in self._latest.items():
-            value = observation_fact(obs.code)
-            if value is not None:
-                ok = self._slot[key]
-                facts.append(ok if value else -ok)
-                if key in self._known:
-                    facts.append(self._known[key])
-        facts.extend(v if self.depends(e) else -v for e, v in self._depends.items())
-        return sorted(facts)
+        if self._depends_facts is None:
+            self._depends_facts = [v if self.depends(e) else -v
+                                   for e, v in self._depends.items()]
+        return sorted([*(lit for lits in self._literals.values() for lit in lits),
+                       *self._depends_facts])
+
+    def _literals_of(self, key: Key, value: bool | None) -> tuple[int, ...]:
+        if value is None:
+            return ()
+        ok = self._slot[key]
+        known = self._known.get(key)
+        return (ok if value else -ok,) if known is None else (ok if value else -ok, known)
 
     def _learn(self, now: float) -> None:
         """Watch for a node publishing at rate while an input is silent."""
@@ -249,18 +260,23 @@ class DiagnosisEngine:
             obs = self._latest.get(key)
             return None if obs is None else observation_fact(obs.code)
 
-        for edge, at_rate, timeouts, alive in self._watch:
-            if edge in self._independent:
-                continue
-            silent = (any(fact(k) is False for k in timeouts)
-                      or (alive and all(fact(k) is False for k in alive)))
-            if silent and all(fact(k) is True for k in at_rate):
+        seen: set[Edge] = set()
+        inputs = {t for k in self._failed_keys for t in self._silencing.get(k, ())}
+        for topic in inputs:
+            for edge, at_rate, timeouts, alive in self._watch.get(topic, ()):
+                if edge in self._independent:
+                    continue
+                silent = (any(fact(k) is False for k in timeouts)
+                          or (alive and all(fact(k) is False for k in alive)))
+                if not silent or not all(fact(k) is True for k in at_rate):
+                    continue
+                seen.add(edge)
                 since = self._evidence.setdefault(edge, now)
                 if now - since >= self.propagation.learn_after:
                     self._independent.add(edge)
-                    del self._evidence[edge]
-            else:
-                self._evidence.pop(edge, None)
+                    self._depends_facts = None
+        self._evidence = {e: t for e, t in self._evidence.items()
+                          if e in seen and e not in self._independent}
 
     def _search(self, facts: list[int]) -> tuple[tuple[frozenset[str], ...], bool]:
         key = frozenset(facts)
@@ -292,7 +308,14 @@ class DiagnosisEngine:
         diagnoses changed, else ``None``."""
         for obs in observations:
             self._ensure_slot(obs)
-            self._latest[obs.key()] = obs
+            key = obs.key()
+            self._latest[key] = obs
+            value = observation_fact(obs.code)
+            self._literals[key] = self._literals_of(key, value)
+            if value is False:
+                self._failed_keys.add(key)
+            else:
+                self._failed_keys.discard(key)
         self._learn(now)
         facts = self._facts()
         fkey = frozenset(facts)

@@ -356,6 +356,9 @@ class TopicStructure:
         self._pub = {t: model.publishers(t) for t in model.topics}
         self._node = {n.name: n for n in model.nodes}
 
+    def publishers(self, topic: str) -> tuple[str, ...]:
+        return self._pub.get(topic, ())
+
     def producers(self, topic: str, group: Sequence[str] = (), rate: bool = True
                   ) -> Explanation:
         """Components and input topics that explain a fault seen on ``topic``."""
