@@ -3,14 +3,18 @@
 1. ``Store.append`` of typical sample rows in batches (the writer thread's work), with
    ``durability`` full (fsync per commit) and normal; sustained rows/s over ``--rows``.
 2. ``Recorder`` end to end: observations handed to ``on_observations`` (every one a state
-   change, so every one is written) until all are committed; the pipeline-side cost per
-   observation and the sustained records/s through the writer thread.
+   change, so every one is written) as fast as the pipeline thread can, until all are
+   committed; the pipeline-side cost per observation and the sustained records/s through
+   policy, queue, writer thread and SQLite commit. Two payloads: the minimal one (one
+   value, no states, no message) and one like the hz observer's (four values, a state, a
+   message). Also the pipeline-side cost of an observation the policy does not log
+   (a healthy characteristic between samples: almost every observation on a real robot).
 3. ``RingBuffer.offer`` cost per raw message.
 4. Bytes per operating hour at the default policy for the thesis robot (3 nodes, 10
    observers at 1 Hz) and a 100-topic robot (250 observers at 1 Hz), measured by recording
    a simulated hour through the real policy and store (``blackbox log capacity``).
 
-    .venv/bin/python benchmarks/recorder.py [--rows 500000]
+    .venv/bin/python benchmarks/recorder.py [--rows 500000] [--observations 500000]
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from blackbox.model import Code, Observation, Resource
+from blackbox.model import Code, Observation, Resource, State
 from blackbox.record import Recorder, SnapshotConfig
 from blackbox.record.retention import estimate_capacity, hundred_topic_robot, thesis_robot
 from blackbox.record.snapshot import RingBuffer
@@ -44,15 +48,32 @@ def store_rate(tmp: Path, rows: int, batch: int, durability: str) -> float:
     return rows / elapsed
 
 
-def recorder_rate(tmp: Path, observations: int) -> tuple[float, float]:
-    rec = Recorder(tmp / "recorder.db", robot_id="bench", snapshot=None,
-                   queue_limit=observations * 2)
+def _observations(count: int, realistic: bool) -> list[list[Observation]]:
+    """Batches of 100 characteristics, each observation a change of code (and state)."""
     resources = [Resource(topic=f"/robot/topic_{k:03d}") for k in range(100)]
+    ok, slow = (State(1, "ok"),), (State(2, "too_slow"),)
     batches = []
-    for b in range(observations // 100):
-        code = Code.GENERAL_OK if b % 2 else Code.NO_STATE_FITS
-        batches.append([Observation(1.7e9 + b, "hz", r, code, values={"period": 0.0667})
-                        for r in resources])
+    for b in range(count // 100):
+        faulty = b % 2 == 0
+        code = Code.NO_STATE_FITS if faulty else Code.GENERAL_OK
+        if realistic:
+            batches.append([Observation(
+                1.7e9 + b, "hz", r, code, slow if faulty else ok,
+                {"period": 0.0667 + k * 1e-5, "period_deviation": 0.0012, "rate_hz": 14.99,
+                 "silent_for": 0.011},
+                f"period 0.0667 s (15 Hz) {'fits no state' if faulty else 'fits ok'}")
+                for k, r in enumerate(resources)])
+        else:
+            batches.append([Observation(1.7e9 + b, "hz", r, code, values={"period": 0.0667})
+                            for r in resources])
+    return batches
+
+
+def recorder_rate(tmp: Path, observations: int, realistic: bool = False) -> tuple[float, float]:
+    """(pipeline-side µs per observation, records/s from first hand-over to last commit)."""
+    rec = Recorder(tmp / f"recorder-{realistic}.db", robot_id="bench", snapshot=None,
+                   queue_limit=observations * 2)
+    batches = _observations(observations, realistic)
     written_before = rec.written
     t0 = time.perf_counter()
     for batch in batches:
@@ -62,7 +83,24 @@ def recorder_rate(tmp: Path, observations: int) -> tuple[float, float]:
         time.sleep(0.01)
     total = time.perf_counter() - t0
     rec.close()
+    assert rec.dropped == 0, f"{rec.dropped} records dropped"
     return handed / observations * 1e6, observations / total
+
+
+def unlogged_cost(tmp: Path, observations: int) -> float:
+    """Pipeline-side µs per observation that the policy does not log (steady, healthy)."""
+    rec = Recorder(tmp / "unlogged.db", robot_id="bench", snapshot=None)
+    resources = [Resource(topic=f"/robot/topic_{k:03d}") for k in range(100)]
+    ok = (State(1, "ok"),)
+    batches = [[Observation(1.7e9 + b * 0.1, "hz", r, Code.GENERAL_OK, ok, {"period": 0.0667})
+                for r in resources] for b in range(observations // 100)]
+    rec.on_observations(batches[0][0].time, batches[0])  # the first is a change: logged
+    t0 = time.perf_counter()
+    for batch in batches[1:]:
+        rec.on_observations(batch[0].time, batch)
+    per = (time.perf_counter() - t0) / (observations - 100) * 1e6
+    rec.close()
+    return per
 
 
 def ring_cost(messages: int) -> float:
@@ -79,6 +117,7 @@ def ring_cost(messages: int) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rows", type=int, default=500_000)
+    parser.add_argument("--observations", type=int, default=500_000)
     args = parser.parse_args()
     print(f"machine: {platform.machine()}, {platform.processor() or 'cpu'}, "
           f"Python {platform.python_version()}, SQLite {sqlite3.sqlite_version}")
@@ -89,9 +128,17 @@ def main() -> None:
         for batch, durability in ((1000, "full"), (10000, "full"), (1000, "normal")):
             rate = store_rate(tmp, args.rows, batch, durability)
             print(f"| Store.append | {batch} | {durability} | {rate:,.0f} |")
-        per_obs, rate = recorder_rate(tmp, 200_000)
-        print(f"| Recorder (on_observations -> committed) | 1 s commits | full | {rate:,.0f} |")
-        print(f"\npipeline-side cost per observation (policy + queue): {per_obs:.2f} us")
+        costs = []
+        for realistic in (False, True):
+            per_obs, rate = recorder_rate(tmp, args.observations, realistic)
+            costs.append(per_obs)
+            what = "hz-like payload" if realistic else "minimal payload"
+            print(f"| Recorder: on_observations -> committed, {what} | 1 s commits | full | "
+                  f"{rate:,.0f} |")
+        print(f"\npipeline-side cost per logged observation (policy + queue): "
+              f"{costs[0]:.2f} us minimal, {costs[1]:.2f} us hz-like")
+        print(f"pipeline-side cost per observation not logged: "
+              f"{unlogged_cost(tmp, 200_000):.2f} us")
         print(f"ring buffer offer per raw message: {ring_cost(200_000):.0f} ns")
         print("\n| robot | observers | entries/h | bytes/h | 4000 h need | hours in 1 GB |")
         print("|---|---:|---:|---:|---:|---:|")

@@ -5,17 +5,20 @@ from __future__ import annotations
 import os
 import random
 import signal
+import sqlite3
 import subprocess
 import sys
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from blackbox.model import BlackBoxEvent, Code, Observation, Resource
 from blackbox.record import Recorder, Store
+from blackbox.record.store import Row
 
 COMMIT = 0.25
 # Writing one commit interval's rows takes part of the next interval; scheduling on a
@@ -88,37 +91,73 @@ def test_sigkill_during_heavy_writing_loses_at_most_one_commit_interval(tmp_path
         assert len(ids) == len(set(ids))
 
 
-@pytest.fixture
-def small_filesystem(tmp_path: Path) -> Iterator[Path]:
-    """A real 8 MiB tmpfs, so the disk really runs full (needs root, as in CI)."""
+class FullDisk:
+    """A disk the test fills and empties again; ``variant`` says which kind ran.
+
+    ``tmpfs``: a real 8 MiB tmpfs, filled with a file until writes fail with ENOSPC, so
+    SQLite itself runs into the full disk (needs root to mount, as in CI).
+    ``injected``: where mounting is not allowed a size-limited filesystem cannot run, so
+    while "full" the store's write boundary (``Store._insert``, inside the transaction
+    that ``Store.append`` opens and rolls back) raises the error SQLite raises for
+    SQLITE_FULL on ENOSPC. Everything above that boundary (transaction rollback, the
+    recorder's backlog, self-monitoring, reconnecting, resuming) runs for real.
+    """
+
+    def __init__(self, variant: str, directory: Path) -> None:
+        self.variant = variant
+        self.directory = directory
+        self.full = False
+        self._filler = directory / "filler"
+
+    def fill(self) -> None:
+        self.full = True
+        if self.variant == "tmpfs":
+            chunk = b"\xff" * 65536
+            with self._filler.open("wb") as fh:
+                try:
+                    while True:
+                        fh.write(chunk)
+                        fh.flush()
+                except OSError:
+                    pass
+
+    def free(self) -> None:
+        self.full = False
+        if self.variant == "tmpfs":
+            self._filler.unlink()
+
+
+@pytest.fixture(params=["tmpfs", "injected"])
+def full_disk(request: pytest.FixtureRequest, tmp_path: Path,
+              monkeypatch: pytest.MonkeyPatch) -> Iterator[FullDisk]:
+    if request.param == "injected":
+        disk = FullDisk("injected", tmp_path)
+        insert = Store._insert
+
+        def insert_unless_full(self: Store, rows: Sequence[Row], *args: Any) -> list[int]:
+            if disk.full:
+                raise sqlite3.OperationalError("database or disk is full")
+            return insert(self, rows, *args)
+
+        monkeypatch.setattr(Store, "_insert", insert_unless_full)
+        yield disk
+        return
     mnt = tmp_path / "small"
     mnt.mkdir()
     result = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", f"bb-{uuid.uuid4().hex[:8]}",
                              str(mnt)], capture_output=True, text=True)
     if result.returncode != 0:
-        pytest.skip(f"cannot mount a size-limited tmpfs here: {result.stderr.strip()}")
+        pytest.skip(f"cannot mount a size-limited tmpfs here ({result.stderr.strip()}); "
+                    "the injected variant covers the behaviour")
     try:
-        yield mnt
+        yield FullDisk("tmpfs", mnt)
     finally:
         subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
-def _fill(directory: Path) -> Path:
-    filler = directory / "filler"
-    chunk = b"\xff" * 65536
-    with filler.open("wb") as fh:
-        try:
-            while True:
-                fh.write(chunk)
-                fh.flush()
-        except OSError:
-            pass
-    return filler
-
-
 def test_full_disk_is_reported_observation_continues_and_writing_resumes(
-        small_filesystem: Path) -> None:
-    log = small_filesystem / "log.db"
+        full_disk: FullDisk) -> None:
+    log = full_disk.directory / "log.db"
     events: list[BlackBoxEvent] = []
     rec = Recorder(log, robot_id="r1", commit_interval=0.05, retry_interval=0.05,
                    snapshot=None, on_self_event=events.append, queue_limit=1_000_000)
@@ -141,7 +180,7 @@ def test_full_disk_is_reported_observation_continues_and_writing_resumes(
         assert time.monotonic() < deadline
         time.sleep(0.02)
 
-    filler = _fill(small_filesystem)
+    full_disk.fill()
     deadline = time.monotonic() + 20
     while not rec.failing:
         assert time.monotonic() < deadline, "the full disk was never noticed"
@@ -158,7 +197,7 @@ def test_full_disk_is_reported_observation_continues_and_writing_resumes(
         observe()
     full_until = t[0]
 
-    filler.unlink()  # space returns
+    full_disk.free()  # space returns
     deadline = time.monotonic() + 20
     while rec.failing:
         assert time.monotonic() < deadline, "writing did not resume"

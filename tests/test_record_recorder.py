@@ -249,3 +249,44 @@ def test_bounded_queue_drops_samples_first_and_counts(tmp_path: Path) -> None:
     rec.close()
     logged = entries(tmp_path / "log.db")
     assert len(logged) + int(rec.dropped) == 2 + 300 + 300  # start, stop, samples, changes
+
+
+def test_logged_observation_payloads_are_complete_changes_and_lean_samples(
+        tmp_path: Path) -> None:
+    degraded = (State(2, "degraded"), State(5, "warm"))
+    rec = Recorder(tmp_path / "log.db", robot_id="r1", commit_interval=0.05, snapshot=None)
+    rec.on_observations(T0, [Observation(T0, "hz", CAM, Code.GENERAL_OK, degraded,
+                                         {"period": 0.25, "rate_hz": 4.0, "silent": float("nan")},
+                                         "period 0.25 s fits degraded, warm")])
+    rec.on_observations(T0 + 60, [Observation(T0 + 60, "hz", CAM, Code.GENERAL_OK, degraded,
+                                              {"period": 0.5}, "not stored in a sample")])
+    rec.on_observations(T0 + 61, [Observation(T0 + 61, "hz", CAM, Code.TIMEOUT)])
+    rec.close()
+    change, sample, fault = entries(tmp_path / "log.db", entity=CAM.topic)
+    assert (change.kind, change.code, change.characteristic) == ("observation", 0, "hz")
+    assert change.payload == {"values": {"period": 0.25, "rate_hz": 4.0, "silent": "nan"},
+                              "states": [2, 5], "state_names": ["degraded", "warm"],
+                              "code_name": "GENERAL_OK",
+                              "message": "period 0.25 s fits degraded, warm"}
+    assert (sample.kind, sample.payload) == ("sample", {"values": {"period": 0.5},
+                                                        "states": [2, 5]})
+    assert (fault.kind, fault.code) == ("exceedance", -4)
+    assert fault.payload == {"values": {}, "states": [], "state_names": [],
+                             "code_name": "TIMEOUT"}
+
+
+def test_an_observation_that_cannot_be_encoded_is_logged_as_such_and_writing_goes_on(
+        tmp_path: Path) -> None:
+    events: list[BlackBoxEvent] = []
+    rec = Recorder(tmp_path / "log.db", robot_id="r1", commit_interval=0.05, snapshot=None,
+                   on_self_event=events.append)
+    bad = Observation(T0, "hz", CAM, Code.GENERAL_OK, OK, {("not", "a", "key"): 1.0},  # type: ignore[dict-item]
+                      "odd values")
+    rec.on_observations(T0, [bad, obs(T0, resource=Resource(topic="/t"))])
+    rec.close()
+    logged = entries(tmp_path / "log.db", kinds=["observation"])
+    assert [e.entity for e in logged] == [CAM.topic, "/t"]
+    assert logged[0].payload["message"] == "odd values"
+    assert logged[0].payload["unencodable"].startswith("TypeError: keys must be")
+    assert logged[1].payload["values"] == {"period": 0.0667}
+    assert events == [] and rec.health().code == Code.GENERAL_OK
