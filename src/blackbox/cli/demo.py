@@ -126,27 +126,26 @@ def two_process_demo(args: argparse.Namespace, out: Path) -> int:
     try:
         station.wait()
         box.wait(timeout=10)
-    except KeyboardInterrupt:
-        for proc in processes:
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-        deadline = time.monotonic() + 10
-        for proc in processes:
-            try:
-                proc.wait(timeout=max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                proc.kill()
+    except (KeyboardInterrupt, subprocess.TimeoutExpired):
+        pass
     finally:
-        for proc in processes:
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-                try:
-                    proc.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
+        stop_all(processes)
         log.close()
-    robot = box
-    print(f"demo: black box exited with {robot.returncode}; health log {out}/blackbox.db "
+    print(f"demo: black box exited with {box.returncode}; health log {out}/blackbox.db "
           f"(try: blackbox log query --db {out}/blackbox.db --kind failure), "
           f"black box output in {out}/blackbox.log", file=sys.stderr)
-    return 0 if robot.returncode == 0 else 1
+    return 0 if box.returncode == 0 else 1
+
+
+def stop_all(processes: list[subprocess.Popen], grace: float = 10.0) -> None:
+    """Ask every process still running to stop (SIGINT), then kill what outlives ``grace``."""
+    for proc in processes:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+    deadline = time.monotonic() + grace
+    for proc in processes:
+        try:
+            proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
