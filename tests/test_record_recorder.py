@@ -290,3 +290,16 @@ def test_an_observation_that_cannot_be_encoded_is_logged_as_such_and_writing_goe
     assert logged[0].payload["unencodable"].startswith("TypeError: keys must be")
     assert logged[1].payload["values"] == {"period": 0.0667}
     assert events == [] and rec.health().code == Code.GENERAL_OK
+
+
+def test_a_full_batch_is_committed_before_the_commit_interval_ends(tmp_path: Path) -> None:
+    rec = Recorder(tmp_path / "log.db", robot_id="r1", commit_interval=3600.0,
+                   commit_rows=100, snapshot=None)
+    # The start event and 150 changes: more than commit_rows, so the writer goes at once.
+    rec.on_observations(T0, [obs(T0, resource=Resource(topic=f"/t{k}")) for k in range(150)])
+    wait_for(lambda: rec.written == 151)
+    rec.on_observations(T0 + 1, [obs(T0 + 1, resource=Resource(topic="/late"))])
+    assert rec.written == 151  # one row is no batch: it waits for the interval (or close)
+    rec.close()
+    assert rec.written == 153  # ... and the stop event
+    assert len(entries(tmp_path / "log.db", kinds=["observation"])) == 151

@@ -4,8 +4,10 @@ The pipeline thread only decides what to keep (policy), appends the kept observa
 to an in-memory queue and feeds the snapshot ring buffer: nothing on that path touches
 the disk or encodes anything, so a slow, full or broken disk never delays observation.
 A background writer thread encodes the queue and commits it every ``commit_interval``
-seconds in one transaction (so a crash loses at most that interval), enforces the disk
-budget and writes snapshot files.
+seconds in one transaction (so a crash loses at most that interval), or as soon as
+``commit_rows`` rows are waiting, so that under heavy load SQLite writes one batch while
+the pipeline thread queues the next. It also enforces the disk budget and writes
+snapshot files.
 
 When writing fails (disk full, I/O error, corrupt file) the recorder keeps accepting
 records into a bounded backlog, counts what it must drop, reports itself faulty through
@@ -108,6 +110,7 @@ class Recorder(SinkBase):
         snapshot: SnapshotConfig | None = None,
         budget_bytes: int = DEFAULT_BUDGET,
         commit_interval: float = 1.0,
+        commit_rows: int = 10_000,
         schema_lookup: Callable[[str], TopicSchema | None] | None = None,
         snapshot_format: Literal["ros1", "mcap"] = "ros1",
         snapshot_dir: str | Path | None = None,
@@ -127,6 +130,7 @@ class Recorder(SinkBase):
         self.robot_id = robot_id
         self.policy = policy or LoggingPolicy()
         self.commit_interval = commit_interval
+        self.commit_rows = commit_rows
         self.schema_lookup = schema_lookup
         self.snapshot_format = snapshot_format
         self.snapshot_dir = Path(snapshot_dir) if snapshot_dir else \
@@ -167,6 +171,7 @@ class Recorder(SinkBase):
         self._next_retry = 0.0
         self._seen_config_id = 0
         self._stop = threading.Event()
+        self._wake = threading.Event()
         self._open_store(initial=True)
         self._queue_rows([Row(self.clock(), "blackbox_event", (COMPONENT, "event", "{}"), None,
                               {"event": "start", "robot_id": robot_id, "pid": os.getpid()})])
@@ -255,6 +260,7 @@ class Recorder(SinkBase):
         self._queue_rows([Row(self.clock(), "blackbox_event", (COMPONENT, "event", "{}"), None,
                               {"event": "stop", "dropped": self.dropped})], force=True)
         self._stop.set()
+        self._wake.set()
         self._thread.join(timeout)
         self._deliver()
 
@@ -290,6 +296,9 @@ class Recorder(SinkBase):
         with self._count_lock:
             self._queued_rows += len(rows)
         self._queue.append(rows)
+        if self._queued_rows >= self.commit_rows and self._error is None \
+                and not self._wake.is_set():
+            self._wake.set()  # while the disk fails, retries stay one per interval
 
     def _trigger_snapshot(self, time: float, reason: str) -> str | None:
         ring = self.ring
@@ -349,8 +358,12 @@ class Recorder(SinkBase):
         # crash loses at most that interval (or the one commit that runs late under load).
         next_commit = _time.monotonic() + self.commit_interval
         while True:
-            stopping = self._stop.wait(max(0.0, next_commit - _time.monotonic()))
-            next_commit = max(next_commit + self.commit_interval, _time.monotonic())
+            self._wake.wait(max(0.0, next_commit - _time.monotonic()))
+            self._wake.clear()
+            stopping = self._stop.is_set()
+            now = _time.monotonic()
+            if now >= next_commit:  # else woken early by commit_rows: the deadline stays
+                next_commit = max(next_commit + self.commit_interval, now)
             try:
                 self._write_pending()
                 now = _time.monotonic()
