@@ -391,7 +391,7 @@ class Recorder(SinkBase):
                 self._queued_rows -= len(item)
             for row in item:
                 obs = row[4]
-                if type(obs) is Observation:
+                if isinstance(obs, Observation):
                     kind = row[1]
                     row = (row[0], kind, row[2], int(obs.code), _encoded(obs, kind))
                 backlog.append(row)
