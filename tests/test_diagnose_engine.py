@@ -11,6 +11,7 @@ from blackbox.diagnose.engine import DiagnosisEngine
 from blackbox.diagnose.robot_model import load_robot_model
 from blackbox.model import Code, Observation, Resource
 from blackbox.sources.base import GraphSnapshot, NodeInfo, TopicInfo
+from diagnosis_support import observations
 
 SHARED = Path(__file__).resolve().parents[1] / "data" / "shared"
 THESIS_MODEL = SHARED / "reference/thesis-setup/diagnosis_model.yaml"
@@ -18,18 +19,6 @@ pytestmark = pytest.mark.skipif(not THESIS_MODEL.is_file(), reason="shared thesi
 
 KILL_USB_CAM = {("activated", "/usb_cam"), ("hz", "/usb_cam/image_raw"),
                 ("timeout", "/usb_cam/image_raw")}
-
-
-def observations(engine: DiagnosisEngine, failed: set[tuple[str, str]],
-                 unknown: set[tuple[str, str]] = frozenset(), t: float = 1.0
-                 ) -> list[Observation]:
-    out = []
-    for spec in engine.model.observations:
-        key = (spec.type, spec.resource.node or spec.resource.topic)
-        code = (Code.NOT_AVAILABLE if key in unknown
-                else Code.NO_STATE_FITS if key in failed else Code.GENERAL_OK)
-        out.append(Observation(t, spec.type, spec.resource, code))
-    return out
 
 
 def diagnose(failed: set[tuple[str, str]], unknown=frozenset(), **kw) -> list[set[str]]:

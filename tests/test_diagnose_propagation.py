@@ -28,6 +28,7 @@ from blackbox.model import Code, Diagnosis, Observation, Resource
 from blackbox.sinks import SinkBase
 from blackbox.sources.base import GraphSnapshot, NodeInfo, TopicInfo
 from conftest import SHARED
+from diagnosis_support import observations
 
 THESIS_MODEL = SHARED / "reference/thesis-setup/diagnosis_model.yaml"
 SRC = Path(__file__).resolve().parents[1] / "src" / "blackbox"
@@ -38,18 +39,6 @@ CAMERA_EDGE = Edge(SG, "/signal", "/usb_cam/image_raw")
 KILL_USB_CAM = {("activated", "/usb_cam"), ("hz", "/usb_cam/image_raw"),
                 ("timeout", "/usb_cam/image_raw")}
 SIGNAL_SILENT = {("hz", "/signal"), ("timeout", "/signal")}
-
-
-def observations(engine: DiagnosisEngine, failed: set[tuple[str, str]],
-                 unknown: set[tuple[str, str]] = frozenset(), t: float = 1.0
-                 ) -> list[Observation]:
-    out = []
-    for spec in engine.model.observations:
-        key = (spec.type, spec.resource.node or spec.resource.topic)
-        code = (Code.NOT_AVAILABLE if key in unknown
-                else Code.NO_STATE_FITS if key in failed else Code.GENERAL_OK)
-        out.append(Observation(t, spec.type, spec.resource, code))
-    return out
 
 
 def thesis_engine(**kw: object) -> DiagnosisEngine:
