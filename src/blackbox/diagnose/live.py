@@ -158,6 +158,3 @@ class LiveDiagnoser:
         if self.engine is None:
             return None
         return self.engine.update(now, observations)
-
-    def current(self) -> Diagnosis | None:
-        return None if self.engine is None else self.engine.current()

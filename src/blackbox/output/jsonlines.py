@@ -23,15 +23,13 @@ class JsonLinesSink(SinkBase):
     """Writes the records it is given to one JSON lines file."""
 
     def __init__(self, path: str | Path, *, observations: bool = True, diagnoses: bool = True,
-                 events: bool = True, only_changes: bool = False) -> None:
+                 events: bool = True) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file: IO[str] = self.path.open("a", encoding="utf-8")
         self._observations = observations
         self._diagnoses = diagnoses
         self._events = events
-        self._only_changes = only_changes
-        self._last: dict[tuple[str, Any], tuple[int, tuple[int, ...]]] = {}
 
     def _write(self, kind: str, body: dict[str, Any]) -> None:
         body = {"record": kind, "schema": SCHEMA_VERSION, **body}
@@ -41,11 +39,6 @@ class JsonLinesSink(SinkBase):
         if not self._observations:
             return
         for obs in observations:
-            if self._only_changes:
-                state = (int(obs.code), tuple(s.number for s in obs.states))
-                if self._last.get(obs.key()) == state:
-                    continue
-                self._last[obs.key()] = state
             self._write("observation", obs.to_dict())
         self._file.flush()
 
