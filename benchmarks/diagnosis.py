@@ -10,6 +10,7 @@ import argparse
 import random
 import statistics
 import time
+from collections import Counter
 from pathlib import Path
 
 from pysat.examples.hitman import Hitman
@@ -21,6 +22,7 @@ from blackbox.diagnose.dxc import (
     load_scenario,
     score,
 )
+from blackbox.diagnose.dxc_audit import audit
 from blackbox.diagnose.engine import DiagnosisEngine
 from blackbox.diagnose.hsdag import minimal_hitting_sets
 from blackbox.diagnose.robot_model import NodeSpec, ObservationSpec, RobotModel
@@ -156,13 +158,16 @@ def hitman_comparison(bound: float) -> None:
 def dxc_scores(limit: float, models: list[str]) -> None:
     print(f"\n### DX Competition circuits ({limit:g} s per scenario, one core)\n")
     print("| model | gates | scored | mean score (best) | min (best) | mean score (all) | "
-          "injected faults, for reference | time limit hit | slowest s | baselines (issue) |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "injected faults, for reference | time limit hit | slowest s | baselines (issue) | "
+          "ground truth audit | mean (best) where the truth agrees |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     root = SHARED / "benchmarks/dxc"
     for m in models:
         d = CircuitDiagnoser(load_catalog(root / f"models/{m}.xml"))
         f = len(d.circuit.gates)
         best, every, injected, stopped, slowest = [], [], [], 0, 0.0
+        verdicts: Counter[str] = Counter()
+        agreeing: list[float] = []
         for path in sorted((root / f"scenarios/{m}").glob("*.scn")):
             scenario = load_scenario(path)
             r = d.run(scenario, limit, "best")
@@ -173,13 +178,19 @@ def dxc_scores(limit: float, models: list[str]) -> None:
                 continue
             best.append(r.score)
             every.append(r_all.score)
+            verdict = audit(d, scenario).verdict
+            verdicts[verdict] += 1
+            if verdict == "agrees":
+                agreeing.append(r.score)
             truth = scenario.ambiguity_group or ()
             injected.append(score([frozenset().union(*scenario.injected)], truth, f,
                                   scenario.normalization or 1.0))
         base = ", ".join(f"{k} {v:.3f}" for k, v in BASELINES.get(m, {}).items()) or "-"
         print(f"| {m} | {f} | {len(best)} | {statistics.mean(best):.3f} | {min(best):.3f} | "
               f"{statistics.mean(every):.3f} | {statistics.mean(injected):.3f} | {stopped} | "
-              f"{slowest:.3f} | {base} |")
+              f"{slowest:.3f} | {base} | "
+              f"{', '.join(f'{k} {v}' for k, v in verdicts.most_common())} | "
+              f"{statistics.mean(agreeing):.3f} |")
 
 
 def main() -> None:

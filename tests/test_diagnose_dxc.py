@@ -19,6 +19,7 @@ from blackbox.diagnose.dxc import (
     utility,
     utility_matrix,
 )
+from blackbox.diagnose.dxc_audit import audit, explains, reproduces, simulate, topological_order
 
 DXC = Path(__file__).resolve().parents[1] / "data" / "shared" / "benchmarks" / "dxc"
 needs_dxc = pytest.mark.skipif(not DXC.is_dir(), reason="shared DXC benchmark missing")
@@ -168,38 +169,18 @@ def test_cli_prints_scores_and_baselines(capsys):
     assert main(["dxc", "--model", "nope", "--root", str(DXC)]) == 2
 
 
-GATE = {"and": all, "or": any, "nand": lambda v: not all(v), "nor": lambda v: not any(v),
-        "xor": lambda v: sum(v) % 2 == 1, "xnor": lambda v: sum(v) % 2 == 0,
-        "not": lambda v: not v[0], "buffer": lambda v: v[0]}
-
-
-def simulate(circuit: Circuit, inputs: dict[str, bool], flipped: frozenset[str]
-             ) -> dict[str, bool]:
-    """Evaluate the netlist; gates in ``flipped`` output the opposite of their function."""
-    values = dict(inputs)
-    pending = list(circuit.gates)
-    while pending:
-        ready = [g for g in pending if all(n in values for n in g.inputs)]
-        assert ready, "combinational loop"
-        for g in ready:
-            out = bool(GATE[g.function]([values[n] for n in g.inputs]))
-            values[g.output] = out != (g.name in flipped)
-        pending = [g for g in pending if g not in ready]
-    return values
-
-
 @needs_dxc
 @pytest.mark.parametrize("model", ["74181", "74L85"])
 def test_parsed_netlist_reproduces_every_scenario(model: str):
     # The benchmark's simulator agrees with the netlist as parsed here: the injected gates
     # giving the opposite output yields exactly the sensor values after the injection.
-    circuit = load_catalog(DXC / f"models/{model}.xml")
+    order = topological_order(load_catalog(DXC / f"models/{model}.xml"))
     files = sorted((DXC / f"scenarios/{model}").glob("*.scn"))
     assert files
     for path in files:
         s = load_scenario(path)
         inputs = {k: v for k, v in s.observations.items() if k.startswith("i")}
-        values = simulate(circuit, inputs, frozenset().union(*s.injected))
+        values = simulate(order, inputs, frozenset().union(*s.injected))
         assert {k: values[k] for k in s.observations} == s.observations, s.name
 
 
@@ -211,3 +192,52 @@ def test_score_formula_reproduces_every_normalization_factor_of_74181():
         assert s.scored and s.normalization is not None
         mean = float(utility_matrix(s.ambiguity_group, s.ambiguity_group, f).mean())
         assert mean == pytest.approx(s.normalization, rel=1e-6), s.name
+
+
+def test_simulation_and_weak_fault_explanations_on_the_full_adder():
+    order = topological_order(FULL_ADDER)
+    assert [g.name for g in order].index("X1") < [g.name for g in order].index("X2")
+    healthy = simulate(order, {"a": True, "b": False, "c": True})
+    assert healthy["sum"] is False and healthy["carry"] is True
+    # Inverting X2 turns the sum around and leaves the carry alone.
+    observed = {"a": True, "b": False, "c": True, "sum": True, "carry": True}
+    assert reproduces(order, observed, frozenset({"X2"}))
+    assert not reproduces(order, observed, frozenset({"X2", "O1"}))
+    # Under the weak fault model a superset is still a diagnosis: O1 may behave.
+    assert explains(order, observed, frozenset({"X2", "O1"}))
+    assert not explains(order, observed, frozenset({"A1", "O1"}))
+
+
+@needs_dxc
+def test_audit_agrees_where_the_published_group_is_the_minimum_cardinality_set():
+    d = CircuitDiagnoser(load_catalog(DXC / "models/74L85.xml"))
+    a = audit(d, load_scenario(DXC / "scenarios/74L85/74L85.000.scn"))
+    assert a.verdict == "agrees" and a.witness is None
+    assert a.published == a.found == 2 and a.injected_in_group and a.not_minimal == 0
+
+
+@needs_dxc
+def test_audit_finds_a_smaller_diagnosis_than_the_published_minimum_on_74181_029():
+    # The published group claims minimum cardinality 5; inverting the three injected
+    # gates reproduces every reading, so the group cannot be the minimum-cardinality set.
+    circuit = load_catalog(DXC / "models/74181.xml")
+    scenario = load_scenario(DXC / "scenarios/74181/74181.029.scn")
+    a = audit(CircuitDiagnoser(circuit), scenario)
+    assert a.verdict == "overstated minimum"
+    assert (a.published_minimum, a.minimum) == (5, 3)
+    assert a.witness == frozenset({"gate167", "gate177", "gate194"}) == a.injected
+    assert reproduces(topological_order(circuit), scenario.observations, a.witness)
+    assert a.not_minimal == 216 and not a.injected_in_group
+
+
+@needs_dxc
+def test_audit_reports_an_incomplete_group_and_the_cli_summarises(capsys):
+    d = CircuitDiagnoser(load_catalog(DXC / "models/74181.xml"))
+    a = audit(d, load_scenario(DXC / "scenarios/74181/74181.026.scn"))
+    assert a.verdict == "incomplete" and (a.published, a.found) == (6, 24)
+    assert a.witness == a.injected == frozenset({"gate181", "gate194", "gate91"})
+    assert main(["dxc", "--model", "74L85", "--audit", "--root", str(DXC)]) == 0
+    out = capsys.readouterr().out
+    assert "agrees: 26, incomplete: 2" in out
+    assert any(line.startswith("74L85.022") and "incomplete" in line
+               for line in out.splitlines())

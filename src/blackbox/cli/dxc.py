@@ -14,6 +14,7 @@ from blackbox.diagnose.dxc import (
     load_catalog,
     load_scenario,
 )
+from blackbox.diagnose.dxc_audit import VERDICTS, audit
 
 
 def _default_root() -> Path:
@@ -34,6 +35,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "highest expected score (best, default) or all of them")
     p.add_argument("--scenarios", type=int, default=None, metavar="N",
                    help="only the first N scenarios")
+    p.add_argument("--audit", action="store_true",
+                   help="instead of scoring, check each published ambiguity group against "
+                        "the netlist: is it exactly the minimum-cardinality diagnoses? "
+                        "Disagreements come with a witness confirmed by simulation")
     p.add_argument("--root", type=Path, default=None,
                    help="benchmark directory with models/ and scenarios/ "
                         "(default $BLACKBOX_DXC, else data/shared/benchmarks/dxc, "
@@ -52,6 +57,8 @@ def run(args: argparse.Namespace) -> int:
                           str(model))
     files = sorted((args.root / "scenarios" / args.model).glob("*.scn"))[: args.scenarios]
     diagnoser = CircuitDiagnoser(load_catalog(model))
+    if args.audit:
+        return _audit(diagnoser, files, args.model)
     gates = len(diagnoser.circuit.gates)
     print(f"model {args.model}: {gates} gates, {len(files)} scenarios, "
           f"{args.limit:g} s limit per scenario")
@@ -79,4 +86,35 @@ def run(args: argparse.Namespace) -> int:
     baselines = BASELINES.get(args.model)
     if baselines:
         print("published baselines: " + ", ".join(f"{k} {v:.3f}" for k, v in baselines.items()))
+    return 0
+
+
+def _audit(diagnoser: CircuitDiagnoser, files: list[Path], model: str) -> int:
+    print(f"model {model}: {len(diagnoser.circuit.gates)} gates, {len(files)} scenarios; "
+          "published ambiguity group (T) against the minimum-cardinality diagnoses (D)")
+    print(f"{'scenario':<14} {'verdict':<19} {'|T|':>5} {'min T':>5} {'|D|':>5} {'min D':>5} "
+          f"{'injected':>8}  witness")
+    counts = dict.fromkeys(VERDICTS, 0)
+    for f in files:
+        a = audit(diagnoser, load_scenario(f))
+        counts[a.verdict] += 1
+        if not a.published:
+            injected = "-"
+        elif a.injected_in_group:
+            injected = "in T"
+        elif not a.injected_reproduces:
+            injected = "differs"
+        else:
+            injected = "not in T" if len(a.injected) == a.minimum else "larger"
+        witness = "{" + ", ".join(sorted(a.witness)) + "}" if a.witness else ""
+        if a.not_minimal:
+            witness += f" ({a.not_minimal} of T contain a smaller diagnosis)"
+        print(f"{a.scenario:<14} {a.verdict:<19} {a.published:>5} {a.published_minimum:>5} "
+              f"{a.found:>5} {a.minimum:>5} {injected:>8}  {witness}")
+    print(", ".join(f"{k}: {v}" for k, v in counts.items() if v))
+    print("injected: the injected fault set is in T, not in T although minimum, larger than "
+          "the minimum (masked faults), or differs from the readings")
+    print("a witness explains every sensor reading when its gates give the opposite output "
+          "(checked by simulating the netlist); incomplete: T omits it at the same size; "
+          "overstated minimum: it is smaller than every member of T")
     return 0
