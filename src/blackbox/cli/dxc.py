@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     files = sorted((args.root / "scenarios" / args.model).glob("*.scn"))[: args.scenarios]
     diagnoser = CircuitDiagnoser(load_catalog(model))
     if args.audit:
-        return _audit(diagnoser, files, args.model)
+        return _audit(diagnoser, files, args.model, args.limit)
     gates = len(diagnoser.circuit.gates)
     print(f"model {args.model}: {gates} gates, {len(files)} scenarios, "
           f"{args.limit:g} s limit per scenario")
@@ -89,14 +89,15 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _audit(diagnoser: CircuitDiagnoser, files: list[Path], model: str) -> int:
+def _audit(diagnoser: CircuitDiagnoser, files: list[Path], model: str, limit: float) -> int:
     print(f"model {model}: {len(diagnoser.circuit.gates)} gates, {len(files)} scenarios; "
-          "published ambiguity group (T) against the minimum-cardinality diagnoses (D)")
+          "published ambiguity group (T) against the minimum-cardinality diagnoses (D), "
+          f"{limit:g} s limit per scenario")
     print(f"{'scenario':<14} {'verdict':<19} {'|T|':>5} {'min T':>5} {'|D|':>5} {'min D':>5} "
           f"{'injected':>8}  witness")
     counts = dict.fromkeys(VERDICTS, 0)
     for f in files:
-        a = audit(diagnoser, load_scenario(f))
+        a = audit(diagnoser, load_scenario(f), limit)
         counts[a.verdict] += 1
         if not a.published:
             injected = "-"
