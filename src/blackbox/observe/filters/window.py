@@ -79,13 +79,8 @@ class Window:
             if self.extremes:
                 # Monotonic deques. Strict popping keeps equal values, so the evicted
                 # sample, if still in a deque, is at its front.
+                self._grow_extremes(x)
                 hi, lo = self._hi, self._lo
-                while hi and hi[-1] < x:
-                    hi.pop()
-                hi.append(x)
-                while lo and lo[-1] > x:
-                    lo.pop()
-                lo.append(x)
                 if hi[0] == y:
                     hi.popleft()
                 if lo[0] == y:
