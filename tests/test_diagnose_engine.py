@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from blackbox.diagnose.engine import DiagnosisEngine
-from blackbox.diagnose.robot_model import load_robot_model
+from blackbox.diagnose.robot_model import ObservationSpec, RobotModel, load_robot_model
 from blackbox.model import Code, Observation, Resource
 from blackbox.sources.base import GraphSnapshot, NodeInfo, TopicInfo
 from diagnosis_support import observations
@@ -32,15 +32,40 @@ def test_killing_usb_cam_blames_only_the_driver():
     assert diagnose(KILL_USB_CAM) == [{"/usb_cam"}]
 
 
-def test_wrong_signal_value_blames_the_signal_generator():
-    # hz and timeout on /usb_cam/image_raw and /audio are fine: their publishers are cleared.
-    assert diagnose({("scores", "/signal")}) == [{"/Signal_generator"}]
+def test_wrong_signal_value_keeps_the_unobserved_inputs_open():
+    # Only rate observers watch /usb_cam/image_raw and /audio: they say nothing about the
+    # values there, so a driver sending wrong values at the right rate explains the symptom
+    # as well as the generator does. The generator ranks first (closest to the symptom).
+    engine = DiagnosisEngine.from_model_file(THESIS_MODEL)
+    d = engine.update(1.0, observations(engine, {("scores", "/signal")}))
+    assert d is not None
+    assert [set(c) for c in d.candidates] == [{"/Signal_generator"}, {"/audio_capture"},
+                                              {"/usb_cam"}]
+    assert ("do not tell node /Signal_generator apart from 2 other explanations of the same "
+            "size (node /audio_capture; node /usb_cam)") in d.explanation
+    assert "the values of /audio, /usb_cam/image_raw" in d.explanation
+    assert "No other explanation" not in d.explanation
 
 
-def test_without_evidence_on_inputs_upstream_nodes_stay_suspects():
-    got = diagnose({("scores", "/signal")}, unknown={("hz", "/audio"), ("timeout", "/audio")})
-    assert got[0] == {"/Signal_generator"}
-    assert {"/audio_capture"} in got and {"/usb_cam"} not in got
+def test_a_value_observer_that_is_ok_clears_the_upstream_driver():
+    # The same robot with a value observer on the camera topic that sees nothing wrong.
+    model = load_robot_model(THESIS_MODEL)
+    model = RobotModel(model.nodes, (*model.observations, ObservationSpec(
+        "scores", Resource(topic="/usb_cam/image_raw"))))
+    engine = DiagnosisEngine(model)
+    d = engine.update(1.0, observations(engine, {("scores", "/signal")}))
+    assert d is not None
+    assert [set(c) for c in d.candidates] == [{"/Signal_generator"}, {"/audio_capture"}]
+    unknown = engine.update(2.0, observations(engine, {("scores", "/signal")}, t=2.0,
+                                              unknown={("scores", "/usb_cam/image_raw")}))
+    assert unknown is not None and {"/usb_cam"} in [set(c) for c in unknown.candidates]
+
+
+def test_a_unique_explanation_says_so():
+    engine = DiagnosisEngine.from_model_file(THESIS_MODEL)
+    d = engine.update(1.0, observations(engine, KILL_USB_CAM))
+    assert d is not None and d.complete
+    assert d.explanation.endswith("No other explanation of the same or smaller size exists.")
 
 
 def test_two_simultaneous_faults_yield_the_pair():

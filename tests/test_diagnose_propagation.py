@@ -57,12 +57,27 @@ def feed(engine: DiagnosisEngine, times: Sequence[float], failed: set[tuple[str,
 
 # ---- values ----------------------------------------------------------------------------------
 
-def test_dead_camera_and_wrong_signal_value_yield_the_pair():
-    # The camera topic is observed (its rate observers have data) and no value observer
-    # covers it, so its values count as right: the wrong /signal value needs the generator.
+def test_dead_camera_explains_a_wrong_signal_value_when_nothing_judges_its_values():
+    # Weak fault model: a faulty camera may send anything, and no value observer covers the
+    # camera topic (its rate observers say nothing about values), so the camera alone
+    # explains both symptoms; the pair with the generator is not minimal.
     engine = thesis_engine()
     feed(engine, [1.0], KILL_USB_CAM | {("scores", "/signal")})
-    assert candidates(engine) == [{"/usb_cam", SG}]
+    assert candidates(engine) == [{"/usb_cam"}]
+
+
+def test_dead_camera_and_wrong_signal_value_yield_the_pair_when_camera_values_are_right():
+    # With a value observer on the camera topic that stays OK, the wrong signal value needs
+    # the generator (a silent input explains wrong values only with value_from_rate).
+    model = load_robot_model(THESIS_MODEL)
+    model = RobotModel(model.nodes, (*model.observations, ObservationSpec(
+        "scores", Resource(topic="/usb_cam/image_raw"))))
+    engine = DiagnosisEngine(model)
+    feed(engine, [1.0], KILL_USB_CAM | {("scores", "/signal")})
+    assert candidates(engine) == [{"/usb_cam", SG}, {"/usb_cam", "/audio_capture"}]
+    stale = DiagnosisEngine(model, propagation=Propagation(value_from_rate=True))
+    feed(stale, [1.0], KILL_USB_CAM | {("scores", "/signal")})
+    assert candidates(stale) == [{"/usb_cam"}]
 
 
 def test_value_from_rate_lets_a_dead_input_explain_a_wrong_value():
@@ -105,9 +120,19 @@ def test_a_wrong_value_upstream_does_not_explain_a_rate_failure_downstream():
 
 
 def test_unobserved_topics_keep_every_upstream_component_a_suspect():
-    assert chain_update(chain(("scores", "/z")), {("scores", "/z")}) == [{"a"}, {"b"}, {"c"}]
+    # Equal priors: the component closer to the symptom ranks first.
+    assert chain_update(chain(("scores", "/z")), {("scores", "/z")}) == [{"c"}, {"b"}, {"a"}]
     assert chain_update(chain(("hz", "/z")), {("hz", "/z")}) == [
-        {"a"}, {"b"}, {"c"}, {"/x"}, {"/y"}, {"/z"}]
+        {"c"}, {"b"}, {"a"}, {"/z"}, {"/y"}, {"/x"}]
+
+
+def test_a_rate_observer_says_nothing_about_values_upstream():
+    # /x and /y are watched for their rate only: a wrong value seen on /z may come from a
+    # driver publishing wrong values at the right rate, so a and b stay suspects.
+    observed = (("hz", "/x"), ("hz", "/y"), ("scores", "/z"))
+    assert chain_update(chain(*observed), {("scores", "/z")}) == [{"c"}, {"b"}, {"a"}]
+    with_values = (*observed, ("scores", "/y"))
+    assert chain_update(chain(*with_values), {("scores", "/z")}) == [{"c"}]
 
 
 # ---- rates -----------------------------------------------------------------------------------
@@ -276,10 +301,14 @@ def last_before(records: Sequence[Diagnosis], end: float) -> Diagnosis:
 
 
 def test_sim_dead_camera_and_wrong_signal_value(tmp_path: Path):
+    # Nothing judges the camera's values, so the dead camera alone explains the wrong signal
+    # value too (see test_dead_camera_explains_a_wrong_signal_value_...).
     records = run(tmp_path, "  - {kind: kill, component: /usb_cam, start: 20, end: 40}\n"
                   "  - {kind: offset, component: /signal, start: 25, end: 40, value: 3.0}\n",
                   42.0)
-    assert last_before(records, 40.0).candidates[0] == {"/usb_cam", SG}
+    settled = last_before(records, 40.0)
+    assert {o.resource.topic for o in settled.failed if o.observer == "scores"} == {"/signal"}
+    assert settled.candidates[0] == {"/usb_cam"}
 
 
 def test_sim_dead_camera_then_stalled_signal(tmp_path: Path):

@@ -107,7 +107,6 @@ class DiagnosisEngine:
         self.theory = th
         self._depends: dict[Edge, int] = {}
         self._slot: dict[Key, int] = {}
-        self._known: dict[Key, int] = {}
         for t in model.topics:
             self._rate_clause(th.var(("live", t)), st.producers(t, (), rate=True))
             self._value_clause(th.var(("right", t)), st.producers(t, (), rate=False))
@@ -128,8 +127,8 @@ class DiagnosisEngine:
         for t, specs in mentions.items():
             rate = [s for s in specs if is_rate_type(s.type)]
             value = [s for s in specs if not is_rate_type(s.type)]
-            self._exonerate(th.var(("live", t)), rate, value)
-            self._exonerate(th.var(("right", t)), value, rate)
+            self._exonerate(th.var(("live", t)), rate)
+            self._exonerate(th.var(("right", t)), value)
         self._watch, self._silencing = self._learning_evidence(mentions)
         self._depends_facts: list[int] | None = None
         self._literals = {k: self._literals_of(k, observation_fact(o.code))
@@ -139,6 +138,7 @@ class DiagnosisEngine:
         self._cache: OrderedDict[frozenset[int], tuple[tuple[frozenset[str], ...], bool]] = (
             OrderedDict())
         self._facts_key: frozenset[int] | None = None
+        self._reach: dict[Key, dict[str, int]] = {}
 
     def _silenced(self, edge: Edge) -> int:
         """A helper literal: the edge's input is not live *and* the output's rate needs it."""
@@ -165,19 +165,12 @@ class DiagnosisEngine:
         th.add(dict.fromkeys([head, *(th.ab(c) for c in ex.components),
                               *(-th.var(("right", i)) for i in ex.inputs), *stale]))
 
-    def _exonerate(self, mode: int, covering: Sequence[ObservationSpec],
-                   others: Sequence[ObservationSpec]) -> None:
-        """A mode holds when all its observations are OK; a mode no observer covers holds as
-        soon as any observation of the topic has data."""
-        th = self.theory
+    def _exonerate(self, mode: int, covering: Sequence[ObservationSpec]) -> None:
+        """A mode holds when all the observations judging it are OK. A mode nobody judges is
+        left open (weak fault model): a rate observer says nothing about values, so it
+        clears nobody of a value fault."""
         if covering:
-            th.add([mode, *(-self._slot[s.key()] for s in covering)])
-            return
-        for s in others:
-            known = self._known.get(s.key())
-            if known is None:
-                known = self._known[s.key()] = th.var(("known", s.key()))
-            th.add([mode, -known])
+            self.theory.add([mode, *(-self._slot[s.key()] for s in covering)])
 
     def _learning_evidence(self, mentions: Mapping[str, Sequence[ObservationSpec]]
                            ) -> tuple[dict[str, list[Watch]], dict[Key, list[str]]]:
@@ -223,11 +216,51 @@ class DiagnosisEngine:
             p = self.priors.get(kind, DEFAULT_PRIORS[kind])
         return p
 
-    def rank(self, sets: Iterable[frozenset[str]]) -> tuple[frozenset[str], ...]:
-        """Cardinality first, then the larger prior odds product, then names."""
-        def key(s: frozenset[str]) -> tuple[int, float, list[str]]:
+    def distance(self, component: str, key: Key) -> int | None:
+        """How many nodes a fault of ``component`` must cross to reach the observation
+        ``key`` (0: it is among the observation's own producers); ``None`` if it cannot."""
+        reach = self._reach.get(key)
+        if reach is None:
+            reach = self._reach[key] = self._distances(key)
+        return reach.get(component)
+
+    def _distances(self, key: Key) -> dict[str, int]:
+        spec = ObservationSpec(*key)
+        st = self.structure
+        ex = st.explain(spec)
+        out = dict.fromkeys(ex.components, 0)
+        seen: set[str] = set()
+        frontier = list(ex.inputs)
+        depth = 1
+        while frontier:
+            following: list[str] = []
+            for topic in frontier:
+                if topic in seen:
+                    continue
+                seen.add(topic)
+                up = st.producers(topic)
+                for c in up.components:
+                    out.setdefault(c, depth)
+                following.extend(up.inputs)
+            frontier = following
+            depth += 1
+        return out
+
+    def rank(self, sets: Iterable[frozenset[str]], failed: Iterable[Key] = ()
+             ) -> tuple[frozenset[str], ...]:
+        """Cardinality first, then the larger prior odds product, then the components
+        closer to the ``failed`` observations (fewer nodes the fault must cross), then
+        names."""
+        failed = list(failed)
+        far = len(self.model.topics) + 1
+
+        def closeness(c: str) -> int:
+            ds = [d for k in failed if (d := self.distance(c, k)) is not None]
+            return min(ds, default=far)
+
+        def key(s: frozenset[str]) -> tuple[int, float, int, list[str]]:
             odds = sum(math.log(self.prior(c) / (1.0 - self.prior(c))) for c in s)
-            return (len(s), -odds, sorted(s))
+            return (len(s), -round(odds, 9), sum(closeness(c) for c in s), sorted(s))
         return tuple(sorted(sets, key=key))
 
     @property
@@ -251,8 +284,7 @@ class DiagnosisEngine:
         if value is None:
             return ()
         ok = self._slot[key]
-        known = self._known.get(key)
-        return (ok if value else -ok,) if known is None else (ok if value else -ok, known)
+        return (ok if value else -ok,)
 
     def _learn(self, now: float) -> None:
         """Watch for a node publishing at rate while an input is silent."""
@@ -296,7 +328,7 @@ class DiagnosisEngine:
 
         res = hs_dag(prover, conflicts=reusable, max_cardinality=self.max_cardinality,
                      deadline=deadline)
-        out = (self.rank(res.sets), res.complete)
+        out = (self.rank(res.sets, self._failed_keys), res.complete)
         if res.complete:
             self._cache[key] = out
             if len(self._cache) > self._cache_size:
@@ -373,16 +405,61 @@ class DiagnosisEngine:
             return text
         best = candidates[0]
         verb = "is" if len(best) == 1 else "are"
-        text += (f"Most likely {self._set_words(best)} {verb} faulty, which explains every "
-                 f"failed observation")
         healthy = sum(observation_fact(o.code) is True for o in self._latest.values())
-        text += f" and agrees with the {healthy} healthy ones. " if healthy else ". "
-        if len(candidates) > 1:
-            alts = "; ".join(self._set_words(c) for c in candidates[1:4])
-            extra = f" (and {len(candidates) - 4} more)" if len(candidates) > 4 else ""
-            text += f"Other minimal explanations: {alts}{extra}. "
+        agrees = f" and agrees with the {healthy} healthy ones" if healthy else ""
+        same = [c for c in candidates[1:] if len(c) == len(best)]
+        larger = [c for c in candidates[1:] if len(c) > len(best)]
+        if same:
+            first = self._set_words(best)
+            text += (f"The observations do not tell {first} apart from {len(same)} other "
+                     f"explanation{'s' if len(same) > 1 else ''} of the same size "
+                     f"({self._listing(same)}); {first} {'ranks' if len(best) == 1 else 'rank'}"
+                     f" first by prior fault probability and closeness to the failed "
+                     f"observations. Each explains every failed observation{agrees}. ")
         else:
-            text += "No other explanation of the same or smaller size exists. "
+            text += (f"Most likely {self._set_words(best)} {verb} faulty, which explains "
+                     f"every failed observation{agrees}. ")
+        unjudged = self._unjudged(failed) if len(candidates) > 1 else []
+        if unjudged:
+            parts = []
+            for mode in ("rate", "values"):
+                topics = [t for t, m in unjudged if m == mode]
+                if topics:
+                    more = f" and {len(topics) - 4} more" if len(topics) > 4 else ""
+                    parts.append(f"the {mode} of {', '.join(topics[:4])}{more}")
+            text += (f"Nothing observes {' or '.join(parts)}, so faults upstream of them stay "
+                     f"suspects. ")
+        if larger:
+            text += f"Larger minimal explanations: {self._listing(larger)}. "
         if not complete:
-            text += "The search stopped at its time budget, so the list may be incomplete."
+            text += ("The search stopped at its time budget, so other explanations may "
+                     "exist.")
+        elif not same:
+            text += "No other explanation of the same or smaller size exists."
         return text.strip()
+
+    def _unjudged(self, failed: Sequence[Observation]) -> list[tuple[str, str]]:
+        """Upstream topics of the failed observations whose failure mode nobody judges:
+        ``(topic, "rate" | "values")``, what an observer could add to narrow the list."""
+        st = self.structure
+        judged = {(t, is_rate_type(s.type)) for s in self.model.observations
+                  for t in st.mentions(s)}
+        out: dict[tuple[str, str], None] = {}
+        for o in failed:
+            rate = is_rate_type(o.observer)
+            frontier = list(st.explain(ObservationSpec(o.observer, o.resource)).inputs)
+            seen: set[str] = set()
+            while frontier:
+                t = frontier.pop()
+                if t in seen:
+                    continue
+                seen.add(t)
+                if (t, rate) in judged:
+                    continue
+                out.setdefault((t, "rate" if rate else "values"))
+                frontier.extend(st.producers(t).inputs)
+        return sorted(out)
+
+    def _listing(self, sets: Sequence[frozenset[str]], shown: int = 3) -> str:
+        words = "; ".join(self._set_words(c) for c in sets[:shown])
+        return words + (f" (and {len(sets) - shown} more)" if len(sets) > shown else "")
