@@ -57,13 +57,23 @@ def feed(engine: DiagnosisEngine, times: Sequence[float], failed: set[tuple[str,
 
 # ---- values ----------------------------------------------------------------------------------
 
-def test_dead_camera_explains_a_wrong_signal_value_when_nothing_judges_its_values():
-    # Weak fault model: a faulty camera may send anything, and no value observer covers the
-    # camera topic (its rate observers say nothing about values), so the camera alone
-    # explains both symptoms; the pair with the generator is not minimal.
+def test_dead_camera_and_wrong_signal_value_yield_the_pair():
+    # The camera topic is seen silent (its time-out failed), so it carries no values and
+    # cannot make /signal wrong: the wrong value needs the generator, or the audio driver,
+    # whose values nothing judges.
     engine = thesis_engine()
     feed(engine, [1.0], KILL_USB_CAM | {("scores", "/signal")})
-    assert candidates(engine) == [{"/usb_cam"}]
+    assert candidates(engine) == [{"/usb_cam", SG}, {"/usb_cam", "/audio_capture"}]
+
+
+def test_an_off_rate_camera_may_also_send_wrong_values():
+    # Off rate is not silent: a faulty camera still sends messages, and nothing judges
+    # their values, so the camera alone explains both symptoms.
+    engine = thesis_engine()
+    feed(engine, [1.0], {("hz", "/usb_cam/image_raw"), ("scores", "/signal")})
+    got = candidates(engine)
+    assert got[0] == {"/usb_cam"}
+    assert {SG, "/usb_cam/image_raw"} in got
 
 
 def test_dead_camera_and_wrong_signal_value_yield_the_pair_when_camera_values_are_right():
@@ -301,14 +311,10 @@ def last_before(records: Sequence[Diagnosis], end: float) -> Diagnosis:
 
 
 def test_sim_dead_camera_and_wrong_signal_value(tmp_path: Path):
-    # Nothing judges the camera's values, so the dead camera alone explains the wrong signal
-    # value too (see test_dead_camera_explains_a_wrong_signal_value_...).
     records = run(tmp_path, "  - {kind: kill, component: /usb_cam, start: 20, end: 40}\n"
                   "  - {kind: offset, component: /signal, start: 25, end: 40, value: 3.0}\n",
                   42.0)
-    settled = last_before(records, 40.0)
-    assert {o.resource.topic for o in settled.failed if o.observer == "scores"} == {"/signal"}
-    assert settled.candidates[0] == {"/usb_cam"}
+    assert last_before(records, 40.0).candidates[0] == {"/usb_cam", SG}
 
 
 def test_sim_dead_camera_then_stalled_signal(tmp_path: Path):

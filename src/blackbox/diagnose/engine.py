@@ -129,6 +129,7 @@ class DiagnosisEngine:
             value = [s for s in specs if not is_rate_type(s.type)]
             self._exonerate(th.var(("live", t)), rate)
             self._exonerate(th.var(("right", t)), value)
+        self._carries_nothing(mentions)
         self._watch, self._silencing = self._learning_evidence(mentions)
         self._depends_facts: list[int] | None = None
         self._literals = {k: self._literals_of(k, observation_fact(o.code))
@@ -171,6 +172,23 @@ class DiagnosisEngine:
         clears nobody of a value fault."""
         if covering:
             self.theory.add([mode, *(-self._slot[s.key()] for s in covering)])
+
+    def _carries_nothing(self, mentions: Mapping[str, Sequence[ObservationSpec]]) -> None:
+        """A topic seen silent (a failed ``timeout`` covering all its publishers, or every
+        publisher failing ``activated``) carries no values, so it passes no wrong values on:
+        its value mode holds. Only positive evidence of silence counts; a stale input
+        reaches output values through ``value_from_rate`` alone."""
+        th = self.theory
+        activated = {s.resource.node: self._slot[s.key()] for s in self.model.observations
+                     if s.type == "activated" and s.resource.node}
+        for t in self.model.topics:
+            right = th.var(("right", t))
+            for s in mentions.get(t, ()):
+                if s.type == "timeout":
+                    th.add([right, self._slot[s.key()]])
+            pubs = self.structure.publishers(t)
+            if pubs and all(p in activated for p in pubs):
+                th.add([right, *(activated[p] for p in pubs)])
 
     def _learning_evidence(self, mentions: Mapping[str, Sequence[ObservationSpec]]
                            ) -> tuple[dict[str, list[Watch]], dict[Key, list[str]]]:
