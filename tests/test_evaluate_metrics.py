@@ -14,6 +14,7 @@ from blackbox.evaluate import (
     by_kind,
     episodes,
     fault_components,
+    isolation_by_kind,
     percentile,
     resource_components,
     score_run,
@@ -185,6 +186,29 @@ def test_diagnoses_score_isolation_and_wrong_first_candidates() -> None:
     assert kill.isolation_delay == pytest.approx(1.0)
     assert offset.isolated and offset.isolation_delay == pytest.approx(2.0)
     assert small_run().diagnosis is None and small_run().outcomes[0].isolated is None
+
+
+def test_a_fault_listed_after_the_first_candidate_is_in_the_candidates_not_top_1() -> None:
+    """Kill window [2, 5], offset window [6, 8]: the diagnoses name the generator only in
+    second place, and never /cam; a diagnosis after the window does not count."""
+    diagnoses = [
+        Diagnosis(3.0, (frozenset({"/cam/image"}),)),
+        Diagnosis(7.0, (frozenset({"/other"}), frozenset({"/gen"}))),
+        Diagnosis(9.5, (frozenset({"/other"}), frozenset({"/cam"}))),
+    ]
+    score = small_run(diagnoses=diagnoses)
+    assert score.diagnosis is not None
+    assert (score.diagnosis.isolated, score.diagnosis.in_candidates) == (1, 2)
+    assert score.diagnosis.candidate_rate == 1.0 and score.diagnosis.isolation_rate == 0.5
+    kill, offset = score.outcomes
+    assert (kill.isolated, kill.in_candidates) == (True, True)  # its topic is one of its parts
+    assert (offset.isolated, offset.in_candidates) == (False, True)
+    assert [k.to_dict() for k in isolation_by_kind(score.outcomes)] == [
+        {"kind": "kill", "faults": 1, "isolated": 1, "isolation_rate": 1.0, "in_candidates": 1,
+         "candidate_rate": 1.0},
+        {"kind": "offset", "faults": 1, "isolated": 0, "isolation_rate": 0.0,
+         "in_candidates": 1, "candidate_rate": 1.0}]
+    assert isolation_by_kind(small_run().outcomes) == []
 
 
 def test_per_kind_summary_and_nearest_rank_percentiles() -> None:

@@ -18,6 +18,7 @@ from blackbox.evaluate import (
     CampaignSettings,
     RunResult,
     delay_summary,
+    isolation_by_kind,
     parse_kinds,
     percentile,
     run_campaign,
@@ -172,11 +173,21 @@ def print_report(result: CampaignResult, out: TextIO) -> None:
         g = result.diagnosis
         iso = [o.isolation_delay for o in result.outcomes if o.isolation_delay is not None]
         di = delay_summary(iso)
-        w(f"\ndiagnosis: {g.isolated}/{g.faults} faults isolated (first-ranked candidate names "
-          f"the faulty node or topic inside the fault's window; rate {_num(g.isolation_rate)}), "
+        w(f"\ndiagnosis: {g.isolated}/{g.faults} faults isolated top-1 (first-ranked candidate "
+          f"names the faulty node or topic inside the fault's window; rate "
+          f"{_num(g.isolation_rate)}), {g.in_candidates}/{g.faults} among the reported "
+          f"candidates (soundness; rate {_num(g.candidate_rate)}), "
           f"isolation delay p50 {_secs(di['p50'])}, p90 {_secs(di['p90'])}, max "
           f"{_secs(di['max'])}; {g.correct} diagnoses named an active fault first, "
           f"{g.wrong} did not (precision {_num(g.diagnosis_precision)})\n")
+        kinds = isolation_by_kind(result.outcomes)
+        rows = [(k.kind, str(k.faults), str(k.isolated), _num(k.isolation_rate),
+                 str(k.in_candidates), _num(k.candidate_rate)) for k in kinds]
+        rows.append(("all", str(g.faults), str(g.isolated), _num(g.isolation_rate),
+                     str(g.in_candidates), _num(g.candidate_rate)))
+        w("isolation per fault kind (top-1: first-ranked candidate names the fault; "
+          "in candidates: some reported candidate names it)\n")
+        _table(out, ("kind", "faults", "top-1", "rate", "in candidates", "rate"), rows)
 
 
 def _table(out: TextIO, header: tuple[str, ...], rows: list[tuple[str, ...]]) -> None:

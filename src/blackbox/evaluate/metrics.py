@@ -170,6 +170,7 @@ class FaultOutcome:
     detected_by: Key | None = None
     isolated: bool | None = None
     isolation_delay: float | None = None
+    in_candidates: bool | None = None
 
     def to_dict(self) -> dict[str, Any]:
         by = None
@@ -177,31 +178,41 @@ class FaultOutcome:
             by = {"observer": self.detected_by[0], "resource": self.detected_by[1].to_dict()}
         return {**self.fault.to_dict(), "end": self.end, "detected": self.detected,
                 "delay": self.delay, "detected_by": by, "isolated": self.isolated,
-                "isolation_delay": self.isolation_delay}
+                "isolation_delay": self.isolation_delay, "in_candidates": self.in_candidates}
 
 
 @dataclass(frozen=True, slots=True)
 class DiagnosisScore:
     """How the diagnoses named the faulty components.
 
-    A fault is *isolated* when a diagnosis inside its window ranks first a candidate that
-    contains one of the fault's components. A diagnosis with candidates is *correct* when its
-    first candidate contains a component of a fault whose window is open at its time, else
-    *wrong* (a false alarm or a wrong component).
+    A fault is *isolated* (top-1) when a diagnosis inside its window ranks first a candidate
+    that contains one of the fault's components, and *in the candidates* when a diagnosis
+    inside its window lists, at any rank, a candidate that contains one (what a sound
+    diagnosis must do once the fault is seen). A diagnosis with candidates is *correct* when
+    its first candidate contains a component of a fault whose window is open at its time,
+    else *wrong* (a false alarm or a wrong component).
     """
 
     faults: int = 0
     isolated: int = 0
     correct: int = 0
     wrong: int = 0
+    in_candidates: int = 0
 
     def __add__(self, other: DiagnosisScore) -> DiagnosisScore:
         return DiagnosisScore(self.faults + other.faults, self.isolated + other.isolated,
-                              self.correct + other.correct, self.wrong + other.wrong)
+                              self.correct + other.correct, self.wrong + other.wrong,
+                              self.in_candidates + other.in_candidates)
 
     @property
     def isolation_rate(self) -> float | None:
+        """Top-1: faults whose component a diagnosis ranked first, over all faults."""
         return _ratio(self.isolated, self.faults)
+
+    @property
+    def candidate_rate(self) -> float | None:
+        """Soundness: faults whose component a diagnosis listed at all, over all faults."""
+        return _ratio(self.in_candidates, self.faults)
 
     @property
     def diagnosis_precision(self) -> float | None:
@@ -210,6 +221,7 @@ class DiagnosisScore:
     def to_dict(self) -> dict[str, Any]:
         return {"faults": self.faults, "isolated": self.isolated, "correct": self.correct,
                 "wrong": self.wrong, "isolation_rate": self.isolation_rate,
+                "in_candidates": self.in_candidates, "candidate_rate": self.candidate_rate,
                 "diagnosis_precision": self.diagnosis_precision}
 
 
@@ -312,24 +324,31 @@ def score_run(
             f, end if f.end is None else min(f.end, end), hit is not None,
             None if hit is None else hit.start - f.start, None if hit is None else hit.key,
             None if isolation is None else iso is not None,
-            None if iso is None else iso - f.start))
+            None if iso is None else iso - f.start,
+            None if isolation is None else i in isolation[3]))
     tp = len(first)
     confusion = Confusion(tp=tp, fp=len(false_positives), fn=len(faults) - tp, tn=tn)
     diagnosis = None
     if isolation is not None:
-        diagnosis = DiagnosisScore(len(faults), len(isolation[0]), isolation[1], isolation[2])
+        diagnosis = DiagnosisScore(len(faults), len(isolation[0]), isolation[1], isolation[2],
+                                   len(isolation[3]))
     return RunScore(start, end, grace, tuple(outcomes), tuple(found), tuple(false_positives),
                     confusion, diagnosis)
 
 
 def _isolation(windows: Sequence[_Window], diagnoses: Sequence[Diagnosis]
-               ) -> tuple[dict[int, float], int, int]:
-    """First isolating diagnosis time per fault index, and correct/wrong diagnosis counts."""
+               ) -> tuple[dict[int, float], int, int, set[int]]:
+    """First isolating diagnosis time per fault index, correct/wrong diagnosis counts, and
+    the fault indices some diagnosis listed among its candidates."""
     isolated: dict[int, float] = {}
+    listed: set[int] = set()
     correct = wrong = 0
     for d in sorted(diagnoses, key=lambda d: d.time):
         if not d.candidates:
             continue
+        named = frozenset().union(*d.candidates)
+        listed.update(i for i, w in enumerate(windows)
+                      if w.contains(d.time) and w.components & named)
         top = d.candidates[0]
         hits = [i for i, w in enumerate(windows) if w.contains(d.time) and w.components & top]
         if hits:
@@ -338,7 +357,7 @@ def _isolation(windows: Sequence[_Window], diagnoses: Sequence[Diagnosis]
             wrong += 1
         for i in hits:
             isolated.setdefault(i, d.time)
-    return isolated, correct, wrong
+    return isolated, correct, wrong, listed
 
 
 @dataclass(frozen=True, slots=True)
@@ -363,6 +382,42 @@ def by_kind(outcomes: Iterable[FaultOutcome]) -> list[KindSummary]:
     order = {k: i for i, k in enumerate(FAULT_KINDS)}
     return [KindSummary(k, len(g), sum(o.detected for o in g),
                         tuple(sorted(o.delay for o in g if o.delay is not None)))
+            for k, g in sorted(groups.items(), key=lambda kv: order.get(kv[0], len(order)))]
+
+
+@dataclass(frozen=True, slots=True)
+class IsolationSummary:
+    """Isolation per fault kind: top-1 (``isolated``) and soundness (``in_candidates``)."""
+
+    kind: str
+    faults: int
+    isolated: int
+    in_candidates: int
+
+    @property
+    def isolation_rate(self) -> float | None:
+        return _ratio(self.isolated, self.faults)
+
+    @property
+    def candidate_rate(self) -> float | None:
+        return _ratio(self.in_candidates, self.faults)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"kind": self.kind, "faults": self.faults, "isolated": self.isolated,
+                "isolation_rate": self.isolation_rate, "in_candidates": self.in_candidates,
+                "candidate_rate": self.candidate_rate}
+
+
+def isolation_by_kind(outcomes: Iterable[FaultOutcome]) -> list[IsolationSummary]:
+    """Both isolation figures per kind, in ``FAULT_KINDS`` order; faults scored without
+    diagnoses are left out."""
+    groups: dict[str, list[FaultOutcome]] = defaultdict(list)
+    for o in outcomes:
+        if o.isolated is not None:
+            groups[o.fault.kind].append(o)
+    order = {k: i for i, k in enumerate(FAULT_KINDS)}
+    return [IsolationSummary(k, len(g), sum(bool(o.isolated) for o in g),
+                             sum(bool(o.in_candidates) for o in g))
             for k, g in sorted(groups.items(), key=lambda kv: order.get(kv[0], len(order)))]
 
 
