@@ -107,6 +107,7 @@ class DiagnosisEngine:
         self.theory = th
         self._depends: dict[Edge, int] = {}
         self._slot: dict[Key, int] = {}
+        self._seen_failed: dict[Key, int] = {}
         for t in model.topics:
             self._rate_clause(th.var(("live", t)), st.producers(t, (), rate=True))
             self._value_clause(th.var(("right", t)), st.producers(t, (), rate=False))
@@ -176,19 +177,27 @@ class DiagnosisEngine:
     def _carries_nothing(self, mentions: Mapping[str, Sequence[ObservationSpec]]) -> None:
         """A topic seen silent (a failed ``timeout`` covering all its publishers, or every
         publisher failing ``activated``) carries no values, so it passes no wrong values on:
-        its value mode holds. Only positive evidence of silence counts; a stale input
-        reaches output values through ``value_from_rate`` alone."""
+        its value mode holds. Only a failure that was reported counts (its own assumption
+        literal, set only when the observation failed; NOT_AVAILABLE says nothing), and a
+        stale input reaches output values through ``value_from_rate`` alone."""
         th = self.theory
-        activated = {s.resource.node: self._slot[s.key()] for s in self.model.observations
+
+        def seen_failed(spec: ObservationSpec) -> int:
+            lit = self._seen_failed.get(spec.key())
+            if lit is None:
+                lit = self._seen_failed[spec.key()] = th.var(("seen failed", spec.key()))
+            return lit
+
+        activated = {s.resource.node: s for s in self.model.observations
                      if s.type == "activated" and s.resource.node}
         for t in self.model.topics:
             right = th.var(("right", t))
             for s in mentions.get(t, ()):
                 if s.type == "timeout":
-                    th.add([right, self._slot[s.key()]])
+                    th.add([right, -seen_failed(s)])
             pubs = self.structure.publishers(t)
             if pubs and all(p in activated for p in pubs):
-                th.add([right, *(activated[p] for p in pubs)])
+                th.add([right, *(-seen_failed(activated[p]) for p in pubs)])
 
     def _learning_evidence(self, mentions: Mapping[str, Sequence[ObservationSpec]]
                            ) -> tuple[dict[str, list[Watch]], dict[Key, list[str]]]:
@@ -302,7 +311,8 @@ class DiagnosisEngine:
         if value is None:
             return ()
         ok = self._slot[key]
-        return (ok if value else -ok,)
+        seen = self._seen_failed.get(key)
+        return (ok if value else -ok,) if value or seen is None else (-ok, seen)
 
     def _learn(self, now: float) -> None:
         """Watch for a node publishing at rate while an input is silent."""

@@ -369,9 +369,9 @@ class TopicStructure:
         comps: list[str] = []
         edges: list[Edge] = []
         for t in topics:
-            if rate or cyclic:
-                comps.append(t)
             pubs = self._pub.get(t, ())
+            if rate or cyclic or not pubs:  # no modelled publisher: the topic stands for it
+                comps.append(t)
             if group and t == topic:
                 pubs = tuple(p for p in pubs if p in group) or tuple(group)
             for p in pubs:

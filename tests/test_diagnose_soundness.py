@@ -1,0 +1,290 @@
+"""The engine reports exactly the minimal diagnoses of the documented semantics.
+
+A reference written from the failure-mode rules of docs/diagnosis.md ("Semantics"), not from
+the engine's clauses: for a candidate set of abnormal components it computes which failure
+modes *must* hold (healthy producers with working inputs, observations that judge a mode
+and are all OK, topics seen silent) as a least fixpoint, and checks that every failed
+observation still has a faulty or failing cause. The least fixpoint is the best case for
+every failed observation at once (each rule only forces modes to hold, and a failed
+observation only needs some mode of its cause to fail), so a set is a diagnosis exactly
+when this check passes. Minimal diagnoses are then enumerated by size.
+
+Hundreds of seeded random small robots (nodes with 0-2 inputs and outputs, feedback loops,
+hardware, publisher groups, two-topic observers, interfaces) with random OK / failed /
+NOT_AVAILABLE observations and random per-node propagation settings are compared.
+"""
+
+from __future__ import annotations
+
+import itertools
+import random
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import pytest
+
+from blackbox.diagnose.engine import DiagnosisEngine
+from blackbox.diagnose.robot_model import (
+    NodePropagation,
+    NodeSpec,
+    ObservationSpec,
+    Propagation,
+    build_model,
+)
+from blackbox.model import Code, Observation, Resource
+
+RATE = ("hz", "timeout", "timestamp")
+VALUE = ("scores", "moving")
+RATE_PAIR, VALUE_PAIR = "timing", "velocity"
+NODE_KINDS = ("activated", "resources")
+MAX_CARDINALITY = 3
+CASES = 1000
+
+
+@dataclass(frozen=True)
+class Robot:
+    nodes: tuple[NodeSpec, ...]
+    observations: tuple[tuple[ObservationSpec, bool | None], ...]  # True OK, False failed
+    needs_input: Mapping[str, bool]  # does a silent input silence the node's outputs?
+    stale_values: Mapping[str, bool]  # may a silent input make the node's values wrong?
+
+    def topics(self) -> list[str]:
+        names = {t for n in self.nodes for t in (*n.pub, *n.sub)}
+        names |= {t for s, _ in self.observations
+                  for t in (s.resource.topic, s.resource.topic_b) if t}
+        return sorted(names)
+
+    def components(self) -> list[str]:
+        out = [n.name for n in self.nodes] + [h for n in self.nodes for h in n.hardware]
+        out += self.topics()
+        out += sorted({f"iface:{s.resource.interface}" for s, _ in self.observations
+                       if s.resource.interface})
+        return out
+
+
+# ---- the reference ---------------------------------------------------------------------------
+
+class Reference:
+    """Consistency of a set of abnormal components, straight from the documented rules."""
+
+    def __init__(self, robot: Robot) -> None:
+        self.robot = robot
+        self.node = {n.name: n for n in robot.nodes}
+        self.topics = robot.topics()
+        self.pubs = {t: [n.name for n in robot.nodes if t in n.pub] for t in self.topics}
+        feeds = {t: {i for p in self.pubs[t] for i in self.node[p].sub} for t in self.topics}
+        reach = {t: self._reachable(t, feeds) for t in self.topics}
+        # A feedback loop: the topics that reach t and that t reaches (t itself if it
+        # reaches itself); a topic on no loop is a unit of its own.
+        self.loop = {t: frozenset({u for u in reach[t] if t in reach[u]} | {t})
+                     for t in self.topics}
+        self.cyclic = {t: t in reach[t] for t in self.topics}
+
+    @staticmethod
+    def _reachable(start: str, feeds: Mapping[str, set[str]]) -> set[str]:
+        seen: set[str] = set()
+        todo = list(feeds[start])
+        while todo:
+            t = todo.pop()
+            if t not in seen:
+                seen.add(t)
+                todo.extend(feeds[t])
+        return seen
+
+    def cause(self, topic: str, rate: bool, group: Sequence[str]) -> tuple[set[str], list[
+            tuple[str, str]]]:
+        """What must work for a mode of ``topic`` (seen by ``group``) to hold: components,
+        and (mode, topic) requirements on inputs from outside the topic's loop."""
+        units = sorted(self.loop[topic]) if self.cyclic[topic] else [topic]
+        comps: set[str] = set()
+        needs: list[tuple[str, str]] = []
+        for t in units:
+            pubs = self.pubs[t]
+            if rate or self.cyclic[topic] or not pubs:
+                comps.add(t)
+            if group and t == topic:
+                pubs = [p for p in pubs if p in group]
+            for p in pubs:
+                comps.add(p)
+                comps.update(self.node[p].hardware)
+                for i in self.node[p].sub:
+                    if i in self.loop[topic] and self.cyclic[topic]:
+                        continue
+                    if rate:
+                        if self.robot.needs_input[p]:
+                            needs.append(("live", i))
+                    else:
+                        needs.append(("right", i))
+                        if self.robot.stale_values[p]:
+                            needs.append(("live", i))
+        return comps, needs
+
+    def obs_cause(self, spec: ObservationSpec) -> tuple[set[str], list[tuple[str, str]]]:
+        r = spec.resource
+        if spec.type in NODE_KINDS:
+            return {r.node or ""}, []
+        if spec.type == "network":
+            return {f"iface:{r.interface}"}, []
+        rate = spec.type in (*RATE, RATE_PAIR)
+        comps, needs = self.cause(r.topic or "", rate, r.publishers)
+        if r.topic_b:
+            more, more_needs = self.cause(r.topic_b, rate, ())
+            comps |= more
+            needs += more_needs
+        return comps, needs
+
+    def judges(self, spec: ObservationSpec, topic: str) -> bool:
+        """Whether an observation covers every publisher of ``topic`` (it may exonerate)."""
+        r = spec.resource
+        if topic not in (r.topic, r.topic_b):
+            return False
+        return not r.publishers or set(self.pubs[r.topic or ""]) <= set(r.publishers)
+
+    def holds(self, abnormal: frozenset[str]) -> set[tuple[str, str]]:
+        """The modes that must hold: the least fixpoint of the documented rules."""
+        forced: set[tuple[str, str]] = set()
+        for t in self.topics:
+            for mode, kinds in (("live", (*RATE, RATE_PAIR)), ("right", (*VALUE, VALUE_PAIR))):
+                judging = [v for s, v in self.robot.observations
+                           if s.type in kinds and self.judges(s, t)]
+                if judging and all(v is True for v in judging):
+                    forced.add((mode, t))
+            timeouts = [v for s, v in self.robot.observations
+                        if s.type == "timeout" and self.judges(s, t)]
+            activated = {s.resource.node: v for s, v in self.robot.observations
+                         if s.type == "activated"}
+            dead = bool(self.pubs[t]) and all(activated.get(p) is False for p in self.pubs[t])
+            if False in timeouts or dead:
+                forced.add(("right", t))
+        changed = True
+        while changed:
+            changed = False
+            for t in self.topics:
+                for mode in ("live", "right"):
+                    if (mode, t) in forced:
+                        continue
+                    comps, needs = self.cause(t, mode == "live", ())
+                    if not comps & abnormal and all(n in forced for n in needs):
+                        forced.add((mode, t))
+                        changed = True
+        return forced
+
+    def consistent(self, abnormal: frozenset[str]) -> bool:
+        forced = self.holds(abnormal)
+        for spec, value in self.robot.observations:
+            if value is False:
+                comps, needs = self.obs_cause(spec)
+                if not comps & abnormal and all(n in forced for n in needs):
+                    return False
+        return True
+
+    def minimal_diagnoses(self, bound: int) -> set[frozenset[str]]:
+        found: set[frozenset[str]] = set()
+        comps = self.robot.components()
+        for size in range(bound + 1):
+            for combo in itertools.combinations(comps, size):
+                s = frozenset(combo)
+                if not any(d <= s for d in found) and self.consistent(s):
+                    found.add(s)
+        return found
+
+
+# ---- random robots ---------------------------------------------------------------------------
+
+def random_robot(rng: random.Random) -> Robot:
+    topics = [f"/t{i}" for i in range(rng.randint(1, 5))]
+    nodes = []
+    for i in range(rng.randint(1, 5)):
+        pub = tuple(sorted(set(rng.sample(topics, rng.randint(0, min(2, len(topics)))))))
+        sub = tuple(sorted(set(rng.sample(topics, rng.randint(0, min(2, len(topics)))))))
+        hw = (f"hw{i}",) if rng.random() < 0.15 else ()
+        nodes.append(NodeSpec(f"/n{i}", pub, sub, hw))
+    pubs = {t: [n.name for n in nodes if t in n.pub] for t in topics}
+    obs: list[ObservationSpec] = []
+    for _ in range(rng.randint(1, 8)):
+        kind = rng.choice((*RATE, *VALUE, RATE_PAIR, VALUE_PAIR, *NODE_KINDS, "network"))
+        if kind in NODE_KINDS:
+            obs.append(ObservationSpec(kind, Resource(node=rng.choice(nodes).name)))
+        elif kind == "network":
+            obs.append(ObservationSpec(kind, Resource(interface="eth0")))
+        elif kind in (RATE_PAIR, VALUE_PAIR):
+            if len(topics) > 1:
+                a, b = rng.sample(topics, 2)
+                obs.append(ObservationSpec(kind, Resource(topic=a, topic_b=b)))
+        else:
+            t = rng.choice(topics)
+            group: tuple[str, ...] = ()
+            if pubs[t] and rng.random() < 0.25:
+                group = tuple(sorted(rng.sample(pubs[t], rng.randint(1, len(pubs[t])))))
+            obs.append(ObservationSpec(kind, Resource(topic=t, publishers=group)))
+    obs = list(dict.fromkeys(obs))
+    values = [rng.choice((True, True, False, False, False, None)) for _ in obs]
+    return Robot(tuple(nodes), tuple(zip(obs, values, strict=True)),
+                 {n.name: rng.random() < 0.7 for n in nodes},
+                 {n.name: rng.random() < 0.2 for n in nodes})
+
+
+def engine_for(robot: Robot) -> DiagnosisEngine:
+    propagation = Propagation(rate="always", nodes={
+        n: NodePropagation("always" if needs else "never", robot.stale_values[n])
+        for n, needs in robot.needs_input.items()})
+    model = build_model(robot.nodes, [s for s, _ in robot.observations])
+    return DiagnosisEngine(model, max_cardinality=MAX_CARDINALITY, time_budget=60.0,
+                           propagation=propagation)
+
+
+def code(value: bool | None) -> Code:
+    return {True: Code.GENERAL_OK, False: Code.NO_STATE_FITS, None: Code.NOT_AVAILABLE}[value]
+
+
+def test_engine_reports_exactly_the_minimal_diagnoses_of_the_documented_semantics():
+    rng = random.Random(14)
+    compared = nontrivial = 0
+    for case in range(CASES):
+        robot = random_robot(rng)
+        engine = engine_for(robot)
+        d = engine.update(1.0, [Observation(1.0, s.type, s.resource, code(v))
+                                for s, v in robot.observations])
+        assert d is not None
+        if not any(v is False for _, v in robot.observations):
+            assert d.candidates == ()
+            continue
+        expected = Reference(robot).minimal_diagnoses(MAX_CARDINALITY)
+        assert d.complete
+        assert set(d.candidates) == expected, (case, robot)
+        assert len(d.candidates) == len(expected)
+        compared += 1
+        nontrivial += len(expected) > 1
+    assert compared > CASES // 2 and nontrivial > CASES // 5  # the test exercises something
+
+
+def test_the_reference_keeps_an_unjudged_value_mode_open():
+    """The issue's case in miniature: a driver watched for its rate only, a wrong value
+    downstream. The reference, like the engine, keeps the driver a suspect."""
+    nodes = (NodeSpec("/driver", ("/raw",)), NodeSpec("/filter", ("/out",), ("/raw",)))
+    observed = ((ObservationSpec("hz", Resource(topic="/raw")), True),
+                (ObservationSpec("scores", Resource(topic="/out")), False))
+    robot = Robot(nodes, observed, {"/driver": True, "/filter": True},
+                  {"/driver": False, "/filter": False})
+    assert Reference(robot).minimal_diagnoses(2) == {frozenset({"/driver"}),
+                                                     frozenset({"/filter"})}
+    d = engine_for(robot).update(1.0, [Observation(1.0, s.type, s.resource, code(v))
+                                       for s, v in observed])
+    assert d is not None and d.candidates == (frozenset({"/filter"}), frozenset({"/driver"}))
+
+
+@pytest.mark.parametrize("silence", ["timeout", "activated"])
+def test_a_topic_seen_silent_passes_no_wrong_values(silence: str):
+    nodes = (NodeSpec("/driver", ("/raw",)), NodeSpec("/filter", ("/out",), ("/raw",)))
+    seen = (ObservationSpec("timeout", Resource(topic="/raw")) if silence == "timeout"
+            else ObservationSpec("activated", Resource(node="/driver")))
+    observed = ((seen, False), (ObservationSpec("scores", Resource(topic="/out")), False))
+    robot = Robot(nodes, observed, {"/driver": True, "/filter": True},
+                  {"/driver": False, "/filter": False})
+    expected = {frozenset({"/driver", "/filter"})}
+    if silence == "timeout":
+        expected.add(frozenset({"/raw", "/filter"}))
+    assert Reference(robot).minimal_diagnoses(2) == expected
+    d = engine_for(robot).update(1.0, [Observation(1.0, s.type, s.resource, code(v))
+                                       for s, v in observed])
+    assert d is not None and set(d.candidates) == expected
