@@ -18,6 +18,7 @@ observation costs nothing).
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections import OrderedDict
@@ -140,7 +141,7 @@ class DiagnosisEngine:
         self._cache: OrderedDict[frozenset[int], tuple[tuple[frozenset[str], ...], bool]] = (
             OrderedDict())
         self._facts_key: frozenset[int] | None = None
-        self._reach: dict[Key, dict[str, int]] = {}
+        self._upstream: dict[str, Explanation] = {}
 
     def _silenced(self, edge: Edge) -> int:
         """A helper literal: the edge's input is not live *and* the output's rate needs it."""
@@ -243,21 +244,24 @@ class DiagnosisEngine:
             p = self.priors.get(kind, DEFAULT_PRIORS[kind])
         return p
 
-    def distance(self, component: str, key: Key) -> int | None:
-        """How many nodes a fault of ``component`` must cross to reach the observation
-        ``key`` (0: it is among the observation's own producers); ``None`` if it cannot."""
-        reach = self._reach.get(key)
-        if reach is None:
-            reach = self._reach[key] = self._distances(key)
-        return reach.get(component)
+    def _producers(self, topic: str) -> Explanation:
+        ex = self._upstream.get(topic)
+        if ex is None:
+            ex = self._upstream[topic] = self.structure.producers(topic)
+        return ex
 
-    def _distances(self, key: Key) -> dict[str, int]:
-        spec = ObservationSpec(*key)
-        st = self.structure
-        ex = st.explain(spec)
-        out = dict.fromkeys(ex.components, 0)
+    def closeness(self, failed: Iterable[Key]) -> dict[str, int]:
+        """For every component that can explain one of the ``failed`` observations, how
+        many nodes its fault must cross to reach the nearest (0: it is among that
+        observation's own producers). One breadth-first walk upstream from all of them."""
+        out: dict[str, int] = {}
+        frontier: list[str] = []
+        for key in failed:
+            ex = self.structure.explain(ObservationSpec(*key))
+            for c in ex.components:
+                out.setdefault(c, 0)
+            frontier.extend(ex.inputs)
         seen: set[str] = set()
-        frontier = list(ex.inputs)
         depth = 1
         while frontier:
             following: list[str] = []
@@ -265,7 +269,7 @@ class DiagnosisEngine:
                 if topic in seen:
                     continue
                 seen.add(topic)
-                up = st.producers(topic)
+                up = self._producers(topic)
                 for c in up.components:
                     out.setdefault(c, depth)
                 following.extend(up.inputs)
@@ -277,18 +281,19 @@ class DiagnosisEngine:
              ) -> tuple[frozenset[str], ...]:
         """Cardinality first, then the larger prior odds product, then the components
         closer to the ``failed`` observations (fewer nodes the fault must cross), then
-        names."""
-        failed = list(failed)
+        names. Closeness is only computed when candidates tie on the first two."""
+        def odds(s: frozenset[str]) -> float:
+            return round(sum(math.log(self.prior(c) / (1.0 - self.prior(c))) for c in s), 9)
+
+        keyed = sorted(((len(s), -odds(s), sorted(s), s) for s in sets),
+                       key=lambda k: k[:3])
+        tied = any(a[:2] == b[:2] for a, b in itertools.pairwise(keyed))
+        if not tied:
+            return tuple(k[3] for k in keyed)
+        near = self.closeness(failed)
         far = len(self.model.topics) + 1
-
-        def closeness(c: str) -> int:
-            ds = [d for k in failed if (d := self.distance(c, k)) is not None]
-            return min(ds, default=far)
-
-        def key(s: frozenset[str]) -> tuple[int, float, int, list[str]]:
-            odds = sum(math.log(self.prior(c) / (1.0 - self.prior(c))) for c in s)
-            return (len(s), -round(odds, 9), sum(closeness(c) for c in s), sorted(s))
-        return tuple(sorted(sets, key=key))
+        return tuple(k[3] for k in sorted(
+            keyed, key=lambda k: (k[0], k[1], sum(near.get(c, far) for c in k[3]), k[2])))
 
     @property
     def independent(self) -> frozenset[Edge]:
@@ -468,24 +473,23 @@ class DiagnosisEngine:
 
     def _unjudged(self, failed: Sequence[Observation]) -> list[tuple[str, str]]:
         """Upstream topics of the failed observations whose failure mode nobody judges:
-        ``(topic, "rate" | "values")``, what an observer could add to narrow the list."""
+        ``(topic, "rate" | "values")``, what an observer could add to narrow the list. The
+        walk stops at topics whose mode is judged."""
         st = self.structure
         judged = {(t, is_rate_type(s.type)) for s in self.model.observations
                   for t in st.mentions(s)}
-        out: dict[tuple[str, str], None] = {}
-        for o in failed:
-            rate = is_rate_type(o.observer)
-            frontier = list(st.explain(ObservationSpec(o.observer, o.resource)).inputs)
+        out: list[tuple[str, str]] = []
+        for rate in (True, False):
+            frontier = [i for o in failed if is_rate_type(o.observer) == rate
+                        for i in st.explain(ObservationSpec(o.observer, o.resource)).inputs]
             seen: set[str] = set()
             while frontier:
                 t = frontier.pop()
-                if t in seen:
+                if t in seen or (t, rate) in judged:
                     continue
                 seen.add(t)
-                if (t, rate) in judged:
-                    continue
-                out.setdefault((t, "rate" if rate else "values"))
-                frontier.extend(st.producers(t).inputs)
+                out.append((t, "rate" if rate else "values"))
+                frontier.extend(self._producers(t).inputs)
         return sorted(out)
 
     def _listing(self, sets: Sequence[frozenset[str]], shown: int = 3) -> str:

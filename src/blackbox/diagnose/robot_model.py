@@ -19,10 +19,11 @@ A topic fails in one of two *modes*, each with its own variable (weak fault mode
   ``live`` fails for the observed publisher group, *value* observations (``scores``,
   ``velocity``, ``moving``) only when ``right`` fails; ``activated`` and ``resources`` when
   their node is faulty, ``network`` when its interface is.
-* Exoneration: when the observations of a mode on ``T`` are all known and OK, that mode
-  holds; when no observer covers a mode of an observed topic (some observation of ``T`` has
-  data), that mode is taken to hold. So a silent camera topic explains a silent signal, not
-  a wrong signal value, unless a value observer of the camera topic says so.
+* Exoneration: when the observations judging a mode of ``T`` (covering all its publishers)
+  are all known and OK, that mode holds. A mode nobody judges stays open: a rate observer
+  clears nobody of a value fault. A topic seen silent (a failed ``timeout``, or every
+  publisher failing ``activated``) carries no values, so its value mode holds: a dead
+  camera explains a silent signal, not a wrong signal value (unless ``value_from_rate``).
 
 Topics in a feedback loop are treated as one unit (their strongly connected component), so a
 cycle of healthy nodes can never "explain" a symptom by itself.
