@@ -142,6 +142,8 @@ class DiagnosisEngine:
             OrderedDict())
         self._facts_key: frozenset[int] | None = None
         self._upstream: dict[str, Explanation] = {}
+        self._explained: dict[Key, Explanation] = {}
+        self._judged: frozenset[tuple[str, bool]] | None = None
 
     def _silenced(self, edge: Edge) -> int:
         """A helper literal: the edge's input is not live *and* the output's rate needs it."""
@@ -244,6 +246,12 @@ class DiagnosisEngine:
             p = self.priors.get(kind, DEFAULT_PRIORS[kind])
         return p
 
+    def _explain(self, key: Key) -> Explanation:
+        ex = self._explained.get(key)
+        if ex is None:
+            ex = self._explained[key] = self.structure.explain(ObservationSpec(*key))
+        return ex
+
     def _producers(self, topic: str) -> Explanation:
         ex = self._upstream.get(topic)
         if ex is None:
@@ -257,7 +265,7 @@ class DiagnosisEngine:
         out: dict[str, int] = {}
         frontier: list[str] = []
         for key in failed:
-            ex = self.structure.explain(ObservationSpec(*key))
+            ex = self._explain(key)
             for c in ex.components:
                 out.setdefault(c, 0)
             frontier.extend(ex.inputs)
@@ -475,13 +483,15 @@ class DiagnosisEngine:
         """Upstream topics of the failed observations whose failure mode nobody judges:
         ``(topic, "rate" | "values")``, what an observer could add to narrow the list. The
         walk stops at topics whose mode is judged."""
-        st = self.structure
-        judged = {(t, is_rate_type(s.type)) for s in self.model.observations
-                  for t in st.mentions(s)}
+        judged = self._judged
+        if judged is None:
+            judged = self._judged = frozenset(
+                (t, is_rate_type(s.type)) for s in self.model.observations
+                for t in self.structure.mentions(s))
         out: list[tuple[str, str]] = []
         for rate in (True, False):
             frontier = [i for o in failed if is_rate_type(o.observer) == rate
-                        for i in st.explain(ObservationSpec(o.observer, o.resource)).inputs]
+                        for i in self._explain(o.key()).inputs]
             seen: set[str] = set()
             while frontier:
                 t = frontier.pop()
