@@ -165,3 +165,26 @@ def test_model_derived_from_graph_equals_the_yaml_model():
     assert engine.model == yaml_model
     d = engine.update(1.0, observations(engine, KILL_USB_CAM))
     assert d is not None and [set(c) for c in d.candidates] == [{"/usb_cam"}]
+
+
+def test_a_hand_written_configuration_on_a_new_robot_keeps_the_driver_a_suspect():
+    """The issue's case: a model derived from the live graph, a rate observer on the
+    driver's topic and a value observer on the downstream node's output. The driver sends
+    wrong values at the right rate: only the downstream value observer fails, and the
+    driver must be among the diagnoses."""
+    nodes = {n: NodeInfo(n, True) for n in ("/imu_driver", "/estimator", "/blackbox")}
+    topics = {
+        "/imu": TopicInfo("/imu", "sensor_msgs/Imu", ("/imu_driver",), ("/estimator",)),
+        "/pose": TopicInfo("/pose", "geometry_msgs/Pose", ("/estimator",), ("/blackbox",)),
+    }
+    observers = [FakeObserver("hz", Resource(topic="/imu")),
+                 FakeObserver("timeout", Resource(topic="/imu")),
+                 FakeObserver("scores", Resource(topic="/pose"))]
+    engine = DiagnosisEngine.from_graph(GraphSnapshot(0.0, nodes, topics), observers)
+    d = engine.update(1.0, [Observation(1.0, "hz", Resource(topic="/imu"), Code.GENERAL_OK),
+                            Observation(1.0, "timeout", Resource(topic="/imu"), Code.GENERAL_OK),
+                            Observation(1.0, "scores", Resource(topic="/pose"),
+                                        Code.NO_STATE_FITS)])
+    assert d is not None
+    assert [set(c) for c in d.candidates] == [{"/estimator"}, {"/imu_driver"}]
+    assert "Nothing observes the values of /imu" in d.explanation
