@@ -18,8 +18,8 @@ from xmlrpc.server import SimpleXMLRPCServer
 
 import pytest
 
+from blackbox.events import GraphSnapshot, Interest, MessageArrival
 from blackbox.model import BlackBoxEvent
-from blackbox.sources.base import GraphSnapshot, Interest, MessageArrival
 from blackbox.sources.ros1 import Ros1Source
 from blackbox.sources.ros1.tcpros import encode_header
 

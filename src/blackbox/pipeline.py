@@ -21,18 +21,18 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
-from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource
-from blackbox.observe.base import Observer
-from blackbox.sinks import Sink
-from blackbox.sources.base import (
+from blackbox.events import (
     GraphSnapshot,
     Interest,
     MessageArrival,
     NetworkSample,
     ResourceSample,
-    Source,
     merge_interests,
 )
+from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource
+from blackbox.observe.base import Observer
+from blackbox.sinks import Sink
+from blackbox.sources.base import Source
 
 
 class Diagnoser(Protocol):

@@ -231,7 +231,7 @@ def _purge_snapshots(args: argparse.Namespace, db: Path) -> int:
 
 def validate_configuration(path: Path) -> str:
     """The file's text if it is a valid configuration (observers build), else ConfigError."""
-    from blackbox.config.loader import build_observers, load_config
+    from blackbox.observe.build import build_observers, load_config
 
     build_observers(load_config(path))
     return path.read_text(encoding="utf-8")
@@ -259,7 +259,7 @@ def _capacity(args: argparse.Namespace) -> int:
     policy = None
     share = 0.25
     if args.config is not None:
-        from blackbox.config.loader import load_config
+        from blackbox.observe.build import load_config
 
         loaded = load_config(args.config)
         observers = [_characteristic(node) for node in loaded.observers]

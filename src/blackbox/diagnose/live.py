@@ -41,8 +41,8 @@ from blackbox.diagnose.robot_model import (
     ObservedResource,
     Propagation,
 )
+from blackbox.events import GraphSnapshot
 from blackbox.model import Diagnosis, Observation
-from blackbox.sources.base import GraphSnapshot
 
 
 @dataclass(frozen=True)

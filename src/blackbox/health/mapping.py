@@ -30,7 +30,7 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
-from blackbox.health.describe import UNITS, ObserverDescription, ThresholdSpec
+from blackbox.health.describe import ObserverDescription, ThresholdSpec, unit_of
 from blackbox.health.extension import (
     C_Characteristic_Extension,
     C_Entity_Description,
@@ -274,7 +274,7 @@ class HealthMapper:
         interval = d.interval if d and d.interval else None
         name = f"{obs.observer} {obs.resource.label()} {quantity}"
         out.append(C_Monitored_Characteristic_Specification(
-            A_sourceID=spec_id, A_timeOfDataGeneration=t, A_unit=UNITS.get(quantity, ""),
+            A_sourceID=spec_id, A_timeOfDataGeneration=t, A_unit=unit_of(obs.observer, quantity),
             A_descriptor=name,
             A_publishingIntervalInSeconds=max(1, round(interval)) if interval else 0,
             A_specifiedCharacteristics_sourceID=[ident],

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from blackbox.config.node import ConfigNode
+from blackbox.events import MessageArrival, TopicSchema
 from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource
 from blackbox.record.policy import (
     FaultBoost,
@@ -48,7 +49,6 @@ from blackbox.record.snapshot import (
 )
 from blackbox.record.store import Channel, Row, StorageError, Store, StoreCorrupt, dumps
 from blackbox.sinks import SinkBase
-from blackbox.sources.base import MessageArrival, TopicSchema
 
 COMPONENT = "blackbox/recorder"
 RESOURCE = Resource(node="/blackbox/recorder")

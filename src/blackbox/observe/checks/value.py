@@ -12,7 +12,7 @@ from dataclasses import dataclass, fields
 from typing import ClassVar, Protocol, Self
 
 from blackbox.config.node import ConfigNode
-from blackbox.observe.base import Summary
+from blackbox.observe.base import VALUE_CHECKS, Summary
 from blackbox.observe.checks import params
 
 
@@ -161,3 +161,7 @@ class NotInBetweenCheck(_Interval):
     def describe(self, subject: str = "value") -> str:
         return f"{subject} < {_g(self.lower_bound)} or {subject} > {_g(self.upper_bound)}"
 
+
+for _check in (GaussCheck, ExactCheck, NotCheck, GreaterThanCheck, LessThanCheck, InBetweenCheck,
+               NotInBetweenCheck):
+    VALUE_CHECKS.add(_check.type_name, _check.from_config)

@@ -12,6 +12,7 @@ from __future__ import annotations
 from math import fsum
 
 from blackbox.config.node import ConfigNode
+from blackbox.observe.base import FILTERS
 from blackbox.observe.filters import params
 from blackbox.observe.filters.window import STD_DEVIATION, SortedWindowFilter
 
@@ -47,3 +48,6 @@ class KMeansFilter(SortedWindowFilter):
 
     def describe(self) -> str:
         return f"kmeans (central {self.k_size} of {self._describe_window()})"
+
+
+FILTERS.add(KMeansFilter.type_name, KMeansFilter.from_config)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from blackbox.config.node import ConfigNode
+from blackbox.observe.base import FILTERS
 from blackbox.observe.filters import params
 from blackbox.observe.filters.window import SortedWindowFilter
 
@@ -30,3 +31,6 @@ class MedianFilter(SortedWindowFilter):
             return s[0]
         mid = n // 2
         return s[mid] if n % 2 else (s[mid - 1] + s[mid]) / 2.0
+
+
+FILTERS.add(MedianFilter.type_name, MedianFilter.from_config)

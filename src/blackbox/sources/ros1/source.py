@@ -25,8 +25,7 @@ from urllib.parse import urlsplit
 import psutil
 
 from blackbox.config.node import ConfigError
-from blackbox.model import BlackBoxEvent
-from blackbox.sources.base import (
+from blackbox.events import (
     Event,
     Interest,
     MessageArrival,
@@ -34,6 +33,8 @@ from blackbox.sources.base import (
     ResourceSample,
     TopicSchema,
 )
+from blackbox.model import BlackBoxEvent
+from blackbox.sources.base import SOURCES, Capabilities, SourceKind, SourceOptions
 from blackbox.sources.ros1.master import GraphPoller
 from blackbox.sources.ros1.resources import ResourceSampler
 from blackbox.sources.ros1.tcpros import DEFAULT_MAX_MESSAGE_BYTES, TcprosSubscriber
@@ -67,6 +68,9 @@ def master_uri_from_spec(spec: str, environ: dict[str, str] | os._Environ[str] =
     return f"http://{parts.hostname}:{port}/"
 
 
+ROS1_CAPABILITIES = Capabilities(snapshot_format="ros1")
+
+
 class Ros1Source:
     """A live ROS 1 robot, observed without registering anything with its master."""
 
@@ -77,6 +81,7 @@ class Ros1Source:
                  default_max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES) -> None:
         self.master_uri = master_uri
         self.name = f"ros1 {master_uri}"
+        self.capabilities = ROS1_CAPABILITIES
         self._graph_period = graph_period
         self._resource_period = resource_period
         self._idle_grace = idle_grace
@@ -209,3 +214,11 @@ def _restamped(sample: ResourceSample, time: float) -> ResourceSample:
 
 def _time_of(event: Event | BlackBoxEvent) -> float:
     return event.time
+
+
+def open_ros1_source(spec: str, options: SourceOptions) -> Ros1Source:
+    return Ros1Source.from_uri(spec)
+
+
+SOURCES.add("ros1", SourceKind("ros1", open_ros1_source, ROS1_CAPABILITIES,
+                               "ros1 or ros1://HOST:PORT"))

@@ -28,7 +28,7 @@ from typing import Any
 
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from blackbox.sources.base import MessageArrival, TopicSchema
+from blackbox.events import MessageArrival, TopicSchema
 from blackbox.sources.ros1.master import CALLER_ID, Report, RosApi, RosApiError
 
 log = logging.getLogger("blackbox.sources.ros1")
