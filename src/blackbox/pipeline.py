@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from blackbox.events import (
+    Event,
     GraphSnapshot,
     Interest,
     MessageArrival,
@@ -215,7 +216,7 @@ class Pipeline:
 
     # ---- internals ---------------------------------------------------------------------------
 
-    def _dispatch(self, events: list) -> None:
+    def _dispatch(self, events: list[Event]) -> None:
         by_topic = self._by_topic
         message_sinks = self._message_sinks
         stats = self.stats

@@ -142,9 +142,9 @@ class RobotModel:
             for t in (*n.pub, *n.sub):
                 seen.setdefault(t)
         for o in self.observations:
-            for t in (o.resource.topic, o.resource.topic_b):
-                if t:
-                    seen.setdefault(t)
+            for observed in (o.resource.topic, o.resource.topic_b):
+                if observed:
+                    seen.setdefault(observed)
         return tuple(sorted(seen))
 
     @property
@@ -259,11 +259,11 @@ def derive_robot_model(graph: GraphSnapshot, observed: Sequence[ObservedResource
     specs = [ObservationSpec(o.type_name, o.resource) for o in observed]
     pubs: dict[str, set[str]] = {}
     subs_of: dict[str, set[str]] = {}
-    for t in graph.topics.values():
-        for p in t.publishers:
-            pubs.setdefault(t.name, set()).add(p)
-        for s in t.subscribers:
-            subs_of.setdefault(s, set()).add(t.name)
+    for info in graph.topics.values():
+        for p in info.publishers:
+            pubs.setdefault(info.name, set()).add(p)
+        for s in info.subscribers:
+            subs_of.setdefault(s, set()).add(info.name)
     topics: set[str] = set()
     producers: set[str] = set()
     stack = [t for s in specs for t in (s.resource.topic, s.resource.topic_b) if t]

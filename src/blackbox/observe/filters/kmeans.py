@@ -41,7 +41,8 @@ class KMeansFilter(SortedWindowFilter):
         if not n:
             return None
         if self._window.constant:
-            return s[0]
+            first: float = s[0]
+            return first
         k = min(self.k_size, n)
         start = (n - k) // 2
         return fsum(s.islice(start, start + k)) / k

@@ -82,7 +82,7 @@ def read_group(node: ConfigNode, topic_key: str = "topic",
 class Judged:
     """The filtered quantities, states and interval of an entry whose states judge it."""
 
-    quantities: tuple[FilteredQuantity, ...]
+    quantities: dict[str, FilteredQuantity]
     states: tuple[StateSpec, ...]
     every: float
 
@@ -90,6 +90,6 @@ class Judged:
 def read_judged(node: ConfigNode, filters: Mapping[str, str]) -> Judged:
     """Each quantity ``filters[key]`` through the filter at ``key``, the states over them and
     ``every``."""
-    quantities = tuple(read_quantity(node, key, name) for key, name in filters.items())
+    quantities = {name: read_quantity(node, key, name) for key, name in filters.items()}
     states = parse_states(node.get("states"), tuple(filters.values()))
     return Judged(quantities, tuple(states), read_every(node))

@@ -93,7 +93,7 @@ def hz_from_config(node: ConfigNode) -> HzObserver:
     node.check_keys((*COMMON_KEYS, "topic", "publishers", "filter", "states"))
     group = read_group(node)
     judged = read_judged(node, {"filter": "period"})
-    return HzObserver(group, *judged.quantities, judged.states, judged.every)
+    return HzObserver(group, judged.quantities["period"], judged.states, judged.every)
 
 
 def hz_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:

@@ -69,7 +69,8 @@ def network_from_config(node: ConfigNode) -> NetworkObserver:
     node.check_keys((*COMMON_KEYS, "interface", "rx_filter", "tx_filter", "states"))
     interface = read_name(node, "interface")
     judged = read_judged(node, {"rx_filter": "rx", "tx_filter": "tx"})
-    return NetworkObserver(interface, *judged.quantities, judged.states, judged.every)
+    q = judged.quantities
+    return NetworkObserver(interface, q["rx"], q["tx"], judged.states, judged.every)
 
 
 OBSERVERS.add("network", ObserverKind(

@@ -70,7 +70,8 @@ def resources_from_config(node: ConfigNode) -> ResourcesObserver:
     node.check_keys((*COMMON_KEYS, "node", "cpu_filter", "memory_filter", "states"))
     name = read_name(node, "node")
     judged = read_judged(node, {"cpu_filter": "cpu", "memory_filter": "memory"})
-    return ResourcesObserver(name, *judged.quantities, judged.states, judged.every)
+    q = judged.quantities
+    return ResourcesObserver(name, q["cpu"], q["memory"], judged.states, judged.every)
 
 
 def resources_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:

@@ -89,7 +89,7 @@ def scores_from_config(node: ConfigNode) -> ScoresObserver:
         raise (field_node or node).error(str(exc)) from None
     topic = read_name(node, "topic")
     judged = read_judged(node, {"filter": "score"})
-    return ScoresObserver(topic, field, *judged.quantities, judged.states, judged.every)
+    return ScoresObserver(topic, field, judged.quantities["score"], judged.states, judged.every)
 
 
 def scores_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:

@@ -45,7 +45,7 @@ def _part(stamp: Any, name: str) -> Any:
 
 def stamp_seconds(stamp: Any) -> float:
     """Seconds of a message time stamp in any of the accepted shapes."""
-    if isinstance(stamp, Real) and not isinstance(stamp, bool):
+    if not isinstance(stamp, bool) and isinstance(stamp, Real):
         return float(stamp)
     for sec_name, nsec_name in _STAMP_FIELDS:
         sec, nsec = _part(stamp, sec_name), _part(stamp, nsec_name)
@@ -106,7 +106,7 @@ def timestamp_from_config(node: ConfigNode) -> TimestampObserver:
     node.check_keys((*COMMON_KEYS, "topic", "publishers", "filter", "states"))
     group = read_group(node)
     judged = read_judged(node, {"filter": "age"})
-    return TimestampObserver(group, *judged.quantities, judged.states, judged.every)
+    return TimestampObserver(group, judged.quantities["age"], judged.states, judged.every)
 
 
 def timestamp_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:

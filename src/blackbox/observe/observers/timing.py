@@ -100,7 +100,7 @@ def timing_from_config(node: ConfigNode) -> TimingObserver:
     a = read_group(node, "topic_a", "publishers_a")
     b = read_group(node, "topic_b", "publishers_b")
     judged = read_judged(node, {"filter": "delay"})
-    return TimingObserver(a, b, *judged.quantities, judged.states,
+    return TimingObserver(a, b, judged.quantities["delay"], judged.states,
                           read_bool(node, "single_shot", False), judged.every)
 
 

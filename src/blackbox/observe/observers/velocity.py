@@ -64,9 +64,9 @@ class AccelerationEstimate:
         self.source = source
         self.window = window
         self.times: deque[float] = deque(maxlen=window)
-        self._axes = [(AXES.index(axis), axis in ("x", "y", "z")
-                       and source.linear_is_acceleration, deque(maxlen=window))
-                      for axis in axes]
+        self._axes: list[tuple[int, bool, deque[float]]] = [
+            (AXES.index(axis), axis in ("x", "y", "z") and source.linear_is_acceleration,
+             deque(maxlen=window)) for axis in axes]
         self.messages = 0
 
     @property

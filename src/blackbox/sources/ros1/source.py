@@ -141,7 +141,7 @@ class Ros1Source:
         while cut and events[cut - 1].time > until:
             cut -= 1
         self._held = events[cut:]
-        return events[:cut]  # type: ignore[return-value]
+        return events[:cut]
 
     def schema(self, topic: str) -> TopicSchema | None:
         return self._subscriber.schemas.get(topic) if self._subscriber else None
