@@ -231,6 +231,14 @@ class TugTranslation:
                     publishers=publishers(child(callers, "callerid"), callers),
                     every=rate, **build(callers)))
 
+    def filtered_per_publisher_group(self, group: ConfigNode, native: str,
+                                     quantities: Mapping[str, str]) -> None:
+        """``topics[].callerids[]`` whose entries have one ``filter`` and ``states`` over the
+        quantity spelled as the keys of ``quantities``."""
+        self.per_publisher_group(group, native, ["filter", "states"], lambda c: {
+            "filter": filter_entry(child(c, "filter")),
+            "states": states(child(c, "states"), quantities)})
+
     def motion(self, item: ConfigNode) -> dict[str, ConfigNode | None]:
         """Axis filters and states of a velocity or moving entry.
 

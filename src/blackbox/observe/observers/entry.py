@@ -7,6 +7,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from blackbox.config.node import ConfigNode
+from blackbox.model import Resource
 from blackbox.observe.filters import build_filter
 from blackbox.observe.observers.quantity import FilteredQuantity
 from blackbox.observe.states import StateSpec, parse_states
@@ -69,8 +70,18 @@ class PublisherGroup:
     def members(self) -> frozenset[str]:
         return frozenset(self.publishers)
 
+    @property
+    def resource(self) -> Resource:
+        return Resource(topic=self.topic, publishers=self.publishers)
+
     def describe(self) -> str:
         return f"{self.topic} [{describe_publishers(self.publishers)}]"
+
+
+def read_filtered_group(node: ConfigNode, quantity: str) -> tuple[PublisherGroup, Judged]:
+    """An entry of one publisher group on one topic, one filtered ``quantity`` and states."""
+    node.check_keys((*COMMON_KEYS, "topic", "publishers", "filter", "states"))
+    return read_group(node), read_judged(node, {"filter": quantity})
 
 
 def read_group(node: ConfigNode, topic_key: str = "topic",

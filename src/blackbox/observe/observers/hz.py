@@ -22,14 +22,9 @@ from typing import ClassVar
 from blackbox.config import tug
 from blackbox.config.node import ConfigNode
 from blackbox.events import Interest, MessageArrival
-from blackbox.model import Observation, Resource
+from blackbox.model import Observation
 from blackbox.observe.base import OBSERVERS, ObserverKind, Quantity, Subject
-from blackbox.observe.observers.entry import (
-    COMMON_KEYS,
-    PublisherGroup,
-    read_group,
-    read_judged,
-)
+from blackbox.observe.observers.entry import PublisherGroup, read_filtered_group
 from blackbox.observe.observers.quantity import FilteredQuantity, JudgedObserver, number
 from blackbox.observe.states import StateSpec
 
@@ -41,8 +36,7 @@ class HzObserver(JudgedObserver):
 
     def __init__(self, group: PublisherGroup, period: FilteredQuantity,
                  states: Sequence[StateSpec] = (), every: float = 1.0) -> None:
-        super().__init__(Resource(topic=group.topic, publishers=group.publishers), (period,),
-                         states, every)
+        super().__init__(group.resource, (period,), states, every)
         self.group = group
         self.period = period
         self._group = group.members
@@ -90,17 +84,12 @@ class HzObserver(JudgedObserver):
 
 
 def hz_from_config(node: ConfigNode) -> HzObserver:
-    node.check_keys((*COMMON_KEYS, "topic", "publishers", "filter", "states"))
-    group = read_group(node)
-    judged = read_judged(node, {"filter": "period"})
+    group, judged = read_filtered_group(node, "period")
     return HzObserver(group, judged.quantities["period"], judged.states, judged.every)
 
 
 def hz_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
-    quantities = {"frequenzy": "period", "frequenz": "period"}
-    out.per_publisher_group(group, "hz", ["filter", "states"], lambda c: {
-        "filter": tug.filter_entry(tug.child(c, "filter")),
-        "states": tug.states(tug.child(c, "states"), quantities)})
+    out.filtered_per_publisher_group(group, "hz", {"frequenzy": "period", "frequenz": "period"})
 
 
 OBSERVERS.add("hz", ObserverKind(

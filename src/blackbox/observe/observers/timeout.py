@@ -23,7 +23,7 @@ from typing import ClassVar
 from blackbox.config import tug
 from blackbox.config.node import ConfigNode
 from blackbox.events import Interest, MessageArrival
-from blackbox.model import Code, Observation, Resource
+from blackbox.model import Code, Observation
 from blackbox.observe.base import (
     OBSERVERS,
     FixedThreshold,
@@ -60,7 +60,7 @@ class TimeoutObserver(ObserverBase):
         self.max_timeouts_in_a_row = max_timeouts_in_a_row
         self.every = every
         self.interval = detection_interval(every, timeout)
-        self.resource = Resource(topic=group.topic, publishers=group.publishers)
+        self.resource = group.resource
         self._group = group.members
         self._last: float | None = None
         self._started: float | None = None

@@ -16,15 +16,10 @@ from typing import Any, ClassVar
 from blackbox.config import tug
 from blackbox.config.node import ConfigNode
 from blackbox.events import Interest, MessageArrival
-from blackbox.model import Observation, Resource
+from blackbox.model import Observation
 from blackbox.observe.base import OBSERVERS, ObserverKind, Quantity, Subject
 from blackbox.observe.fieldpath import compile_field_access, describe_value
-from blackbox.observe.observers.entry import (
-    COMMON_KEYS,
-    PublisherGroup,
-    read_group,
-    read_judged,
-)
+from blackbox.observe.observers.entry import PublisherGroup, read_filtered_group
 from blackbox.observe.observers.quantity import (
     FilteredQuantity,
     JudgedObserver,
@@ -62,8 +57,7 @@ class TimestampObserver(JudgedObserver):
 
     def __init__(self, group: PublisherGroup, age: FilteredQuantity,
                  states: Sequence[StateSpec] = (), every: float = 1.0) -> None:
-        super().__init__(Resource(topic=group.topic, publishers=group.publishers), (age,),
-                         states, every)
+        super().__init__(group.resource, (age,), states, every)
         self.group = group
         self.age = age
         self._group = group.members
@@ -103,16 +97,12 @@ class TimestampObserver(JudgedObserver):
 
 
 def timestamp_from_config(node: ConfigNode) -> TimestampObserver:
-    node.check_keys((*COMMON_KEYS, "topic", "publishers", "filter", "states"))
-    group = read_group(node)
-    judged = read_judged(node, {"filter": "age"})
+    group, judged = read_filtered_group(node, "age")
     return TimestampObserver(group, judged.quantities["age"], judged.states, judged.every)
 
 
 def timestamp_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
-    out.per_publisher_group(group, "timestamp", ["filter", "states"], lambda c: {
-        "filter": tug.filter_entry(tug.child(c, "filter")),
-        "states": tug.states(tug.child(c, "states"), {"age": "age"})})
+    out.filtered_per_publisher_group(group, "timestamp", {"age": "age"})
 
 
 OBSERVERS.add("timestamp", ObserverKind(
