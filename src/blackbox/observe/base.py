@@ -193,10 +193,6 @@ class ObserverKind:
     tug: TugForm | None = None
     tug_names: tuple[str, ...] = ()
 
-    @property
-    def pair(self) -> bool:
-        return self.subject is Subject.TOPIC_PAIR
-
     def unit(self, quantity: str) -> str:
         return next((q.unit for q in self.quantities if q.name == quantity), "")
 
