@@ -41,7 +41,7 @@ if TYPE_CHECKING:
 DEFAULT_CONFIG = Path(__file__).parent / "configs" / "thesis.yaml"
 
 
-@dataclass
+@dataclass(frozen=True, slots=True)
 class RunOptions:
     """Everything ``blackbox run`` can be asked to do."""
 
