@@ -14,6 +14,7 @@ import timeit
 from collections.abc import Callable
 
 from blackbox.config.node import ConfigNode
+from blackbox.events import MessageArrival
 from blackbox.observe.base import OBSERVERS, Filter
 from blackbox.observe.filters import (
     MIN_MAX,
@@ -23,7 +24,6 @@ from blackbox.observe.filters import (
     MedianFilter,
     NoFilter,
 )
-from blackbox.sources.base import MessageArrival
 
 SAMPLES = 100_000
 PASSES = 5
@@ -54,7 +54,7 @@ def hz_observer() -> Callable[[object], object]:
 
     node = ConfigNode.parse("{type: hz, topic: /t, filter: {type: mean, window_size: 50}}",
                             "<benchmark>")
-    return OBSERVERS["hz"](node).on_message
+    return OBSERVERS["hz"].build(node).on_message
 
 
 def main() -> None:

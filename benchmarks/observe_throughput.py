@@ -17,9 +17,9 @@ import time
 from types import SimpleNamespace
 
 from blackbox.config.node import ConfigNode
-from blackbox.observe.base import OBSERVERS
+from blackbox.events import Event, MessageArrival
+from blackbox.observe.build import build_observer
 from blackbox.pipeline import Pipeline
-from blackbox.sources.base import Event, MessageArrival
 from blackbox.sources.memory import MemorySource
 
 TARGET = 250_000
@@ -58,7 +58,7 @@ def run(topics: int, seconds: float, rate: float) -> dict[str, float]:
     import blackbox.observe.observers  # noqa: F401 - registers the observer types
 
     root = ConfigNode.parse(observer_config(topics), "<benchmark>")
-    observers = [OBSERVERS[e["type"].str()](e) for e in root["observers"].list()]
+    observers = [build_observer(e) for e in root["observers"].list()]
     events = make_arrivals(topics, seconds, rate)
     pipeline = Pipeline(MemorySource(events), observers)
     pipeline.start()

@@ -26,12 +26,12 @@ import tempfile
 import time
 from pathlib import Path
 
+from blackbox.events import MessageArrival
 from blackbox.model import Code, Observation, Resource, State
 from blackbox.record import Recorder, SnapshotConfig
 from blackbox.record.retention import estimate_capacity, hundred_topic_robot, thesis_robot
 from blackbox.record.snapshot import RingBuffer
 from blackbox.record.store import Row, Store
-from blackbox.sources.base import MessageArrival
 
 
 def store_rate(tmp: Path, rows: int, batch: int, durability: str) -> float:

@@ -75,6 +75,9 @@ BAD_FILES = [
      "did you mean 'greater_than'?"),
     ("bounds_reversed.yaml", 9, "observers[0].states[0].score.value.upper_bound",
      "must be greater than lower_bound"),
+    ("same_characteristic_twice.yaml", 7, "observers[1]",
+     "a second hz observer of /scan (the first is at line 4, observers[0]); their records "
+     "would share one identity"),
     ("tug_zero_rate.yaml", 4, "setup[0].main_loop_rate", "must be > 0, got 0"),
     ("tug_unknown_type.yaml", 3, "setup[0].type", "did you mean 'timeout'?"),
     ("tug_window_typo.yaml", 11, "setup[0].topics[0].callerids[0].filter.window_sise",

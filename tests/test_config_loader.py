@@ -10,13 +10,12 @@ import pytest
 from blackbox.config.loader import (
     ModelNode,
     ModelObservation,
-    build_observers,
     document_kind,
-    load_config,
     outline_diagnosis_model,
     read_document,
 )
 from blackbox.config.node import ConfigError
+from blackbox.observe.build import build_observers, load_config
 
 DATA = Path(__file__).parent / "data" / "configs"
 THESIS_MODEL = Path("/work/shared/reference/thesis-setup/diagnosis_model.yaml")

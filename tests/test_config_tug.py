@@ -14,9 +14,9 @@ from typing import Any
 
 import pytest
 
-from blackbox.config.loader import build_observers, load_config
 from blackbox.config.node import ConfigError
 from blackbox.model import Resource
+from blackbox.observe.build import build_observers, load_config
 
 SHARED = Path("/work/shared")
 TUG = SHARED / "compat" / "tug_observers"

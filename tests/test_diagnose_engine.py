@@ -9,8 +9,8 @@ import pytest
 
 from blackbox.diagnose.engine import DiagnosisEngine
 from blackbox.diagnose.robot_model import ObservationSpec, RobotModel, load_robot_model
+from blackbox.events import GraphSnapshot, NodeInfo, TopicInfo
 from blackbox.model import Code, Observation, Resource
-from blackbox.sources.base import GraphSnapshot, NodeInfo, TopicInfo
 from diagnosis_support import observations
 
 SHARED = Path(__file__).resolve().parents[1] / "data" / "shared"

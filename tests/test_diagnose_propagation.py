@@ -24,9 +24,9 @@ from blackbox.diagnose.robot_model import (
     RobotModel,
     load_robot_model,
 )
+from blackbox.events import GraphSnapshot, NodeInfo, TopicInfo
 from blackbox.model import Code, Diagnosis, Observation, Resource
 from blackbox.sinks import SinkBase
-from blackbox.sources.base import GraphSnapshot, NodeInfo, TopicInfo
 from conftest import SHARED
 from diagnosis_support import observations
 

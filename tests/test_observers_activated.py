@@ -6,14 +6,14 @@ import pytest
 
 import blackbox.observe.observers  # noqa: F401  (registers the observer types)
 from blackbox.config.node import ConfigError, ConfigNode
+from blackbox.events import GraphSnapshot, Interest, NodeInfo
 from blackbox.model import Code, Resource
 from blackbox.observe.base import OBSERVERS
-from blackbox.sources.base import GraphSnapshot, Interest, NodeInfo
 
 
 def build(extra: str = ""):
-    return OBSERVERS["activated"](ConfigNode.parse(f"type: activated\nnode: /camera\n{extra}\n",
-                                                   "t.yaml"))
+    text = f"type: activated\nnode: /camera\n{extra}\n"
+    return OBSERVERS["activated"].build(ConfigNode.parse(text, "t.yaml"))
 
 
 def graph(t: float, *nodes: NodeInfo) -> GraphSnapshot:
@@ -107,6 +107,6 @@ def test_interest_and_describe() -> None:
 ])
 def test_config_errors(text: str, line: int, message: str) -> None:
     with pytest.raises(ConfigError) as err:
-        OBSERVERS["activated"](ConfigNode.parse(text, "t.yaml"))
+        OBSERVERS["activated"].build(ConfigNode.parse(text, "t.yaml"))
     assert err.value.line == line
     assert message in err.value.message

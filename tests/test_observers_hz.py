@@ -6,9 +6,9 @@ import pytest
 
 import blackbox.observe.observers  # noqa: F401  (registers the observer types)
 from blackbox.config.node import ConfigError, ConfigNode
+from blackbox.events import Interest, MessageArrival
 from blackbox.model import Code, Resource, State
 from blackbox.observe.base import OBSERVERS
-from blackbox.sources.base import Interest, MessageArrival
 
 CONFIG = """\
 type: hz
@@ -23,7 +23,7 @@ states:
 
 
 def build(extra: str = ""):
-    return OBSERVERS["hz"](ConfigNode.parse(CONFIG.format(extra=extra), "t.yaml"))
+    return OBSERVERS["hz"].build(ConfigNode.parse(CONFIG.format(extra=extra), "t.yaml"))
 
 
 def feed(observer, times, publisher="/laser", topic="/scan"):
@@ -133,7 +133,7 @@ def test_out_of_order_arrival_is_not_a_negative_period() -> None:
 
 
 def test_without_states_reports_values_as_ok() -> None:
-    hz = OBSERVERS["hz"](ConfigNode.parse("type: hz\ntopic: /scan\nevery: 0.5\n", "t.yaml"))
+    hz = OBSERVERS["hz"].build(ConfigNode.parse("type: hz\ntopic: /scan\nevery: 0.5\n", "t.yaml"))
     assert hz.interval == 0.5
     feed(hz, [0.0, 0.25, 0.5])
     [obs] = hz.evaluate(0.6)
@@ -164,9 +164,9 @@ def test_config_errors_name_the_line(extra: str, line: int, text: str) -> None:
 
 def test_missing_topic_and_bad_state() -> None:
     with pytest.raises(ConfigError, match="missing required key 'topic'"):
-        OBSERVERS["hz"](ConfigNode.parse("type: hz\n", "t.yaml"))
+        OBSERVERS["hz"].build(ConfigNode.parse("type: hz\n", "t.yaml"))
     with pytest.raises(ConfigError) as err:
-        OBSERVERS["hz"](ConfigNode.parse(
+        OBSERVERS["hz"].build(ConfigNode.parse(
             "type: hz\ntopic: /a\nstates:\n  - {number: 1, name: ok, frequency: {}}\n",
             "t.yaml"))
     assert err.value.line == 4

@@ -9,9 +9,9 @@ from rosbags.typesys import Stores, get_typestore
 
 import blackbox.observe.observers  # noqa: F401  (registers the observer types)
 from blackbox.config.node import ConfigError, ConfigNode
+from blackbox.events import Interest, MessageArrival
 from blackbox.model import Code, Resource, State
 from blackbox.observe.base import OBSERVERS
-from blackbox.sources.base import Interest, MessageArrival
 
 CONFIG = """\
 type: moving
@@ -30,7 +30,8 @@ states:
 
 
 def build(kind: str = "odometry", extra: str = ""):
-    return OBSERVERS["moving"](ConfigNode.parse(CONFIG.format(kind=kind, extra=extra), "t.yaml"))
+    text = CONFIG.format(kind=kind, extra=extra)
+    return OBSERVERS["moving"].build(ConfigNode.parse(text, "t.yaml"))
 
 
 def vec(x: float = 0.0, y: float = 0.0, z: float = 0.0) -> SimpleNamespace:
@@ -124,7 +125,7 @@ def test_not_available_before_first_message() -> None:
 def test_yaw_switched_off() -> None:
     text = CONFIG.format(kind="odometry", extra="use_yaw: false").replace(
         "    rot_z: {value: {type: gauss, mean: 0.0, std_deviation: 0.05}}\n", "")
-    mv = OBSERVERS["moving"](ConfigNode.parse(text, "t.yaml"))
+    mv = OBSERVERS["moving"].build(ConfigNode.parse(text, "t.yaml"))
     assert tuple(mv.axes) == ("x", "y", "z", "rot_x", "rot_y")
     assert mv.interest() == Interest(decoded=frozenset({"/odom"}))
     with pytest.raises(ConfigError) as err:

@@ -6,9 +6,9 @@ import pytest
 
 import blackbox.observe.observers  # noqa: F401  (registers the observer types)
 from blackbox.config.node import ConfigError, ConfigNode
+from blackbox.events import Interest, NetworkSample
 from blackbox.model import Code, Resource, State
 from blackbox.observe.base import OBSERVERS
-from blackbox.sources.base import Interest, NetworkSample
 
 CONFIG = """\
 type: network
@@ -24,7 +24,7 @@ states:
 
 
 def build(text: str = CONFIG):
-    return OBSERVERS["network"](ConfigNode.parse(text, "t.yaml"))
+    return OBSERVERS["network"].build(ConfigNode.parse(text, "t.yaml"))
 
 
 def test_rates_between_consecutive_samples() -> None:

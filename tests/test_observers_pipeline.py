@@ -6,10 +6,10 @@ from types import SimpleNamespace
 
 import blackbox.observe.observers  # noqa: F401  (registers the observer types)
 from blackbox.config.node import ConfigNode
+from blackbox.events import GraphSnapshot, MessageArrival, NodeInfo
 from blackbox.model import Code
-from blackbox.observe.base import OBSERVERS
+from blackbox.observe.build import build_observer
 from blackbox.pipeline import Pipeline
-from blackbox.sources.base import GraphSnapshot, MessageArrival, NodeInfo
 from blackbox.sources.memory import MemorySource
 
 CONFIG = """\
@@ -42,7 +42,7 @@ def events() -> list:
 
 def test_a_dying_publisher_seen_by_every_observer() -> None:
     root = ConfigNode.parse(CONFIG, "robot.yaml")
-    observers = [OBSERVERS[e["type"].str()](e) for e in root["observers"].list()]
+    observers = [build_observer(e) for e in root["observers"].list()]
     pipeline = Pipeline(MemorySource(events()), observers)
     pipeline.start()
     seen: list = []

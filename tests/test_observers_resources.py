@@ -6,9 +6,9 @@ import pytest
 
 import blackbox.observe.observers  # noqa: F401  (registers the observer types)
 from blackbox.config.node import ConfigError, ConfigNode
+from blackbox.events import Interest, ResourceSample
 from blackbox.model import Code, Resource, State
 from blackbox.observe.base import OBSERVERS
-from blackbox.sources.base import Interest, ResourceSample
 
 CONFIG = """\
 type: resources
@@ -27,7 +27,7 @@ states:
 
 
 def build(text: str = CONFIG):
-    return OBSERVERS["resources"](ConfigNode.parse(text, "t.yaml"))
+    return OBSERVERS["resources"].build(ConfigNode.parse(text, "t.yaml"))
 
 
 def sample(t: float, cpu: float | None, memory: float | None, reason: str = "",

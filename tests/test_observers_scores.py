@@ -9,9 +9,9 @@ from rosbags.typesys import Stores, get_typestore
 
 import blackbox.observe.observers  # noqa: F401  (registers the observer types)
 from blackbox.config.node import ConfigError, ConfigNode
+from blackbox.events import Interest, MessageArrival
 from blackbox.model import Code, Resource, State
 from blackbox.observe.base import OBSERVERS
-from blackbox.sources.base import Interest, MessageArrival
 
 # Figure 6.1 of the thesis in the native format
 CONFIG = """\
@@ -29,7 +29,7 @@ states:
 
 
 def build(extra: str = ""):
-    return OBSERVERS["scores"](ConfigNode.parse(CONFIG.format(extra=extra), "t.yaml"))
+    return OBSERVERS["scores"].build(ConfigNode.parse(CONFIG.format(extra=extra), "t.yaml"))
 
 
 def arrival(t: float, value: object, topic: str = "/signal") -> MessageArrival:
@@ -141,7 +141,7 @@ def test_config_errors(extra: str, message: str) -> None:
 def test_state_over_a_wrong_quantity_is_an_error() -> None:
     text = "type: scores\ntopic: /s\nstates:\n  - {number: 1, name: ok, period: {}}\n"
     with pytest.raises(ConfigError) as err:
-        OBSERVERS["scores"](ConfigNode.parse(text, "t.yaml"))
+        OBSERVERS["scores"].build(ConfigNode.parse(text, "t.yaml"))
     assert err.value.line == 4
     assert "unknown key 'period'" in err.value.message
 

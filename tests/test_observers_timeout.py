@@ -6,14 +6,14 @@ import pytest
 
 import blackbox.observe.observers  # noqa: F401  (registers the observer types)
 from blackbox.config.node import ConfigError, ConfigNode
+from blackbox.events import Interest, MessageArrival
 from blackbox.model import Code, Resource
 from blackbox.observe.base import OBSERVERS
-from blackbox.sources.base import Interest, MessageArrival
 
 
 def build(extra: str = "", timeout: str = "timeout: 1.0"):
     text = f"type: timeout\ntopic: /odom\n{timeout}\n{extra}\n"
-    return OBSERVERS["timeout"](ConfigNode.parse(text, "t.yaml"))
+    return OBSERVERS["timeout"].build(ConfigNode.parse(text, "t.yaml"))
 
 
 def run(observer, messages, until: float, publisher: str = "/base"):

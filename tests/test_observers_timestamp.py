@@ -9,10 +9,10 @@ from rosbags.typesys import Stores, get_typestore
 
 import blackbox.observe.observers  # noqa: F401  (registers the observer types)
 from blackbox.config.node import ConfigError, ConfigNode
+from blackbox.events import Interest, MessageArrival
 from blackbox.model import Code, Resource, State
 from blackbox.observe.base import OBSERVERS
 from blackbox.observe.observers.timestamp import stamp_seconds
-from blackbox.sources.base import Interest, MessageArrival
 
 CONFIG = """\
 type: timestamp
@@ -31,7 +31,7 @@ Header = STORE.types["std_msgs/msg/Header"]
 
 
 def build(extra: str = ""):
-    return OBSERVERS["timestamp"](ConfigNode.parse(CONFIG.format(extra=extra), "t.yaml"))
+    return OBSERVERS["timestamp"].build(ConfigNode.parse(CONFIG.format(extra=extra), "t.yaml"))
 
 
 def stamped(arrival: float, stamp: object, publisher: str = "/cam") -> MessageArrival:

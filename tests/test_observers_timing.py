@@ -6,9 +6,9 @@ import pytest
 
 import blackbox.observe.observers  # noqa: F401  (registers the observer types)
 from blackbox.config.node import ConfigError, ConfigNode
+from blackbox.events import Interest, MessageArrival
 from blackbox.model import Code, Resource, State
 from blackbox.observe.base import OBSERVERS
-from blackbox.sources.base import Interest, MessageArrival
 
 CONFIG = """\
 type: timing
@@ -24,7 +24,7 @@ states:
 
 
 def build(extra: str = ""):
-    return OBSERVERS["timing"](ConfigNode.parse(CONFIG.format(extra=extra), "t.yaml"))
+    return OBSERVERS["timing"].build(ConfigNode.parse(CONFIG.format(extra=extra), "t.yaml"))
 
 
 def feed(observer, events):
@@ -103,7 +103,7 @@ def test_publisher_groups_on_both_sides() -> None:
 
 
 def test_same_topic_both_ends() -> None:
-    tm = OBSERVERS["timing"](ConfigNode.parse(
+    tm = OBSERVERS["timing"].build(ConfigNode.parse(
         "type: timing\ntopic_a: /beat\ntopic_b: /beat\n", "t.yaml"))
     feed(tm, [(0.0, "/beat"), (0.4, "/beat"), (1.0, "/beat")])
     [obs] = tm.evaluate(1.0)
@@ -131,4 +131,4 @@ def test_config_errors(extra: str, line: int, message: str) -> None:
 
 def test_missing_topic_b() -> None:
     with pytest.raises(ConfigError, match="missing required key 'topic_b'"):
-        OBSERVERS["timing"](ConfigNode.parse("type: timing\ntopic_a: /a\n", "t.yaml"))
+        OBSERVERS["timing"].build(ConfigNode.parse("type: timing\ntopic_a: /a\n", "t.yaml"))

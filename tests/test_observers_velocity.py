@@ -8,10 +8,10 @@ import pytest
 
 import blackbox.observe.observers  # noqa: F401  (registers the observer types)
 from blackbox.config.node import ConfigError, ConfigNode
+from blackbox.events import Interest, MessageArrival
 from blackbox.model import Code, Resource, State
 from blackbox.observe.base import OBSERVERS
 from blackbox.observe.observers.velocity import regression_slope
-from blackbox.sources.base import Interest, MessageArrival
 
 CONFIG = """\
 type: velocity
@@ -28,7 +28,7 @@ states:
 
 
 def build(kind_b: str = "imu", extra: str = ""):
-    return OBSERVERS["velocity"](ConfigNode.parse(CONFIG.format(kind_b=kind_b, extra=extra),
+    return OBSERVERS["velocity"].build(ConfigNode.parse(CONFIG.format(kind_b=kind_b, extra=extra),
                                                   "t.yaml"))
 
 
@@ -136,12 +136,12 @@ def test_config_errors(extra: str, line: int, message: str) -> None:
 def test_window_of_one_cannot_give_a_slope() -> None:
     text = CONFIG.format(kind_b="imu", extra="").replace("window_size: 3", "window_size: 1")
     with pytest.raises(ConfigError) as err:
-        OBSERVERS["velocity"](ConfigNode.parse(text, "t.yaml"))
+        OBSERVERS["velocity"].build(ConfigNode.parse(text, "t.yaml"))
     assert err.value.line == 4
     assert "must be >= 2" in err.value.message
 
 
 def test_missing_source() -> None:
     with pytest.raises(ConfigError, match="missing required key 'source_b'"):
-        OBSERVERS["velocity"](ConfigNode.parse(
+        OBSERVERS["velocity"].build(ConfigNode.parse(
             "type: velocity\nsource_a: {type: imu, topic: /imu}\n", "t.yaml"))

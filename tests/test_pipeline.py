@@ -5,11 +5,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from blackbox.events import GraphSnapshot, Interest, MessageArrival, NodeInfo
 from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource
 from blackbox.observe.base import ObserverBase
 from blackbox.pipeline import Pipeline
 from blackbox.sinks import SinkBase
-from blackbox.sources.base import GraphSnapshot, Interest, MessageArrival, NodeInfo
 from blackbox.sources.memory import MemorySource
 
 

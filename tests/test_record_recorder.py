@@ -11,10 +11,10 @@ import pytest
 
 from blackbox.cli import main
 from blackbox.config.node import ConfigError, ConfigNode
+from blackbox.events import MessageArrival, TopicSchema
 from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource, State
 from blackbox.record import ConfigVersion, Recorder, SnapshotConfig, Store
 from blackbox.record.recorder import parse_size
-from blackbox.sources.base import MessageArrival, TopicSchema
 
 T0 = 1_700_000_000.0
 OK = (State(1, "ok"),)

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from blackbox.events import MessageArrival, TopicSchema
 from blackbox.record.snapshot import RingBuffer, SnapshotConfig, write_bag, write_mcap
-from blackbox.sources.base import MessageArrival, TopicSchema
 
 STRING = TopicSchema("/chatter", "std_msgs/String", "ros1", "string data",
                      "992ce8a1687cec8c8bd883ec73ca41d1")

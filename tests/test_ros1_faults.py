@@ -18,9 +18,9 @@ from xmlrpc.server import SimpleXMLRPCServer
 
 import pytest
 
+from blackbox.events import GraphSnapshot, Interest, MessageArrival
 from blackbox.model import BlackBoxEvent
-from blackbox.sources.base import GraphSnapshot, Interest, MessageArrival
-from blackbox.sources.ros1 import Ros1Source
+from blackbox.sources.ros1 import Ros1Settings, Ros1Source
 from blackbox.sources.ros1.tcpros import encode_header
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros1_robot"))
@@ -79,8 +79,8 @@ def shared_robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ThesisRob
 
 
 def _watch(robot: ThesisRobot, topics: set[str], decoded: set[str] = frozenset(),
-           **options: float) -> Watch:
-    source = Ros1Source(robot.master_uri + "/", **options)
+           settings: Ros1Settings | None = None) -> Watch:
+    source = Ros1Source(robot.master_uri + "/", settings)
     source.start(Interest(topics=frozenset(topics), decoded=frozenset(decoded)))
     return Watch(source)
 
@@ -241,7 +241,8 @@ def test_garbage_publisher_is_survived_with_a_reason_and_retried_with_backoff(
         shared_robot: ThesisRobot, mode: str) -> None:
     junk = f"/junk_{mode}"
     fake = FakePublisher(shared_robot.master_uri, junk, GARBAGE[mode], f"/garbage_{mode}")
-    w = _watch(shared_robot, {junk, "/signal"}, {junk}, backoff_min=0.1, backoff_max=0.4)
+    w = _watch(shared_robot, {junk, "/signal"}, {junk},
+               Ros1Settings(backoff_min=0.1, backoff_max=0.4))
     try:
         assert w.until(lambda: fake.connections >= 3 and len(w.messages("/signal")) >= 15)
         reasons = [f.message for f in w.faults("connection_fault") if f.component == junk]
@@ -280,7 +281,7 @@ def test_half_open_connection_is_closed_once_the_publisher_is_gone(
     fake = FakePublisher(shared_robot.master_uri, "/quiet",
                          lambda c: c.sendall(_float_header("/quiet") + struct.pack("<I", 8)
                                              + struct.pack("<d", 1.5)), "/silent")
-    w = _watch(shared_robot, {"/quiet"}, idle_grace=1.0)
+    w = _watch(shared_robot, {"/quiet"}, settings=Ros1Settings(idle_grace=1.0))
     try:
         assert w.until(lambda: len(w.messages("/quiet")) == 1)
         fake.stop_api()

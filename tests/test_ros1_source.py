@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from blackbox.events import GraphSnapshot, Interest, MessageArrival, ResourceSample
 from blackbox.model import BlackBoxEvent
-from blackbox.sources.base import GraphSnapshot, Interest, MessageArrival, ResourceSample
 from blackbox.sources.ros1 import Ros1Source
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros1_robot"))

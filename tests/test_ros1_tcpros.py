@@ -10,7 +10,7 @@ import time
 import pytest
 
 from blackbox.config.node import ConfigError
-from blackbox.sources.base import MessageArrival, NodeInfo
+from blackbox.events import MessageArrival, NodeInfo
 from blackbox.sources.ros1.resources import ResourceSampler
 from blackbox.sources.ros1.source import master_uri_from_spec
 from blackbox.sources.ros1.tcpros import (

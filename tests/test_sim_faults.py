@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from blackbox.config.node import ConfigError, ConfigNode
-from blackbox.sources.base import GraphSnapshot, Interest, MessageArrival, ResourceSample
+from blackbox.events import GraphSnapshot, Interest, MessageArrival, ResourceSample
 from blackbox.sources.sim import (
     FAULT_KINDS,
     THESIS_FAULT_KINDS,

@@ -11,13 +11,7 @@ import pytest
 from rosbags.rosbag1 import Reader, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from blackbox.sources.base import (
-    GraphSnapshot,
-    Interest,
-    MessageArrival,
-    NetworkSample,
-    ResourceSample,
-)
+from blackbox.events import GraphSnapshot, Interest, MessageArrival, NetworkSample, ResourceSample
 from blackbox.sources.sim import SimulatedSource, Topology, open_sim
 from blackbox.sources.sim.topology import THESIS_FILE
 

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from blackbox.app import DEFAULT_CONFIG
-from blackbox.config.loader import build_observers, load_config
 from blackbox.model import Observation, Resource
+from blackbox.observe.build import build_observers, load_config
 from blackbox.pipeline import Pipeline
 from blackbox.sinks import SinkBase
 from blackbox.sources.sim import Fault, open_sim

@@ -9,17 +9,17 @@ from __future__ import annotations
 import dataclasses
 import signal
 import threading
-import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
-from blackbox.config.loader import LoadedConfig, build_observers, load_config, load_config_text
+from blackbox.config.loader import LoadedConfig
 from blackbox.config.node import ConfigError
 from blackbox.diagnose.live import DiagnosisSettings, LiveDiagnoser
 from blackbox.model import BlackBoxEvent, Observation
+from blackbox.observe.build import build_observers, load_config, load_config_text
 from blackbox.output.jsonlines import JsonLinesSink
 from blackbox.output.live import LiveStatusView
 from blackbox.pipeline import Pipeline, RunStats
@@ -27,7 +27,13 @@ from blackbox.record.recorder import Recorder, recorder_options
 from blackbox.selfmonitor import ProbeObserver
 from blackbox.sinks import Sink
 from blackbox.sources import open_source
-from blackbox.sources.base import Source
+from blackbox.sources.base import (
+    GroundTruthSource,
+    RandomFaults,
+    Source,
+    SourceOptions,
+    source_kind,
+)
 
 if TYPE_CHECKING:
     from blackbox.sources.sim import Fault
@@ -35,7 +41,7 @@ if TYPE_CHECKING:
 DEFAULT_CONFIG = Path(__file__).parent / "configs" / "thesis.yaml"
 
 
-@dataclass
+@dataclass(frozen=True, slots=True)
 class RunOptions:
     """Everything ``blackbox run`` can be asked to do."""
 
@@ -48,8 +54,9 @@ class RunOptions:
     events: Path | None = None
     live: bool = True
     live_interactive: bool | None = None
-    faults: str | Sequence[Fault] | None = None
-    """A fault schedule file, ``"random"`` for a seeded campaign, or faults (simulator)."""
+    faults: str | RandomFaults | Sequence[Fault] | None = None
+    """A fault schedule file, ``"random"`` for a seeded campaign over the run, a campaign,
+    or faults (for a source that injects faults)."""
     seed: int = 1
     ground_truth: Path | None = None
     diagnosis: bool = True
@@ -74,41 +81,33 @@ class BlackBox:
             self.write_ground_truth()
 
     def write_ground_truth(self) -> None:
-        """Write the simulator's injected faults, if asked to and if the source has any."""
+        """Write the injected faults, if asked to and if the source knows them."""
         path = self.options.ground_truth
-        ground_truth = getattr(self.pipeline.source, "ground_truth", None)
-        if path is not None and ground_truth is not None:
-            from blackbox.sources.sim import write_ground_truth
+        source = self.pipeline.source
+        if path is None or not source.capabilities.ground_truth:
+            return
+        from blackbox.sources.sim import write_ground_truth
 
-            path.parent.mkdir(parents=True, exist_ok=True)
-            write_ground_truth(ground_truth, path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_ground_truth(cast(GroundTruthSource, source).ground_truth, path)
+
+
+def source_options(options: RunOptions) -> SourceOptions:
+    """The source's part of the run options; ``"random"`` faults span the run (or an hour)."""
+    faults = options.faults
+    if faults == "random":
+        faults = RandomFaults(options.duration if options.duration is not None else 3600.0)
+    return SourceOptions(realtime=not options.simulated_clock, seed=options.seed,
+                         faults=faults)
 
 
 def open_robot(options: RunOptions) -> Source:
-    """Open the source; the simulator also takes the clock, faults and seed options."""
-    if not options.source.startswith("sim:"):
-        if options.faults or options.simulated_clock or options.ground_truth:
-            raise ConfigError("--faults, --ground-truth and --simulated-clock need a simulated "
-                              "source (sim:...)", "--source")
-        return open_source(options.source)
-    from blackbox.sources.sim import SimulatedSource, open_sim, random_campaign
-
-    realtime = not options.simulated_clock
-    faults = None if options.faults == "random" else options.faults
-    # A real-time robot stamps with the wall clock, so its records line up with everything
-    # else on the machine; a simulated clock starts at 0 and is reproducible.
-    start = time.time() if realtime else 0.0
-    try:
-        source = open_sim(options.source, faults=faults, seed=options.seed, realtime=realtime,
-                          start_time=start)
-    except ValueError as exc:
-        raise ConfigError(str(exc), "--source") from None
-    if options.faults == "random":
-        horizon = options.duration if options.duration is not None else 3600.0
-        campaign = random_campaign(source.topology, horizon, options.seed)
-        source = SimulatedSource(source.topology, campaign, seed=options.seed,
-                                 realtime=realtime, start_time=start, name=source.name)
-    return source
+    """Open the source; asking it for what it cannot do is a ``ConfigError``."""
+    knows_truth = source_kind(options.source).capabilities.ground_truth
+    if options.ground_truth is not None and not knows_truth:
+        raise ConfigError(f"{options.source} knows no ground truth (--ground-truth needs a "
+                          "source that injects faults, such as sim:...)", "--source")
+    return open_source(options.source, source_options(options))
 
 
 def build(options: RunOptions) -> BlackBox:
@@ -192,7 +191,7 @@ def open_recorder(options: RunOptions, config: LoadedConfig, source: Source) -> 
     kwargs = recorder_options(config.sections.get("recorder"), Path(options.config).parent)
     if options.record is not None:
         kwargs["path"] = options.record
-    kwargs.setdefault("snapshot_format", "ros1" if options.source.startswith("ros1") else "mcap")
+    kwargs.setdefault("snapshot_format", source.capabilities.snapshot_format)
     Path(kwargs["path"]).parent.mkdir(parents=True, exist_ok=True)
     return Recorder(**kwargs, robot_id=config.robot_id, schema_lookup=source.schema,
                     clock=source.now)

@@ -21,18 +21,19 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
-from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource
-from blackbox.observe.base import Observer
-from blackbox.sinks import Sink
-from blackbox.sources.base import (
+from blackbox.events import (
+    Event,
     GraphSnapshot,
     Interest,
     MessageArrival,
     NetworkSample,
     ResourceSample,
-    Source,
     merge_interests,
 )
+from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource
+from blackbox.observe.base import Observer
+from blackbox.sinks import Sink
+from blackbox.sources.base import Source
 
 
 class Diagnoser(Protocol):
@@ -215,7 +216,7 @@ class Pipeline:
 
     # ---- internals ---------------------------------------------------------------------------
 
-    def _dispatch(self, events: list) -> None:
+    def _dispatch(self, events: list[Event]) -> None:
         by_topic = self._by_topic
         message_sinks = self._message_sinks
         stats = self.stats

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from blackbox.events import Interest
 from blackbox.model import Observation, Resource
 from blackbox.observe.base import ObserverBase
-from blackbox.sources.base import Interest
 
 
 class ProbeObserver(ObserverBase):

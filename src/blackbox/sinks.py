@@ -11,8 +11,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Protocol
 
+from blackbox.events import MessageArrival
 from blackbox.model import BlackBoxEvent, Diagnosis, Observation
-from blackbox.sources.base import MessageArrival
 
 
 class Sink(Protocol):

@@ -8,13 +8,12 @@ from typing import Any
 
 from blackbox.config.loader import (
     DiagnosisModelOutline,
-    build_observers,
     document_kind,
-    load_config,
     outline_diagnosis_model,
     read_document,
 )
 from blackbox.observe.base import Observer
+from blackbox.observe.build import build_observers, load_config
 
 _FORMAT_NAMES = {"native": "native format", "tug": "tug_observers format"}
 

@@ -25,7 +25,7 @@ def _default_root() -> Path:
     return vendored if vendored.is_dir() else Path("../shared/benchmarks/dxc")
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("dxc", help="diagnose the DX Competition circuit scenarios and "
                                           "print the benchmark score")
     p.add_argument("--model", required=True, help="circuit name, e.g. 74L85 or c432")

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TextIO
 
@@ -27,7 +27,7 @@ from blackbox.evaluate import (
 EXIT_USAGE = 2
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "evaluate", help="score detection on seeded random fault campaigns (thesis 6.2)",
         description="Run seeded random-fault campaigns on the simulated robot through the real "
@@ -126,7 +126,7 @@ def print_report(result: CampaignResult, out: TextIO) -> None:
     w(line + "\n\n")
 
     before, after = THESIS_BEFORE, THESIS_AFTER
-    rows = [
+    rows: list[tuple[str, ...]] = [
         ("faults injected", str(len(result.outcomes)), str(before.injected),
          str(after.injected)),
         ("true positives", str(c.tp), str(before.confusion.tp), str(after.confusion.tp)),
@@ -190,7 +190,7 @@ def print_report(result: CampaignResult, out: TextIO) -> None:
         _table(out, ("kind", "faults", "top-1", "rate", "in candidates", "rate"), rows)
 
 
-def _table(out: TextIO, header: tuple[str, ...], rows: list[tuple[str, ...]]) -> None:
+def _table(out: TextIO, header: tuple[str, ...], rows: Sequence[tuple[str, ...]]) -> None:
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
     for r in [header, *rows]:
         cells = [r[0].ljust(widths[0])] + [c.rjust(widths[i + 1]) for i, c in enumerate(r[1:])]

@@ -8,6 +8,7 @@ import sys
 import time
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any, cast
 
 from blackbox.config.node import ConfigError, ConfigNode
 from blackbox.record.export import FORMATS, export
@@ -29,7 +30,7 @@ EXIT_ERROR = 1
 EXIT_USAGE = 2
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     log = subparsers.add_parser("log", help="query, export, purge or import the health log",
                                 description="The black box's health log (see docs/recorder.md).")
     sub = log.add_subparsers(dest="log_command", metavar="ACTION", required=True)
@@ -103,7 +104,8 @@ def _recorder_section(config: Path) -> ConfigNode | None:
 
 def _db_path(args: argparse.Namespace) -> Path:
     if args.db is not None:
-        return args.db
+        db: Path = args.db
+        return db
     if args.config is not None:
         return Path(recorder_options(_recorder_section(args.config), args.config.parent)["path"])
     raise ConfigError("give the health log with --db FILE or --config FILE", "<command line>")
@@ -231,7 +233,7 @@ def _purge_snapshots(args: argparse.Namespace, db: Path) -> int:
 
 def validate_configuration(path: Path) -> str:
     """The file's text if it is a valid configuration (observers build), else ConfigError."""
-    from blackbox.config.loader import build_observers, load_config
+    from blackbox.observe.build import build_observers, load_config
 
     build_observers(load_config(path))
     return path.read_text(encoding="utf-8")
@@ -248,7 +250,7 @@ def _import(args: argparse.Namespace) -> int:
             (eid,) = store.append([row])
         except sqlite3.Error as exc:
             return _fail(f"{store.path}: cannot store the configuration: {exc}")
-        version = row.payload["version"]
+        version = cast("dict[str, Any]", row.payload)["version"]  # written as a dict
     print(f"imported {args.file} as configuration version {version} (entry {eid}); "
           "a running black box applies it within its commit interval")
     return 0
@@ -259,7 +261,7 @@ def _capacity(args: argparse.Namespace) -> int:
     policy = None
     share = 0.25
     if args.config is not None:
-        from blackbox.config.loader import load_config
+        from blackbox.observe.build import load_config
 
         loaded = load_config(args.config)
         observers = [_characteristic(node) for node in loaded.observers]

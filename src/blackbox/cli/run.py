@@ -9,7 +9,7 @@ from pathlib import Path
 from blackbox.app import DEFAULT_CONFIG, RunOptions, build, graceful_interrupts
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("run", help="watch a robot: observe, diagnose, record",
                        description="Watch a robot with the observers of a configuration file.")
     add_run_arguments(p)

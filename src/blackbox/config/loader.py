@@ -1,9 +1,12 @@
-"""Reading a configuration file in either format and building its observers.
+"""Reading a configuration file in either format.
 
-``load_config`` detects the format (native ``observers``, tug_observers ``setup``), turns
-both into the same :class:`LoadedConfig` of native observer entries, and ``build_observers``
-hands each entry to the observer factory registered under its ``type``. Every problem with
-the file becomes a :class:`ConfigError` naming file, line, column and key path.
+``load_config`` detects the format (native ``observers``, tug_observers ``setup``) and turns
+both into the same :class:`LoadedConfig` of native observer entries. Every problem with the
+file becomes a :class:`ConfigError` naming file, line, column and key path.
+
+This package is a leaf: it parses and validates. The tug_observers forms of the observer
+types come in as ``tug_forms`` (they live with the observers), and building observers from
+the entries is :mod:`blackbox.observe.build`'s job.
 """
 
 from __future__ import annotations
@@ -19,8 +22,7 @@ import yaml
 
 from blackbox.config.native import DEFAULT_ROBOT_ID, TOP_LEVEL_KEYS, read_native
 from blackbox.config.node import ConfigError, ConfigNode
-from blackbox.config.tug import translate_setup
-from blackbox.observe.base import OBSERVERS, Observer
+from blackbox.config.tug import TugForm, translate_setup
 
 Format = Literal["native", "tug"]
 DocumentKind = Literal["native", "tug", "diagnosis"]
@@ -84,12 +86,16 @@ def document_kind(root: ConfigNode) -> DocumentKind:
     raise root.error(f"not a black box configuration: {_WHAT_IS_EXPECTED}")
 
 
-def load_config(path: str | Path) -> LoadedConfig:
+TugForms = Mapping[str, TugForm | None]
+"""The tug_observers form of each observer type (``None``: the type has none)."""
+
+
+def load_config(path: str | Path, tug_forms: TugForms) -> LoadedConfig:
     """Read an observer configuration in the native or the tug_observers format."""
-    return config_from_document(read_document(path))
+    return config_from_document(read_document(path), tug_forms)
 
 
-def load_config_text(text: str, name: str) -> LoadedConfig:
+def load_config_text(text: str, name: str, tug_forms: TugForms) -> LoadedConfig:
     """A configuration from text (an imported version); ``name`` appears in errors."""
     try:
         root = ConfigNode.parse(text, name)
@@ -97,10 +103,10 @@ def load_config_text(text: str, name: str) -> LoadedConfig:
         raise ConfigError(f"invalid YAML: {exc}", name) from None
     if root.is_null or not root.is_map:
         raise root.error(f"not a configuration: {_WHAT_IS_EXPECTED}")
-    return config_from_document(root)
+    return config_from_document(root, tug_forms)
 
 
-def config_from_document(root: ConfigNode) -> LoadedConfig:
+def config_from_document(root: ConfigNode, tug_forms: TugForms) -> LoadedConfig:
     """Interpret a parsed YAML document as a configuration."""
     kind = document_kind(root)
     file = root.file
@@ -109,7 +115,7 @@ def config_from_document(root: ConfigNode) -> LoadedConfig:
                          "configuration; `blackbox check-config` lists its contents")
     if kind == "tug":
         root.check_keys([_TUG_KEY])
-        translation = translate_setup(root[_TUG_KEY])
+        translation = translate_setup(root[_TUG_KEY], tug_forms)
         if not translation.observers:
             warnings = (*translation.warnings,
                         f"{file}:{root.line}: no observers; nothing will be observed")
@@ -119,36 +125,6 @@ def config_from_document(root: ConfigNode) -> LoadedConfig:
     native = read_native(root)
     return LoadedConfig(file, "native", native.observers, native.sections, native.warnings,
                         native.robot_id)
-
-
-def registered_observers() -> Mapping[str, object]:
-    """The observer registry with every built-in observer module imported."""
-    import blackbox.observe.observers  # noqa: F401  (registers the built-in observers)
-
-    return OBSERVERS
-
-
-def build_observers(config: LoadedConfig) -> list[Observer]:
-    """One observer per native entry, built by the factory registered for its ``type``."""
-    registered_observers()
-    observers: list[Observer] = []
-    for entry in config.observers:
-        kind = entry["type"]
-        name = kind.str()
-        factory = OBSERVERS.get(name)
-        if factory is None:
-            known = sorted(OBSERVERS)
-            close = difflib.get_close_matches(name, known, n=1)
-            if close:
-                hint = f"did you mean {close[0]!r}?"
-            else:
-                hint = f"known: {', '.join(known)}" if known else "no observer types are installed"
-            raise kind.error(f"unknown observer type {name!r}; {hint}")
-        try:
-            observers.append(factory(entry))
-        except (ValueError, OverflowError) as exc:  # rejected by a factory without a location
-            raise entry.error(f"invalid {name} observer: {exc}") from None
-    return observers
 
 
 @dataclass(frozen=True, slots=True)

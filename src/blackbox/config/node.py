@@ -7,6 +7,7 @@ anywhere in the loading code names exactly one place in the user's file.
 
 from __future__ import annotations
 
+import builtins
 import difflib
 import math
 from collections.abc import Iterable, Iterator, Mapping
@@ -27,9 +28,6 @@ class ConfigError(Exception):
         self.line = line
         self.column = column
         self.path = path
-        # Where this node's key stands, for errors about the key itself (unknown keys).
-        self.key_line = line
-        self.key_column = column
 
     def __str__(self) -> str:
         where = f"{self.file}:{self.line}:{self.column}"
@@ -61,6 +59,9 @@ class ConfigNode:
         self.line = line
         self.column = column
         self.path = path
+        # Where this node's key stands, for errors about the key itself (unknown keys).
+        self.key_line = line
+        self.key_column = column
 
     # ---- construction -------------------------------------------------------------------
 
@@ -87,7 +88,7 @@ class ConfigNode:
             line, col = (mark.line + 1, mark.column + 1) if mark else (0, 0)
             problem = exc.problem or exc.context or "invalid YAML"
             ctx = exc.context_mark
-            if exc.problem_mark is not None and ctx is not None and ctx.line != mark.line:
+            if mark is not None and ctx is not None and ctx.line != mark.line:
                 problem += f" ({exc.context or 'construct'} started at line {ctx.line + 1})"
             raise ConfigError(f"invalid YAML: {problem}", file, line, col) from None
         except yaml.YAMLError as exc:
@@ -150,7 +151,8 @@ class ConfigNode:
     def _need_map(self) -> dict[str, ConfigNode]:
         if self._kind != _MAP:
             raise self.error(f"expected a mapping (key: value), got {self._describe()}")
-        return self._children
+        children: dict[str, ConfigNode] = self._children
+        return children
 
     def _describe(self) -> str:
         if self._kind == _SEQ:
@@ -279,5 +281,5 @@ class ConfigNode:
             return [c.to_python() for c in self._children]
         return self._value
 
-    def __repr__(self) -> str:
+    def __repr__(self) -> builtins.str:
         return f"ConfigNode({self._kind} at {self.file}:{self.line}:{self.column} {self.path!r})"

@@ -9,6 +9,11 @@ created with ``at=`` an original one, so an error found later (a bad window size
 check type) still names the user's file, line and key path. The translation itself only
 checks what it must understand to translate (structure, key names, rates); the values are
 validated by the observer factories like any native entry.
+
+The form of each observer type (which keys its groups have, how its quantities are spelled)
+lives with that observer as a :data:`TugForm`; this module holds what the forms share and
+hands every ``setup`` group to the form registered for its ``type``. It imports nothing
+above ``config``: the forms are passed in.
 """
 
 from __future__ import annotations
@@ -18,12 +23,16 @@ from dataclasses import dataclass
 
 from blackbox.config.node import ConfigNode
 
-_ROTATIONS = (("use_roll", "rot_x"), ("use_pitch", "rot_y"), ("use_yaw", "rot_z"))
-_AXES = ("x", "y", "z", "rot_x", "rot_y", "rot_z")
-_AXIS_FILTERS = tuple(f"{axis}_filter" for axis in _AXES)
-_MOTION_QUANTITIES = {axis: axis for axis in _AXES}
-_IGNORED = ("use_global_subscriber", "resource_topic")
+ROTATIONS = (("use_roll", "rot_x"), ("use_pitch", "rot_y"), ("use_yaw", "rot_z"))
+AXES = ("x", "y", "z", "rot_x", "rot_y", "rot_z")
+AXIS_FILTERS = tuple(f"{axis}_filter" for axis in AXES)
+MOTION_QUANTITIES = {axis: axis for axis in AXES}
+IGNORED = ("use_global_subscriber", "resource_topic")
+"""Group keys of tug_observers that mean nothing to the black box."""
 TUG_ACCELERATION_WINDOW = 7
+
+TugForm = Callable[[ConfigNode, "TugTranslation"], None]
+"""Translates one ``setup`` group of an observer type into native entries."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -34,15 +43,30 @@ class Translation:
     warnings: tuple[str, ...]
 
 
-def translate_setup(setup: ConfigNode) -> Translation:
-    """Translate the value of a tug ``setup`` key (a list of observer groups)."""
-    translator = _Translator()
+def translate_setup(setup: ConfigNode, forms: Mapping[str, TugForm | None]) -> Translation:
+    """Translate the value of a tug ``setup`` key (a list of observer groups).
+
+    ``forms`` maps each group ``type`` to its translation; ``None`` marks a native observer
+    type without a tug_observers form.
+    """
+    translation = TugTranslation()
     for group in setup.list():
-        translator.group(group)
-    return Translation(tuple(translator.entries), tuple(translator.warnings))
+        if not group.is_map:
+            raise group.error("expected an observer group (a mapping with 'type'), "
+                              f"got {'a list' if group.is_list else repr(group.raw)}")
+        kind = group["type"]
+        form = forms.get(kind.raw) if isinstance(kind.raw, str) else None
+        if form is None and isinstance(kind.raw, str) and kind.raw in forms:
+            raise kind.error(f"the {kind.raw} observer has no tug_observers form here; "
+                             "write the file in the native format (docs/configuration.md)")
+        if form is None:
+            kind.str(choices=sorted(k for k, f in forms.items() if f is not None))
+            continue
+        form(group, translation)
+    return Translation(tuple(translation.entries), tuple(translation.warnings))
 
 
-def _child(node: ConfigNode, key: str) -> ConfigNode | None:
+def child(node: ConfigNode, key: str) -> ConfigNode | None:
     """The child at ``key`` even when it is null (a template's empty value has a location)."""
     if key not in node:
         return None
@@ -57,14 +81,14 @@ def _scalar(value: object, at: ConfigNode) -> ConfigNode:
     return ConfigNode.scalar(value, at)
 
 
-def _entry(type_name: str, at: ConfigNode, **children: ConfigNode | None) -> ConfigNode:
+def entry(type_name: str, at: ConfigNode, **children: ConfigNode | None) -> ConfigNode:
     """A native observer entry; ``None`` children are left out (the native default applies)."""
     fields = {"type": _scalar(type_name, at)}
     fields.update({k: v for k, v in children.items() if v is not None})
     return ConfigNode.mapping(fields, at)
 
 
-def _every(group: ConfigNode) -> ConfigNode | None:
+def every(group: ConfigNode) -> ConfigNode | None:
     """``main_loop_rate`` (Hz) as the native evaluation interval ``every`` (s)."""
     rate = group.get("main_loop_rate")
     if rate is None:
@@ -72,7 +96,7 @@ def _every(group: ConfigNode) -> ConfigNode | None:
     return _scalar(1.0 / rate.float(min=0.0, min_exclusive=True), rate)
 
 
-def _publishers(callerid: ConfigNode | None, at: ConfigNode) -> ConfigNode:
+def publishers(callerid: ConfigNode | None, at: ConfigNode) -> ConfigNode:
     """A tug ``callerid`` as a native publisher group; ``[]`` or absent means all publishers."""
     if callerid is None or callerid.is_null:
         return ConfigNode.sequence([], callerid or at)
@@ -80,7 +104,7 @@ def _publishers(callerid: ConfigNode | None, at: ConfigNode) -> ConfigNode:
     return ConfigNode.sequence([_scalar(item.str(), item) for item in items], callerid)
 
 
-def _filter(node: ConfigNode | None) -> ConfigNode | None:
+def filter_entry(node: ConfigNode | None) -> ConfigNode | None:
     """A tug filter as a native one: ``deviation_type`` is ``deviation``; empty is ``nofilter``."""
     if node is None:
         return None
@@ -127,7 +151,7 @@ def _check(node: ConfigNode) -> ConfigNode:
     return ConfigNode.mapping(fields, node)
 
 
-def _states(node: ConfigNode | None, quantities: Mapping[str, str],
+def states(node: ConfigNode | None, quantities: Mapping[str, str],
             dropped: Iterable[str] = ()) -> ConfigNode | None:
     """Tug states (``state``, ``number``, quantities) as native ones (``name``, ``number``, ...).
 
@@ -161,7 +185,7 @@ def _states(node: ConfigNode | None, quantities: Mapping[str, str],
     return ConfigNode.sequence(out, node)
 
 
-def _acceleration_window(*sources: tuple[ConfigNode, ConfigNode | None]) -> ConfigNode | None:
+def acceleration_window(*sources: tuple[ConfigNode, ConfigNode | None]) -> ConfigNode | None:
     """The one acceleration window of a velocity entry from tug's per-source windows.
 
     tug differentiates each velocity source over ``acceleartion_window_size`` messages
@@ -179,39 +203,19 @@ def _acceleration_window(*sources: tuple[ConfigNode, ConfigNode | None]) -> Conf
     return windows[0]
 
 
-class _Translator:
+class TugTranslation:
+    """Native entries made so far and the warnings for the user; what a :data:`TugForm`
+    writes into, with the layouts several forms share."""
+
     def __init__(self) -> None:
         self.entries: list[ConfigNode] = []
         self.warnings: list[str] = []
-        self._kinds: dict[str, Callable[[ConfigNode], None]] = {
-            "activated": self._activated,
-            "hz": self._hz,
-            "timeout": self._timeout,
-            "scores": self._scores,
-            "timestamp": self._timestamp,
-            "timing": self._timing,
-            "resources": self._resources,
-            "velocity": self._velocity,
-            "moveing": self._moving,
-            "moving": self._moving,
-        }
 
-    def group(self, group: ConfigNode) -> None:
-        if not group.is_map:
-            raise group.error("expected an observer group (a mapping with 'type'), "
-                              f"got {'a list' if group.is_list else repr(group.raw)}")
-        kind = group["type"]
-        if kind.raw == "network":
-            raise kind.error("the network observer has no tug_observers form here; "
-                             "write the file in the native format (docs/configuration.md)")
-        self._kinds[kind.str(choices=self._kinds)](group)
-
-    # ---- topic observers: topics[].callerids[] --------------------------------------------
-
-    def _per_publisher_group(self, group: ConfigNode, native: str, group_keys: Iterable[str],
-                             build: Callable[[ConfigNode], dict[str, ConfigNode | None]]) -> None:
-        group.check_keys(["type", "main_loop_rate", "topics", *_IGNORED])
-        every = _every(group)
+    def per_publisher_group(self, group: ConfigNode, native: str, group_keys: Iterable[str],
+                            build: Callable[[ConfigNode], dict[str, ConfigNode | None]]) -> None:
+        """``topics[].callerids[]``: one native entry per topic and publisher group."""
+        group.check_keys(["type", "main_loop_rate", "topics", *IGNORED])
+        rate = every(group)
         for topic in group["topics"].list():
             topic.check_keys(["name", "callerids"])
             name = topic["name"]
@@ -222,123 +226,35 @@ class _Translator:
                     "no publisher group; use '- callerid: []' to observe all publishers")
             for callers in groups:
                 callers.check_keys(["callerid", *group_keys])
-                self.entries.append(_entry(
+                self.entries.append(entry(
                     native, callers, topic=name,
-                    publishers=_publishers(_child(callers, "callerid"), callers),
-                    every=every, **build(callers)))
+                    publishers=publishers(child(callers, "callerid"), callers),
+                    every=rate, **build(callers)))
 
-    def _hz(self, group: ConfigNode) -> None:
-        quantities = {"frequenzy": "period", "frequenz": "period"}
-        self._per_publisher_group(group, "hz", ["filter", "states"], lambda c: {
-            "filter": _filter(_child(c, "filter")),
-            "states": _states(_child(c, "states"), quantities)})
+    def filtered_per_publisher_group(self, group: ConfigNode, native: str,
+                                     quantities: Mapping[str, str]) -> None:
+        """``topics[].callerids[]`` whose entries have one ``filter`` and ``states`` over the
+        quantity spelled as the keys of ``quantities``."""
+        self.per_publisher_group(group, native, ["filter", "states"], lambda c: {
+            "filter": filter_entry(child(c, "filter")),
+            "states": states(child(c, "states"), quantities)})
 
-    def _timestamp(self, group: ConfigNode) -> None:
-        self._per_publisher_group(group, "timestamp", ["filter", "states"], lambda c: {
-            "filter": _filter(_child(c, "filter")),
-            "states": _states(_child(c, "states"), {"age": "age"})})
-
-    def _timeout(self, group: ConfigNode) -> None:
-        self._per_publisher_group(group, "timeout", ["timeout", "max_timeouts_in_a_row"],
-                                  lambda c: {"timeout": c.get("timeout"),
-                                             "max_timeouts_in_a_row":
-                                                 c.get("max_timeouts_in_a_row")})
-
-    def _scores(self, group: ConfigNode) -> None:
-        group.check_keys(["type", "main_loop_rate", "topics", *_IGNORED])
-        every = _every(group)
-        for topic in group["topics"].list():
-            topic.check_keys(["name", "filter", "states"])
-            self.entries.append(_entry(
-                "scores", topic, topic=topic["name"], every=every,
-                filter=_filter(_child(topic, "filter")),
-                states=_states(_child(topic, "states"), {"score": "score"})))
-
-    def _timing(self, group: ConfigNode) -> None:
-        group.check_keys(["type", "main_loop_rate", "topics", *_IGNORED])
-        every = _every(group)
-        for pair in group["topics"].list():
-            pair.check_keys(["topicA", "calleridA", "topicB", "calleridB", "single_shot_mode",
-                             "filter", "states"])
-            self.entries.append(_entry(
-                "timing", pair, topic_a=pair["topicA"],
-                publishers_a=_publishers(_child(pair, "calleridA"), pair),
-                topic_b=pair["topicB"],
-                publishers_b=_publishers(_child(pair, "calleridB"), pair),
-                single_shot=pair.get("single_shot_mode"), every=every,
-                filter=_filter(_child(pair, "filter")),
-                states=_states(_child(pair, "states"), {"delay": "delay"})))
-
-    # ---- node observers: nodes[] --------------------------------------------------------
-
-    def _activated(self, group: ConfigNode) -> None:
-        group.check_keys(["type", "main_loop_rate", "start_up_time", "nodes", *_IGNORED])
-        every = _every(group)
-        start_up = group.get("start_up_time")
-        for node in group["nodes"].list():
-            node.check_keys(["name"])
-            self.entries.append(_entry("activated", node, node=node["name"],
-                                       start_up_time=start_up, every=every))
-
-    def _resources(self, group: ConfigNode) -> None:
-        group.check_keys(["type", "main_loop_rate", "nodes", *_IGNORED])
-        every = _every(group)
-        for node in group["nodes"].list():
-            node.check_keys(["name", "cpu_filter", "mem_filter", "states"])
-            self.entries.append(_entry(
-                "resources", node, node=node["name"], every=every,
-                cpu_filter=_filter(_child(node, "cpu_filter")),
-                memory_filter=_filter(_child(node, "mem_filter")),
-                states=_states(_child(node, "states"), {"cpu": "cpu", "memory": "memory"})))
-
-    # ---- motion observers ---------------------------------------------------------------
-
-    def _velocity(self, group: ConfigNode) -> None:
-        group.check_keys(["type", "main_loop_rate", "correlations", *_IGNORED])
-        every = _every(group)
-        for corr in group["correlations"].list(allow_single=True):
-            corr.check_keys(["source_A", "source_B", *(u for u, _ in _ROTATIONS),
-                             *_AXIS_FILTERS, "states"])
-            source_a, window_a = self._source(corr, "source_A", acceleration=True)
-            source_b, window_b = self._source(corr, "source_B", acceleration=True)
-            if source_a is None or source_b is None:
-                continue
-            self.entries.append(_entry(
-                "velocity", corr, source_a=source_a, source_b=source_b,
-                acceleration_window_size=_acceleration_window(
-                    (source_a, window_a), (source_b, window_b)),
-                every=every, **self._motion(corr)))
-
-    def _moving(self, group: ConfigNode) -> None:
-        group.check_keys(["type", "main_loop_rate", "moveings", "correlations", *_IGNORED])
-        every = _every(group)
-        found = group.first("moveings", "correlations")
-        if found is None:
-            raise group.error("missing required key 'moveings'")
-        for item in found[1].list(allow_single=True):
-            item.check_keys(["source", *(u for u, _ in _ROTATIONS), *_AXIS_FILTERS, "states"])
-            source, _ = self._source(item, "source", acceleration=False)
-            if source is None:
-                continue
-            self.entries.append(_entry("moving", item, source=source, every=every,
-                                       **self._motion(item)))
-
-    def _motion(self, item: ConfigNode) -> dict[str, ConfigNode | None]:
+    def motion(self, item: ConfigNode) -> dict[str, ConfigNode | None]:
         """Axis filters and states of a velocity or moving entry.
 
         A rotation switched off (``use_yaw: false``) stays off, and its filter and state
         checks, which the original tool ignores, are left out.
         """
-        dropped = [axis for switch, axis in _ROTATIONS
+        dropped = [axis for switch, axis in ROTATIONS
                    if switch in item and not item[switch].bool()]
         fields: dict[str, ConfigNode | None] = {
-            switch: item[switch] for switch, axis in _ROTATIONS if axis in dropped}
-        fields.update({f"{axis}_filter": _filter(_child(item, f"{axis}_filter"))
-                       for axis in _AXES if axis not in dropped})
-        fields["states"] = _states(_child(item, "states"), _MOTION_QUANTITIES, dropped)
+            switch: item[switch] for switch, axis in ROTATIONS if axis in dropped}
+        fields.update({f"{axis}_filter": filter_entry(child(item, f"{axis}_filter"))
+                       for axis in AXES if axis not in dropped})
+        fields["states"] = states(child(item, "states"), MOTION_QUANTITIES, dropped)
         return fields
 
-    def _source(self, item: ConfigNode, key: str, *, acceleration: bool
+    def source(self, item: ConfigNode, key: str, *, acceleration: bool
                 ) -> tuple[ConfigNode | None, ConfigNode | None]:
         """A movement source as native ``{type, topic}`` and its acceleration window.
 
@@ -350,14 +266,14 @@ class _Translator:
                                  "it observes nothing until filled in")
             return None, None
         node.check_keys(["type", "topic", "velocity_window_size", "gravitation_cancelation",
-                         "base_frame", "target_frame", *_AXIS_FILTERS,
+                         "base_frame", "target_frame", *AXIS_FILTERS,
                          *(["acceleartion_window_size", "acceleration_window_size"]
                            if acceleration else [])])
         kind = node["type"]
         if kind.raw == "tf":
             raise kind.error("tf sources are not supported (the black box observes topics); "
                              "use an odometry, twist or imu topic")
-        for axis_filter in _AXIS_FILTERS:
+        for axis_filter in AXIS_FILTERS:
             if node.get(axis_filter) is not None:
                 raise node[axis_filter].error(
                     "per-source filters are not supported; filter the observed quantity with "

@@ -241,7 +241,9 @@ def utility_matrix(diagnoses: Sequence[frozenset[str]], truth: Sequence[frozense
     size_t = t.sum(axis=1)[None, :]
     n = size_w - overlap
     nbar = size_t - overlap
-    return 1.0 - n * (size_w + 1) / (f * (n + 1)) - nbar * (f - size_w + 1) / (f * (nbar + 1))
+    utility: np.ndarray = (1.0 - n * (size_w + 1) / (f * (n + 1))
+                           - nbar * (f - size_w + 1) / (f * (nbar + 1)))
+    return utility
 
 
 def score(diagnoses: Sequence[frozenset[str]], truth: Sequence[frozenset[str]], f: int,

@@ -11,12 +11,12 @@ shipped files, not an artefact of the SAT encoding.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 from blackbox.diagnose.dxc import Circuit, CircuitDiagnoser, Gate, Scenario
 
-_FUNCTIONS = {
+_FUNCTIONS: dict[str, Callable[[list[bool]], object]] = {
     "and": all,
     "or": any,
     "nand": lambda v: not all(v),

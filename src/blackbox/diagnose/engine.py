@@ -41,8 +41,8 @@ from blackbox.diagnose.robot_model import (
     load_robot_model,
 )
 from blackbox.diagnose.sat import ConsistencyChecker, Theory
+from blackbox.events import GraphSnapshot
 from blackbox.model import Code, Diagnosis, Observation, Resource
-from blackbox.sources.base import GraphSnapshot
 
 DEFAULT_PRIORS = {"node": 0.05, "hardware": 0.05, "topic": 0.01, "interface": 0.01}
 """Prior fault probability per component kind: with equal cardinality, a dead node is blamed

@@ -58,7 +58,7 @@ class HittingSets(Generic[T]):
     nodes: int
 
 
-def _sort_key(s: frozenset) -> tuple[int, list[str]]:
+def _sort_key(s: frozenset[object]) -> tuple[int, list[str]]:
     return (len(s), sorted(map(str, s)))
 
 

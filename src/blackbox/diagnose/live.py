@@ -41,8 +41,8 @@ from blackbox.diagnose.robot_model import (
     ObservedResource,
     Propagation,
 )
+from blackbox.events import GraphSnapshot
 from blackbox.model import Diagnosis, Observation
-from blackbox.sources.base import GraphSnapshot
 
 
 @dataclass(frozen=True)
@@ -117,7 +117,7 @@ class LiveDiagnoser:
         self.observers = list(observers)
         self.settings = settings
         self.engine: DiagnosisEngine | None = None
-        self._structure: frozenset | None = None
+        self._structure: frozenset[tuple[str, tuple[str, ...], tuple[str, ...]]] | None = None
         self._latest: dict[tuple[str, object], Observation] = {}
         if settings.model is not None:
             self.engine = DiagnosisEngine.from_model_file(settings.model, settings.priors,

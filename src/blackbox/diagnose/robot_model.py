@@ -37,21 +37,31 @@ from pathlib import Path
 from typing import Protocol
 
 from blackbox.config.node import ConfigNode
+from blackbox.events import GraphSnapshot
 from blackbox.model import Resource
-from blackbox.sources.base import GraphSnapshot
+from blackbox.observe.base import OBSERVERS, Mode, Subject, observer_kind
 
 RATE_MODES = ("learn", "always", "never")
-RATE_TYPES = frozenset({"hz", "timeout", "timestamp", "timing"})
-VALUE_TYPES = frozenset({"scores", "velocity", "moving", "movement"})
-NODE_TYPES = frozenset({"activated", "resources"})
-NETWORK_TYPES = frozenset({"network"})
-OBSERVATION_TYPES = RATE_TYPES | VALUE_TYPES | NODE_TYPES | NETWORK_TYPES
-PAIR_TYPES = frozenset({"timing", "velocity"})
 
 
 def is_rate_type(observer: str) -> bool:
-    """Whether observations of this type judge the rate (``live``) rather than the values."""
-    return observer not in VALUE_TYPES
+    """Whether observations of this type judge the rate (``live``) rather than the values.
+
+    The observer type says so when it registers (:class:`ObserverKind` ``judges``); an
+    unregistered type (a probe of the black box itself) counts as a rate observation.
+    """
+    kind = observer_kind(observer)
+    return kind is None or kind.judges is Mode.LIVE
+
+
+def _subject(observer: str) -> Subject | None:
+    kind = observer_kind(observer)
+    return kind.subject if kind is not None else None
+
+
+def observation_types() -> list[str]:
+    """Every observer type a diagnosis model may name, with the aliases of tug_diagnosis."""
+    return sorted({n for name, kind in OBSERVERS.items() for n in (name, *kind.aliases)})
 
 
 @dataclass(frozen=True, slots=True)
@@ -133,9 +143,9 @@ class RobotModel:
             for t in (*n.pub, *n.sub):
                 seen.setdefault(t)
         for o in self.observations:
-            for t in (o.resource.topic, o.resource.topic_b):
-                if t:
-                    seen.setdefault(t)
+            for observed in (o.resource.topic, o.resource.topic_b):
+                if observed:
+                    seen.setdefault(observed)
         return tuple(sorted(seen))
 
     @property
@@ -200,13 +210,14 @@ def parse_robot_model(root: ConfigNode) -> RobotModel:
     obs_node = root.get("observations")
     for item in obs_node.list() if obs_node else []:
         item.check_keys(["type", "nodes", "topics", "interfaces", "callerids"])
-        kind = item["type"].str(sorted(OBSERVATION_TYPES))
-        if kind in NODE_TYPES:
+        kind = item["type"].str(observation_types())
+        subject = _subject(kind)
+        if subject is Subject.NODE:
             for n in item["nodes"].list(allow_single=True):
                 if n.str() not in names:
                     raise n.error(f"unknown node {n.str()!r}; declare it under 'nodes'")
                 observations.append(ObservationSpec(kind, Resource(node=n.str())))
-        elif kind in NETWORK_TYPES:
+        elif subject is Subject.INTERFACE:
             for i in item["interfaces"].str_list():
                 observations.append(ObservationSpec(kind, Resource(interface=i)))
         else:
@@ -218,7 +229,7 @@ def parse_robot_model(root: ConfigNode) -> RobotModel:
                                             f"by a declared node")
             callers = item.get("callerids")
             group = tuple(callers.str_list()) if callers else ()
-            if kind in PAIR_TYPES:
+            if subject is Subject.TOPIC_PAIR:
                 if len(topics) != 2:
                     raise topics_node.error(f"'{kind}' observes exactly two topics, "
                                             f"got {len(topics)}")
@@ -249,11 +260,11 @@ def derive_robot_model(graph: GraphSnapshot, observed: Sequence[ObservedResource
     specs = [ObservationSpec(o.type_name, o.resource) for o in observed]
     pubs: dict[str, set[str]] = {}
     subs_of: dict[str, set[str]] = {}
-    for t in graph.topics.values():
-        for p in t.publishers:
-            pubs.setdefault(t.name, set()).add(p)
-        for s in t.subscribers:
-            subs_of.setdefault(s, set()).add(t.name)
+    for info in graph.topics.values():
+        for p in info.publishers:
+            pubs.setdefault(info.name, set()).add(p)
+        for s in info.subscribers:
+            subs_of.setdefault(s, set()).add(info.name)
     topics: set[str] = set()
     producers: set[str] = set()
     stack = [t for s in specs for t in (s.resource.topic, s.resource.topic_b) if t]
@@ -388,9 +399,10 @@ class TopicStructure:
 
     def explain(self, spec: ObservationSpec) -> Explanation:
         r = spec.resource
-        if spec.type in NODE_TYPES or (r.node and not r.topic):
+        subject = _subject(spec.type)
+        if subject is Subject.NODE or (r.node and not r.topic):
             return Explanation((r.node,) if r.node else (), ())
-        if spec.type in NETWORK_TYPES or (r.interface and not r.topic):
+        if subject is Subject.INTERFACE or (r.interface and not r.topic):
             return Explanation((f"iface:{r.interface}",), ())
         rate = is_rate_type(spec.type)
         parts = [self.producers(r.topic, r.publishers, rate)] if r.topic else []

@@ -13,9 +13,10 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from blackbox.app import DEFAULT_CONFIG, RunOptions, build
+from blackbox.config.node import ConfigError
 from blackbox.evaluate.metrics import (
     DEFAULT_GRACE,
     THESIS_AFTER,
@@ -32,12 +33,13 @@ from blackbox.evaluate.metrics import (
 from blackbox.model import Diagnosis, Observation
 from blackbox.pipeline import RunStats
 from blackbox.sinks import SinkBase
-from blackbox.sources.sim import (
-    FAULT_KINDS,
-    THESIS_FAULT_KINDS,
-    open_sim,
-    random_campaign,
+from blackbox.sources.base import (
+    Capabilities,
+    GroundTruthSource,
+    RandomFaults,
+    source_kind,
 )
+from blackbox.sources.sim import FAULT_KINDS, THESIS_FAULT_KINDS
 
 KIND_SETS: Mapping[str, tuple[str, ...]] = {"thesis": THESIS_FAULT_KINDS,
                                             "all": tuple(FAULT_KINDS)}
@@ -95,7 +97,8 @@ class CampaignSettings:
             raise ValueError(f"--duration: a run must last more than "
                              f"{self.warmup + self.tail:g} s ({self.warmup:g} s warm-up + "
                              f"{self.tail:g} s without new faults at the end)")
-        if not self.source.startswith("sim:"):
+        caps = source_capabilities(self.source)
+        if not (caps.fault_injection and caps.ground_truth and caps.simulated_clock):
             raise ValueError("--source: campaigns need a simulated robot (sim:...) for its "
                              "ground truth")
         if not self.kinds:
@@ -200,28 +203,36 @@ def delay_summary(delays: Sequence[float]) -> dict[str, float | int | None]:
             "p90": percentile(delays, 90), "max": max(delays) if delays else None}
 
 
+def source_capabilities(spec: str) -> Capabilities:
+    """The capabilities of the source ``spec`` names; ``ValueError`` for an unknown one."""
+    try:
+        return source_kind(spec).capabilities
+    except ConfigError as exc:
+        raise ValueError(f"--source: {exc.message}") from None
+
+
 def run_one(settings: CampaignSettings, index: int) -> RunResult:
     """Run and score run ``index`` of a campaign. Raises ``ValueError`` for a bad option or
     source and :class:`ConfigError` for a bad configuration file."""
     started = time.perf_counter()
     seed = settings.seed + index
-    try:
-        robot = open_sim(settings.source, seed=seed, realtime=False, start_time=0.0)
-    except ValueError as exc:
-        raise ValueError(f"--source: {exc}") from None
-    faults = random_campaign(robot.topology, settings.duration - settings.tail, seed,
-                             settings.kinds, mean_gap=settings.mean_gap,
-                             warmup=settings.warmup, min_separation=settings.separation)
+    faults = RandomFaults(settings.duration - settings.tail, settings.kinds,
+                          mean_gap=settings.mean_gap, warmup=settings.warmup,
+                          min_separation=settings.separation)
     sink = _Collector()
-    box = build(RunOptions(config=Path(settings.config), source=settings.source,
-                           duration=settings.duration, simulated_clock=True, faults=faults,
-                           seed=seed, live=False, diagnosis=settings.diagnosis,
-                           extra_sinks=[sink]))
-    source = box.pipeline.source
+    try:
+        box = build(RunOptions(config=Path(settings.config), source=settings.source,
+                               duration=settings.duration, simulated_clock=True, faults=faults,
+                               seed=seed, live=False, diagnosis=settings.diagnosis,
+                               extra_sinks=[sink]))
+    except ConfigError as exc:
+        if exc.file != "--source":
+            raise
+        raise ValueError(f"--source: {exc.message}") from None
+    robot = cast(GroundTruthSource, box.pipeline.source)
     stats = box.run()
     diagnosed = box.pipeline.diagnoser is not None
-    publishers = {t.name: t.publisher for t in robot.topology.topics.values()}
-    score = score_run(source.ground_truth, sink.observations, publishers,
+    score = score_run(robot.ground_truth, sink.observations, robot.topic_publishers(),
                       start=stats.started, end=stats.ended, grace=settings.grace,
                       diagnoses=sink.diagnoses if diagnosed else None)
     return RunResult(index, seed, score, stats, time.perf_counter() - started)

@@ -12,6 +12,11 @@ configuration's states. :func:`describe_observer` reads one native observer entr
 * **expected noise**: the ``std_deviation`` of a ``gauss`` or ``student_t`` check (the
   largest over the states).
 * **filter** type and numeric parameters, and the evaluation interval (``every``).
+
+The quantities, their units and the thresholds every observer of a type has come from the
+observer type's own registration (:class:`~blackbox.observe.base.ObserverKind`), and the
+resource from the observer the entry builds, so a new observer type is described without
+any change here.
 """
 
 from __future__ import annotations
@@ -23,19 +28,14 @@ from typing import Literal
 
 from blackbox.config.node import ConfigNode
 from blackbox.model import Resource
+from blackbox.observe.base import observer_kind
+from blackbox.observe.build import build_observer, kind_of
 
-UNITS: dict[str, str] = {
-    "period": "s", "age": "s", "delay": "s", "cpu": "%", "memory": "B", "rx": "B/s",
-    "tx": "B/s", "code": "", "score": "",
-}
-"""Unit of each quantity name the observers report (docs/configuration.md)."""
 
-QUANTITIES: dict[str, tuple[str, ...]] = {
-    "activated": ("code",), "timeout": ("code",), "hz": ("period",), "scores": ("score",),
-    "timestamp": ("age",), "timing": ("delay",), "resources": ("cpu", "memory"),
-    "network": ("rx", "tx"), "velocity": ("x", "y", "z", "rot_x", "rot_y", "rot_z"),
-    "moving": ("x", "y", "z", "rot_x", "rot_y", "rot_z"),
-}
+def unit_of(observer: str, quantity: str) -> str:
+    """The unit of ``quantity`` as the observer type ``observer`` registered it."""
+    kind = observer_kind(observer)
+    return kind.unit(quantity) if kind is not None else ""
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,31 +67,7 @@ class ObserverDescription:
     states: tuple[str, ...] = ()
 
     def unit(self, quantity: str) -> str:
-        return UNITS.get(quantity, "")
-
-
-def _resource(kind: str, node: ConfigNode) -> Resource:
-    def s(key: str) -> str | None:
-        child = node.get(key)
-        return child.str() if child is not None else None
-
-    def group(key: str) -> tuple[str, ...]:
-        child = node.get(key)
-        return child.str_list() if child is not None else ()
-
-    if kind in ("activated", "resources"):
-        return Resource(node=s("node"))
-    if kind == "network":
-        return Resource(interface=s("interface"))
-    if kind == "timing":
-        return Resource(topic=s("topic_a"), publishers=group("publishers_a"), topic_b=s("topic_b"))
-    if kind in ("velocity", "moving"):
-        a = node.get("source_a") or node.get("source")
-        b = node.get("source_b")
-        ta = a.get("topic") if a is not None and a.is_map else None
-        tb = b.get("topic") if b is not None and b.is_map else None
-        return Resource(topic=ta.str() if ta else None, topic_b=tb.str() if tb else None)
-    return Resource(topic=s("topic"), publishers=group("publishers"))
+        return unit_of(self.observer, quantity)
 
 
 def _bounds(check: ConfigNode) -> tuple[float | None, float | None, float | None]:
@@ -122,11 +98,11 @@ def _bounds(check: ConfigNode) -> tuple[float | None, float | None, float | None
 
 def describe_observer(node: ConfigNode) -> ObserverDescription:
     """Describe one native observer entry; raises ``ConfigError`` via ``node.error``."""
-    kind = node["type"].str()
-    resource = _resource(kind, node)
+    kind = kind_of(node)
+    resource = build_observer(node).resource
     every = node.get("every")
     interval = every.float(min=0.0, min_exclusive=True) if every is not None else 1.0
-    quantities = QUANTITIES.get(kind, ())
+    quantities = tuple(q.name for q in kind.quantities)
     states_node = node.get("states")
     states = states_node.list() if states_node is not None else []
     names: list[str] = []
@@ -151,8 +127,7 @@ def describe_observer(node: ConfigNode) -> ObserverDescription:
             thresholds.append(ThresholdSpec(q, "min", min(v for v in lows[q] if v is not None)))
         if highs[q] and all(v is not None for v in highs[q]):
             thresholds.append(ThresholdSpec(q, "max", max(v for v in highs[q] if v is not None)))
-    if kind in ("activated", "timeout"):
-        thresholds.append(ThresholdSpec("code", "min", 0.0))
+    thresholds.extend(ThresholdSpec(t.quantity, t.type, t.value) for t in kind.thresholds)
     filter_type, params = "", {}
     filter_keys = [k for k, _ in node.items() if k.endswith("_filter")]
     for key in ("filter", *filter_keys):
@@ -163,7 +138,7 @@ def describe_observer(node: ConfigNode) -> ObserverDescription:
             params = {k: float(v) for k, v in raw.items() if isinstance(v, int | float)
                       and not isinstance(v, bool) and math.isfinite(float(v))}
             break
-    return ObserverDescription(kind, resource, interval, quantities, tuple(thresholds), noise,
+    return ObserverDescription(kind.name, resource, interval, quantities, tuple(thresholds), noise,
                                filter_type, params, tuple(names))
 
 

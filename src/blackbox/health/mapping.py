@@ -29,8 +29,9 @@ import json
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
-from blackbox.health.describe import UNITS, ObserverDescription, ThresholdSpec
+from blackbox.health.describe import ObserverDescription, ThresholdSpec, unit_of
 from blackbox.health.extension import (
     C_Characteristic_Extension,
     C_Entity_Description,
@@ -175,13 +176,13 @@ class HealthMapper:
 
     # ---- building blocks ----------------------------------------------------------------------
 
-    def robot(self, now: float, out: list) -> _Entity:
+    def robot(self, now: float, out: list[Any]) -> _Entity:
         """The robot itself, created (with its samples appended to ``out``) on first use."""
         if self._robot is None:
             self._robot = self._entity("", now, out, "robot")
         return self._robot
 
-    def _entity(self, name: str, now: float, out: list, kind: str = "node") -> _Entity:
+    def _entity(self, name: str, now: float, out: list[Any], kind: str = "node") -> _Entity:
         entity = self._entities.get(name)
         if entity is not None:
             return entity
@@ -226,7 +227,7 @@ class HealthMapper:
             A_monitoredCharacteristics_sourceID=list(entity.characteristics),
         )
 
-    def _key(self, obs: Observation, now: float, out: list) -> _Key:
+    def _key(self, obs: Observation, now: float, out: list[Any]) -> _Key:
         k = obs.key()
         state = self._keys.get(k)
         if state is not None:
@@ -250,7 +251,7 @@ class HealthMapper:
         return state
 
     def _characteristic(self, obs: Observation, key: _Key, quantity: str, now: float,
-                        out: list) -> _Characteristic:
+                        out: list[Any]) -> _Characteristic:
         rkey = resource_key(obs.resource)
         ident = self.ids.of("characteristic", obs.observer, rkey, quantity)
         spec_id = self.ids.of("characteristic_spec", obs.observer, rkey, quantity)
@@ -274,7 +275,7 @@ class HealthMapper:
         interval = d.interval if d and d.interval else None
         name = f"{obs.observer} {obs.resource.label()} {quantity}"
         out.append(C_Monitored_Characteristic_Specification(
-            A_sourceID=spec_id, A_timeOfDataGeneration=t, A_unit=UNITS.get(quantity, ""),
+            A_sourceID=spec_id, A_timeOfDataGeneration=t, A_unit=unit_of(obs.observer, quantity),
             A_descriptor=name,
             A_publishingIntervalInSeconds=max(1, round(interval)) if interval else 0,
             A_specifiedCharacteristics_sourceID=[ident],
@@ -304,14 +305,14 @@ class HealthMapper:
 
     # ---- records in --------------------------------------------------------------------------
 
-    def start(self, now: float) -> list:
+    def start(self, now: float) -> list[Any]:
         """The robot entity's first samples (UNKNOWN until something is observed)."""
-        out: list = []
+        out: list[Any] = []
         self.robot(now, out)
         return out
 
-    def observations(self, now: float, observations: Sequence[Observation]) -> list:
-        out: list = []
+    def observations(self, now: float, observations: Sequence[Observation]) -> list[Any]:
+        out: list[Any] = []
         touched: set[str] = set()
         for obs in observations:
             key = self._key(obs, now, out)
@@ -349,7 +350,7 @@ class HealthMapper:
         return out
 
     def _exceedence(self, obs: Observation, key: _Key, kind: T_EventKind,
-                    states: tuple[str, ...]) -> list:
+                    states: tuple[str, ...]) -> list[Any]:
         chosen: tuple[_Characteristic, float, T_IdentifierType] | None = None
         for q, c in key.characteristics.items():
             value = self._value(obs, q)
@@ -381,8 +382,8 @@ class HealthMapper:
                 A_toStates=list(states), A_message=obs.message),
         ]
 
-    def diagnosis(self, diagnosis: Diagnosis) -> list:
-        out: list = []
+    def diagnosis(self, diagnosis: Diagnosis) -> list[Any]:
+        out: list[Any] = []
         best = diagnosis.candidates[0] if diagnosis.candidates else frozenset()
         names = {self.owners.get(c, c) for c in best}
         new = names - self._diagnosed
@@ -428,22 +429,22 @@ class HealthMapper:
             A_complementaryInformation=info, A_eventDocumentationURI=actions.documentation_uri,
             A_monitoredEntity_sourceID=entity.ident)
 
-    def expire(self, now: float) -> list:
+    def expire(self, now: float) -> list[Any]:
         """Characteristics silent for too long become unknown; returns changed entities."""
         touched = {k.entity for k in self._keys.values() if k.status.expire(now)}
         return self._refresh(now, touched)
 
-    def set_bit_in_progress(self, now: float, running: bool) -> list:
+    def set_bit_in_progress(self, now: float, running: bool) -> list[Any]:
         out = []
         for entity in self._entities.values():
             entity.bit_in_progress = running
             out.append(self._entity_sample(entity, now))
         return out
 
-    def _refresh(self, now: float, touched: Iterable[str], force: Iterable[str] = ()) -> list:
+    def _refresh(self, now: float, touched: Iterable[str], force: Iterable[str] = ()) -> list[Any]:
         force = set(force)
         touched = set(touched) | force
-        out: list = []
+        out: list[Any] = []
         for name in touched:
             entity = self._entities.get(name)
             if entity is None or name == "":

@@ -8,27 +8,31 @@ A check decides whether a filtered :class:`Summary` fits a state. An observer tu
 source events into :class:`~blackbox.model.Observation` records when ``evaluate(now)``
 is called.
 
-New kinds register by type name in the registries below (one module plus one line in
-the package ``__init__``); configuration files refer to them by that name.
+New kinds register by type name in the registries below, from their own module (see
+:mod:`blackbox.registry`); configuration files refer to them by that name. An observer
+type registers an :class:`ObserverKind`: besides its factory, the facts the other stages
+need about it (quantities and units, the failure mode it judges, fixed thresholds, its
+tug_observers form), so nothing else keeps a table keyed by observer type.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar, Protocol, TypeVar
+from enum import Enum
+from typing import ClassVar, Literal, Protocol
 
-from blackbox.model import Observation
-from blackbox.sources.base import (
+from blackbox.config.node import ConfigNode
+from blackbox.config.tug import TugForm
+from blackbox.events import (
     GraphSnapshot,
     Interest,
     MessageArrival,
     NetworkSample,
     ResourceSample,
 )
-
-if TYPE_CHECKING:
-    from blackbox.config.node import ConfigNode
+from blackbox.model import Code, Observation, Resource
+from blackbox.registry import Registry
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,6 +86,7 @@ class Observer(Protocol):
 
     type_name: ClassVar[str]
     interval: float
+    resource: Resource
 
     def interest(self) -> Interest: ...
 
@@ -105,6 +110,13 @@ class ObserverBase:
 
     type_name: ClassVar[str] = ""
     interval: float = 1.0
+    resource: Resource
+
+    def unavailable(self, now: float, why: str,
+                    values: Mapping[str, float] | None = None) -> Observation:
+        """A ``NOT_AVAILABLE`` observation saying ``why`` (waiting for data, data gone)."""
+        return Observation(now, self.type_name, self.resource, Code.NOT_AVAILABLE,
+                           values=dict(values or {}), message=why)
 
     def on_message(self, msg: MessageArrival) -> None:
         return None
@@ -119,25 +131,81 @@ class ObserverBase:
         return None
 
 
-FilterFactory = Callable[["ConfigNode"], Filter]
-CheckFactory = Callable[["ConfigNode"], Check]
-ObserverFactory = Callable[["ConfigNode"], Observer]
+class Subject(Enum):
+    """What kind of resource an observer type observes."""
 
-FILTERS: dict[str, FilterFactory] = {}
-VALUE_CHECKS: dict[str, CheckFactory] = {}
-OBSERVERS: dict[str, ObserverFactory] = {}
-
-_T = TypeVar("_T")
+    TOPIC = "topic"
+    TOPIC_PAIR = "topic_pair"
+    NODE = "node"
+    INTERFACE = "interface"
 
 
-def register(registry: dict[str, Callable[..., _T]], name: str
-             ) -> Callable[[Callable[..., _T]], Callable[..., _T]]:
-    """Decorator registering a factory under a configuration type name."""
+class Mode(Enum):
+    """Which failure mode of its topic an observation judges (see ``docs/diagnosis.md``).
 
-    def deco(factory: Callable[..., _T]) -> Callable[..., _T]:
-        if name in registry:
-            raise ValueError(f"{name!r} registered twice")
-        registry[name] = factory
-        return factory
+    ``LIVE``: messages arrive at the right rate; ``RIGHT``: they carry right values.
+    Node and interface observers judge their component as a whole and say ``LIVE``.
+    """
 
-    return deco
+    LIVE = "live"
+    RIGHT = "right"
+
+
+@dataclass(frozen=True, slots=True)
+class Quantity:
+    """A quantity an observer reports, with the unit the health description publishes."""
+
+    name: str
+    unit: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class FixedThreshold:
+    """A threshold that holds for every observer of a type, whatever its states say
+    (``code`` of a liveness observer is faulty below 0)."""
+
+    quantity: str
+    type: Literal["min", "max"]
+    value: float
+
+
+ObserverFactory = Callable[[ConfigNode], Observer]
+FilterFactory = Callable[[ConfigNode], Filter]
+CheckFactory = Callable[[ConfigNode], Check]
+
+
+@dataclass(frozen=True, slots=True)
+class ObserverKind:
+    """One observer type and everything health, diagnosis and configuration know about it.
+
+    ``aliases`` are other spellings of the type in diagnosis model files (tug_diagnosis
+    ``movement``). ``tug`` translates a tug_observers ``setup`` group of this type into
+    native entries; ``tug_names`` are the group types it answers to (default: ``name``).
+    """
+
+    name: str
+    build: ObserverFactory
+    subject: Subject
+    quantities: tuple[Quantity, ...]
+    judges: Mode = Mode.LIVE
+    thresholds: tuple[FixedThreshold, ...] = ()
+    aliases: tuple[str, ...] = ()
+    tug: TugForm | None = None
+    tug_names: tuple[str, ...] = ()
+
+    def unit(self, quantity: str) -> str:
+        return next((q.unit for q in self.quantities if q.name == quantity), "")
+
+
+OBSERVERS: Registry[ObserverKind] = Registry("observer type", "blackbox.observe.observers")
+FILTERS: Registry[FilterFactory] = Registry("filter type", "blackbox.observe.filters")
+VALUE_CHECKS: Registry[CheckFactory] = Registry("value check", "blackbox.observe.checks")
+CHECKS: Registry[CheckFactory] = Registry("check type", "blackbox.observe.checks")
+
+
+def observer_kind(name: str) -> ObserverKind | None:
+    """The observer type registered as ``name`` or with ``name`` as an alias."""
+    kind = OBSERVERS.get(name)
+    if kind is not None:
+        return kind
+    return next((k for _, k in OBSERVERS.items() if name in k.aliases), None)

@@ -27,9 +27,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 from blackbox.config.node import ConfigNode
+from blackbox.events import MessageArrival, TopicSchema
 from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource
 from blackbox.record.policy import (
     FaultBoost,
@@ -46,9 +47,16 @@ from blackbox.record.snapshot import (
     RingBuffer,
     SnapshotConfig,
 )
-from blackbox.record.store import Channel, Row, StorageError, Store, StoreCorrupt, dumps
+from blackbox.record.store import (
+    Channel,
+    Row,
+    RowTuple,
+    StorageError,
+    Store,
+    StoreCorrupt,
+    dumps,
+)
 from blackbox.sinks import SinkBase
-from blackbox.sources.base import MessageArrival, TopicSchema
 
 COMPONENT = "blackbox/recorder"
 RESOURCE = Resource(node="/blackbox/recorder")
@@ -166,7 +174,7 @@ class Recorder(SinkBase):
         self._error_since: float | None = None
 
         # Writer side only.
-        self._backlog: list[Pending] = []
+        self._backlog: list[RowTuple] = []
         self._store: Store | None = None
         self._next_retry = 0.0
         self._seen_config_id = 0
@@ -217,7 +225,7 @@ class Recorder(SinkBase):
             self._last_diagnosis = cands
             failed = [{"observer": o.observer, "resource": o.resource.label(), "code": int(o.code)}
                       for o in diagnosis.failed]
-            rows = [Row(diagnosis.time, "diagnosis", None, None,
+            rows: list[Pending] = [Row(diagnosis.time, "diagnosis", None, None,
                         {"candidates": [sorted(c) for c in cands], "failed": failed,
                          "explanation": diagnosis.explanation, "complete": diagnosis.complete})]
             best = cands[0] if cands else frozenset()
@@ -393,8 +401,9 @@ class Recorder(SinkBase):
                 obs = row[4]
                 if isinstance(obs, Observation):
                     kind = row[1]
-                    row = (row[0], kind, row[2], int(obs.code), _encoded(obs, kind))
-                backlog.append(row)
+                    backlog.append((row[0], kind, row[2], int(obs.code), _encoded(obs, kind)))
+                else:
+                    backlog.append(cast(RowTuple, row))
         limit = self.queue_limit
         if len(backlog) > limit:
             kept = [r for r in backlog if r[1] != "sample"]

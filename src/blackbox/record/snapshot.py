@@ -15,7 +15,7 @@ from fnmatch import fnmatchcase
 from pathlib import Path
 from typing import NamedTuple
 
-from blackbox.sources.base import MessageArrival, TopicSchema
+from blackbox.events import MessageArrival, TopicSchema
 
 
 @dataclass(frozen=True, slots=True)

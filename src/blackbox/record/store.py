@@ -72,6 +72,8 @@ class LogEntry:
 
 
 Channel = tuple[str | None, str | None, str]
+RowTuple = tuple[float, str, Channel | None, int | None, "dict[str, Any] | str"]
+"""A row as a plain tuple, as the recorder's hot path builds it."""
 
 
 class Row(NamedTuple):
@@ -308,7 +310,7 @@ class Store:
             self._channels[key] = cid
         return cid
 
-    def append(self, rows: Sequence[Row]) -> list[int]:
+    def append(self, rows: Sequence[RowTuple]) -> list[int]:
         """Write ``rows`` in one transaction; returns their ids. All or nothing.
 
         Configuration rows whose payload ``version`` is ``None`` get the next version
@@ -333,7 +335,7 @@ class Store:
             "WHERE kind = ?", (KINDS["config"],)).fetchone()
         return int(row[0] or 0) + 1
 
-    def _insert(self, rows: Sequence[Row],
+    def _insert(self, rows: Sequence[RowTuple],
                 numbered: list[dict[str, Any]] | None = None) -> list[int]:
         if not rows:
             return []
@@ -344,16 +346,16 @@ class Store:
         version: int | None = None
         for row in rows:
             time, kind, channel, code, payload = row
-            if type(payload) is not str:
+            if not isinstance(payload, str):
                 if kind == "config" and payload.get("version") is None:
                     version = self._next_config_version() if version is None else version + 1
                     payload["version"] = version
                     if numbered is not None:
                         numbered.append(payload)
                 payload = dumps(payload)
-            if channel is not None:
-                channel = channels.get(channel) or self._channel_id(channel)
-            params.append((time, kinds[kind], channel, code, payload))
+            channel_id = (None if channel is None
+                          else channels.get(channel) or self._channel_id(channel))
+            params.append((time, kinds[kind], channel_id, code, payload))
         db.executemany("INSERT INTO entries (time, kind, channel, code, payload) "
                        "VALUES (?, ?, ?, ?, ?)", params)
         # Inside one write transaction AUTOINCREMENT ids are consecutive.

@@ -1,27 +1,29 @@
 """Robot sources. ``open_source`` turns a source spec from the command line into a Source.
 
-Specs: ``sim:thesis`` (the built-in simulated thesis robot), ``sim:PATH`` (a simulated
-robot from a topology file), ``ros1`` (the master in ``ROS_MASTER_URI``) and
-``ros1://HOST:PORT``.
+Each kind of source registers its URL scheme in :data:`~blackbox.sources.base.SOURCES`
+from its own module; the built-in ones are ``sim:thesis`` / ``sim:PATH`` (the simulated
+robot) and ``ros1`` / ``ros1://HOST:PORT`` (a live ROS 1 master).
 """
 
 from __future__ import annotations
 
-from typing import Any
-
 from blackbox.config.node import ConfigError
-from blackbox.sources.base import Source
+from blackbox.sources.base import Source, SourceOptions, source_kind
 
 
-def open_source(spec: str, **options: Any) -> Source:
-    """Open the source named by ``spec``; ``options`` go to the source's constructor."""
-    if spec.startswith("sim:"):
-        from blackbox.sources.sim import open_sim
+def open_source(spec: str, options: SourceOptions | None = None) -> Source:
+    """Open the source named by ``spec``.
 
-        return open_sim(spec, **options)
-    if spec == "ros1" or spec.startswith("ros1://"):
-        from blackbox.sources.ros1 import Ros1Source
-
-        return Ros1Source.from_uri(spec)
-    raise ConfigError(f"unknown source {spec!r}; expected sim:thesis, sim:FILE, ros1 or "
-                      "ros1://HOST:PORT", "--source")
+    Raises ``ConfigError`` (for ``--source``) when no source has the scheme or when
+    ``options`` ask for what the source cannot do.
+    """
+    options = options or SourceOptions()
+    kind = source_kind(spec)
+    caps = kind.capabilities
+    if options.faults is not None and not caps.fault_injection:
+        raise ConfigError(f"{spec} cannot inject faults (--faults needs a source that can, "
+                          "such as sim:...)", "--source")
+    if not options.realtime and not caps.simulated_clock:
+        raise ConfigError(f"{spec} runs in real time only (--simulated-clock needs a "
+                          "simulated source, such as sim:...)", "--source")
+    return kind.open(spec, options)

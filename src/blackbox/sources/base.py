@@ -1,144 +1,98 @@
-"""The small event interface every robot source adapts to.
+"""What a robot adapter is: the ``Source`` protocol, its capabilities and its registry.
 
-A source turns a robot (simulated, ROS 1, bag replay, ...) into a time-ordered stream of
-four kinds of events. Observers only ever see these, never the middleware.
+A source turns a robot (simulated, ROS 1, bag replay, ...) into the time-ordered events of
+:mod:`blackbox.events`. Each kind of source is one module that registers a URL scheme in
+:data:`SOURCES` with a :class:`SourceKind`, which says what the source can do
+(:class:`Capabilities`), so nothing else ever matches a source's name.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
-from typing import Any, Protocol
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal, Protocol
 
-from blackbox.model import BlackBoxEvent
+from blackbox.config.node import ConfigError
+from blackbox.events import (
+    Event,
+    GraphSnapshot,
+    Interest,
+    MessageArrival,
+    NetworkSample,
+    NodeInfo,
+    ResourceSample,
+    TopicInfo,
+    TopicSchema,
+    merge_interests,
+)
+from blackbox.registry import Registry
+
+if TYPE_CHECKING:
+    from blackbox.sources.sim.faults import Fault, GroundTruth
+
+__all__ = [
+    "SOURCES",
+    "Capabilities",
+    "Event",
+    "GraphSnapshot",
+    "GroundTruthSource",
+    "Interest",
+    "MessageArrival",
+    "NetworkSample",
+    "NodeInfo",
+    "RandomFaults",
+    "ResourceSample",
+    "Source",
+    "SourceKind",
+    "SourceOptions",
+    "TopicInfo",
+    "TopicSchema",
+    "merge_interests",
+    "source_kind",
+]
 
 
 @dataclass(frozen=True, slots=True)
-class NodeInfo:
-    """A node as the black box sees it. ``alive`` comes from the node itself, not a registry."""
+class Capabilities:
+    """What a kind of source can do beyond reporting events.
 
-    name: str
-    alive: bool
-    pid: int | None = None
-    host: str | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class TopicInfo:
-    name: str
-    type: str = ""
-    publishers: tuple[str, ...] = ()
-    subscribers: tuple[str, ...] = ()
-
-
-@dataclass(frozen=True, slots=True)
-class GraphSnapshot:
-    """Nodes and topics at one moment."""
-
-    time: float
-    nodes: Mapping[str, NodeInfo] = field(default_factory=dict)
-    topics: Mapping[str, TopicInfo] = field(default_factory=dict)
-
-
-class MessageArrival:
-    """One message seen on a topic from one publisher.
-
-    ``value`` decodes lazily and at most once, so topics observed only for timing
-    never pay for decoding. ``raw`` returns the serialized bytes, also lazily.
+    ``simulated_clock``: it can run on its own clock, faster than real time.
+    ``fault_injection``: it injects faults it is given. ``ground_truth``: it knows the
+    faults it injected (see :class:`GroundTruthSource`). ``snapshot_format``: the format
+    the recorder writes its raw messages in (``ros1`` bags or ``mcap``).
     """
 
-    __slots__ = ("_decode", "_raw", "_value", "publisher", "size", "time", "topic")
-
-    _MISSING: Any = object()
-
-    def __init__(
-        self,
-        time: float,
-        topic: str,
-        publisher: str,
-        size: int,
-        decode: Callable[[], Any] | None = None,
-        raw: Callable[[], bytes] | None = None,
-        value: Any = _MISSING,
-    ) -> None:
-        self.time = time
-        self.topic = topic
-        self.publisher = publisher
-        self.size = size
-        self._decode = decode
-        self._raw = raw
-        self._value = value
-
-    @property
-    def value(self) -> Any:
-        """The decoded message (``None`` if this source cannot decode this topic)."""
-        if self._value is MessageArrival._MISSING:
-            self._value = self._decode() if self._decode is not None else None
-        return self._value
-
-    def raw(self) -> bytes | None:
-        return self._raw() if self._raw is not None else None
-
-    def __repr__(self) -> str:
-        return (f"MessageArrival(t={self.time:.6f}, {self.topic} from {self.publisher}, "
-                f"{self.size} B)")
+    simulated_clock: bool = False
+    fault_injection: bool = False
+    ground_truth: bool = False
+    snapshot_format: Literal["ros1", "mcap"] = "mcap"
 
 
 @dataclass(frozen=True, slots=True)
-class ResourceSample:
-    """CPU and memory of one node. ``None`` values come with a ``reason``."""
+class RandomFaults:
+    """A seeded random fault campaign over ``[warmup, horizon)`` (see the simulator)."""
 
-    time: float
-    node: str
-    cpu_percent: float | None
-    memory_bytes: float | None
-    reason: str = ""
+    horizon: float
+    kinds: tuple[str, ...] | None = None
+    mean_gap: float = 10.0
+    warmup: float = 5.0
+    min_separation: float = 0.0
 
 
-@dataclass(frozen=True, slots=True)
-class NetworkSample:
-    """Cumulative byte counters of one network interface."""
-
-    time: float
-    interface: str
-    rx_bytes: int
-    tx_bytes: int
+FaultPlan = str | Path | RandomFaults | Sequence["Fault"] | None
+"""Faults to inject: a fault file, a random campaign or faults; ``None`` for none."""
 
 
 @dataclass(frozen=True, slots=True)
-class TopicSchema:
-    """How a topic's raw bytes are encoded, for writing them back out (bags, MCAP).
+class SourceOptions:
+    """How to open a source. Only a source with the matching capability takes ``faults``
+    or ``realtime=False``; ``start_time`` ``None`` means the wall clock in real time, else 0."""
 
-    ``encoding`` is ``"ros1"`` (``definition`` is the ROS 1 ``message_definition`` text and
-    ``type`` like ``sensor_msgs/Image``) or ``"json"`` (``definition`` is a JSON schema).
-    """
-
-    topic: str
-    type: str
-    encoding: str
-    definition: str
-    md5sum: str = ""
-
-
-Event = GraphSnapshot | MessageArrival | ResourceSample | NetworkSample | BlackBoxEvent
-"""What ``Source.poll`` returns; a ``BlackBoxEvent`` reports trouble on the robot side
-(a lost master, a garbage publisher) and goes to every sink."""
-
-
-@dataclass(frozen=True, slots=True)
-class Interest:
-    """What the observers need from a source.
-
-    ``topics`` are read for arrival time and size; ``decoded`` additionally need values.
-    ``max_message_bytes`` caps a single message per topic (default applies otherwise).
-    """
-
-    topics: frozenset[str] = frozenset()
-    decoded: frozenset[str] = frozenset()
-    nodes: frozenset[str] = frozenset()
-    resources: frozenset[str] = frozenset()
-    network: bool = False
-    max_message_bytes: Mapping[str, int] = field(default_factory=dict)
+    realtime: bool = True
+    start_time: float | None = None
+    seed: int = 1
+    faults: FaultPlan = None
 
 
 class Source(Protocol):
@@ -151,6 +105,7 @@ class Source(Protocol):
     """
 
     name: str
+    capabilities: Capabilities
 
     def start(self, interest: Interest) -> None: ...
 
@@ -165,20 +120,45 @@ class Source(Protocol):
     def close(self) -> None: ...
 
 
-def merge_interests(interests: Iterable[Interest]) -> Interest:
-    topics: set[str] = set()
-    decoded: set[str] = set()
-    nodes: set[str] = set()
-    resources: set[str] = set()
-    network = False
-    caps: dict[str, int] = {}
-    for i in interests:
-        topics |= i.topics
-        decoded |= i.decoded
-        nodes |= i.nodes
-        resources |= i.resources
-        network = network or i.network
-        for t, cap in i.max_message_bytes.items():
-            caps[t] = max(caps.get(t, 0), cap)
-    return Interest(frozenset(topics | decoded), frozenset(decoded), frozenset(nodes),
-                    frozenset(resources), network, caps)
+class GroundTruthSource(Source, Protocol):
+    """A source that knows the faults it injected (``capabilities.ground_truth``)."""
+
+    @property
+    def ground_truth(self) -> Sequence[GroundTruth]: ...
+
+    def topic_publishers(self) -> Mapping[str, str]:
+        """Each topic's publisher node, for scoring observations against the faults."""
+        ...
+
+
+SourceOpener = Callable[[str, SourceOptions], Source]
+
+
+@dataclass(frozen=True, slots=True)
+class SourceKind:
+    """A kind of source: its URL scheme, what it can do and how to open a spec.
+
+    A spec is ``SCHEME`` alone, ``SCHEME:REST`` or ``SCHEME://REST``; ``usage`` lists the
+    accepted forms for error messages.
+    """
+
+    scheme: str
+    open: SourceOpener
+    capabilities: Capabilities
+    usage: str
+
+
+SOURCES: Registry[SourceKind] = Registry("source scheme", "blackbox.sources")
+
+
+def scheme_of(spec: str) -> str:
+    return spec.split(":", 1)[0]
+
+
+def source_kind(spec: str) -> SourceKind:
+    """The registered kind of source ``spec`` names, or a ``ConfigError`` for ``--source``."""
+    kind = SOURCES.get(scheme_of(spec))
+    if kind is None:
+        usage = ", ".join(k.usage for _, k in SOURCES.items())
+        raise ConfigError(f"unknown source {spec!r}; expected {usage}", "--source")
+    return kind

@@ -8,13 +8,15 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from blackbox.sources.base import Event, Interest, TopicSchema
+from blackbox.events import Event, Interest, TopicSchema
+from blackbox.sources.base import Capabilities
 
 
 class MemorySource:
     """Replays a time-ordered list of events; the clock is the last ``poll`` horizon."""
 
     name = "memory"
+    capabilities = Capabilities(simulated_clock=True)
 
     def __init__(self, events: Iterable[Event], start_time: float = 0.0,
                  schemas: dict[str, TopicSchema] | None = None) -> None:

@@ -98,7 +98,7 @@ class RobotView:
 
     def name_of(self, ident: tuple[int, int] | None) -> str:
         entity = self.entities.get(ident) if ident else None
-        if entity is None:
+        if entity is None or ident is None:
             return f"#{ident[1]}" if ident else "?"
         return entity.name or f"#{ident[1]}"
 
@@ -209,15 +209,15 @@ class HealthListener:
         elif isinstance(s, C_Threshold_Exceedence_Event):
             view = self.robot(s.A_sourceID)
             ck = _key(s.A_concernedCharacteristic_sourceID)
-            c = view.characteristics.get(ck)
+            concerned = view.characteristics.get(ck)
             ext = self._pending_ext.pop(_key(s.A_sourceID), None)
             kind = "state change" if ext is not None and \
                 ext.A_kind == T_EventKind.L_EventKind_STATE_CHANGE else "exceedence"
             value = s.A_measuredValue
-            text = f"{c.name if c else f'#{ck[1]}'} = " + \
+            text = f"{concerned.name if concerned else f'#{ck[1]}'} = " + \
                 (f"{value:.4g}" if math.isfinite(value) else "n/a")
             view.add_event(EventView(seconds_of(s.A_eventOccurrenceDate), kind,
-                                     view.name_of(c.entity if c else None), text),
+                                     view.name_of(concerned.entity if concerned else None), text),
                            (*_key(s.A_sourceID), "exceedance"))
         elif isinstance(s, C_Event_Extension):
             self._pending_ext[_key(s.A_sourceID)] = s

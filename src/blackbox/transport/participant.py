@@ -58,7 +58,7 @@ class Bus:
     domain: Domain | None
     publisher: Publisher
     subscriber: Subscriber
-    topics: dict[str, Topic] = field(default_factory=dict)
+    topics: dict[str, Topic[Any]] = field(default_factory=dict)
 
     @classmethod
     def open(cls, settings: TransportSettings) -> Bus:
@@ -76,20 +76,20 @@ class Bus:
         return cls(settings, participant, domain, Publisher(participant, qos),
                    Subscriber(participant, qos))
 
-    def topic(self, name: str) -> Topic:
+    def topic(self, name: str) -> Topic[Any]:
         topic = self.topics.get(name)
         if topic is None:
             topic = Topic(self.participant, name, ALL_TOPICS[name])
             self.topics[name] = topic
         return topic
 
-    def writer(self, name: str) -> DataWriter:
+    def writer(self, name: str) -> DataWriter[Any]:
         return DataWriter(self.publisher, self.topic(name), qos_for(name))
 
-    def reader(self, name: str) -> DataReader:
+    def reader(self, name: str) -> DataReader[Any]:
         return DataReader(self.subscriber, self.topic(name), qos_for(name))
 
-    def writers(self, names: Mapping[str, Any]) -> dict[type, DataWriter]:
+    def writers(self, names: Mapping[str, Any]) -> dict[type, DataWriter[Any]]:
         return {ALL_TOPICS[n]: self.writer(n) for n in names}
 
     def close(self) -> None:

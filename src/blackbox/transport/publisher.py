@@ -90,12 +90,12 @@ class DdsHealthSink(SinkBase):
                                    failure_actions=failure_actions, hysteresis=hysteresis,
                                    logging_interval=logging_interval)
         self.bus = Bus.open(self.settings)
-        self._writers: dict[type, DataWriter] = {
+        self._writers: dict[type, DataWriter[Any]] = {
             t: self.bus.writer(name) for name, t in ALL_TOPICS.items()
             if (name.startswith("C_") and name != "C_Monitored_Entity_run_IBIT")
             or name in ("BlackBox_Entity_Description", "BlackBox_Characteristic_Extension",
                         "BlackBox_Event_Extension")}
-        self._events: deque[tuple[DataWriter, Any]] = deque()
+        self._events: deque[tuple[DataWriter[Any], Any]] = deque()
         self._lock = threading.RLock()
         self.written = 0
         self.write_errors = 0

@@ -3,8 +3,9 @@
 A quantity's check in a state is either ``student_t`` or ``nominal_value`` (the default
 when ``value`` or ``deviation`` is given). The value checks of ``nominal_value`` (gauss,
 exact, not, greater_than, less_than, in_between, not_in_between) are registered by name in
-:data:`~blackbox.observe.base.VALUE_CHECKS`; a registered value check must also provide
-``passes(x) -> bool`` and ``describe(subject)`` (see :class:`ValueCheck`).
+:data:`~blackbox.observe.base.VALUE_CHECKS` by their module (the check types ``student_t``
+and ``nominal_value`` in :data:`~blackbox.observe.base.CHECKS`); a registered value check
+must also provide ``passes(x) -> bool`` and ``describe(subject)`` (see :class:`ValueCheck`).
 
 An absent, null or empty check accepts every summary, as do ``nominal_value`` checks
 whose ``value`` and ``deviation`` are both empty (tug template files).
@@ -12,13 +13,15 @@ whose ``value`` and ``deviation`` are both empty (tug template files).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
-from types import MappingProxyType
-from typing import cast
-
 from blackbox.config.node import ConfigNode
-from blackbox.observe.base import VALUE_CHECKS, Check, register
-from blackbox.observe.checks.nominal import AcceptAllCheck, NominalValueCheck
+from blackbox.observe.base import CHECKS, VALUE_CHECKS, Check
+from blackbox.observe.checks.nominal import (
+    NOMINAL_VALUE,
+    AcceptAllCheck,
+    NominalValueCheck,
+    build_nominal_value,
+    build_value_check,
+)
 from blackbox.observe.checks.student_t import StudentTCheck
 from blackbox.observe.checks.value import (
     ExactCheck,
@@ -32,7 +35,7 @@ from blackbox.observe.checks.value import (
 )
 
 __all__ = [
-    "CHECK_TYPES",
+    "NOMINAL_VALUE",
     "AcceptAllCheck",
     "ExactCheck",
     "GaussCheck",
@@ -47,43 +50,6 @@ __all__ = [
     "build_check",
     "build_value_check",
 ]
-
-register(VALUE_CHECKS, GaussCheck.type_name)(GaussCheck.from_config)
-register(VALUE_CHECKS, ExactCheck.type_name)(ExactCheck.from_config)
-register(VALUE_CHECKS, NotCheck.type_name)(NotCheck.from_config)
-register(VALUE_CHECKS, GreaterThanCheck.type_name)(GreaterThanCheck.from_config)
-register(VALUE_CHECKS, LessThanCheck.type_name)(LessThanCheck.from_config)
-register(VALUE_CHECKS, InBetweenCheck.type_name)(InBetweenCheck.from_config)
-register(VALUE_CHECKS, NotInBetweenCheck.type_name)(NotInBetweenCheck.from_config)
-
-NOMINAL_VALUE = "nominal_value"
-
-
-def build_value_check(node: ConfigNode) -> ValueCheck:
-    """One value check from a mapping with ``type`` and that type's parameters."""
-    if not node.is_map:
-        raise node.error("a value check is a mapping with a 'type', "
-                         "for example {type: gauss, mean: 15.0, std_deviation: 0.5}")
-    kind = node["type"].str(sorted(VALUE_CHECKS))
-    return cast(ValueCheck, VALUE_CHECKS[kind](node))
-
-
-def build_nominal_value(node: ConfigNode) -> Check:
-    node.check_keys(("type", "value", "deviation"))
-    value_node = node.get("value")
-    value = build_value_check(value_node) if value_node is not None else None
-    deviation_node = node.get("deviation")
-    entries = deviation_node.list(allow_single=True) if deviation_node is not None else []
-    deviation = tuple(build_value_check(e) for e in entries if not e.is_null)
-    if value is None and not deviation:
-        return AcceptAllCheck("empty nominal_value check")
-    return NominalValueCheck(value, deviation)
-
-
-CHECK_TYPES: Mapping[str, Callable[[ConfigNode], Check]] = MappingProxyType({
-    StudentTCheck.type_name: StudentTCheck.from_config,
-    NOMINAL_VALUE: build_nominal_value,
-})
 
 
 def build_check(node: ConfigNode | None) -> Check:
@@ -108,5 +74,5 @@ def build_check(node: ConfigNode | None) -> Check:
         raise type_node.error(
             f"{raw!r} is a value check; put it under 'value:' of a nominal_value check, "
             f"for example value: {{type: {raw}, ...}}")
-    kind = type_node.str(CHECK_TYPES)
-    return CHECK_TYPES[kind](node)
+    kind = type_node.str(list(CHECKS))
+    return CHECKS[kind](node)

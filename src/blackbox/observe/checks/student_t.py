@@ -23,7 +23,7 @@ from math import sqrt
 from typing import ClassVar
 
 from blackbox.config.node import ConfigNode
-from blackbox.observe.base import Summary
+from blackbox.observe.base import CHECKS, Summary
 from blackbox.observe.checks import params
 
 _CACHE_LIMIT = 4096
@@ -95,3 +95,6 @@ class StudentTCheck:
                if self.std_deviation is not None else "window std_deviation")
         return (f"student_t: mean {self.true_mean:.12g} not rejected at significance "
                 f"{self.significance_level:.12g} ({std})")
+
+
+CHECKS.add(StudentTCheck.type_name, StudentTCheck.from_config)

@@ -9,11 +9,14 @@ summary's filtered value.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import ClassVar, Protocol, Self
+from typing import TYPE_CHECKING, ClassVar, Protocol, Self, cast
 
 from blackbox.config.node import ConfigNode
-from blackbox.observe.base import Summary
+from blackbox.observe.base import VALUE_CHECKS, Summary
 from blackbox.observe.checks import params
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 
 class ValueCheck(Protocol):
@@ -42,7 +45,7 @@ class _OnValue:
 
     @classmethod
     def from_config(cls, node: ConfigNode) -> Self:
-        names = tuple(f.name for f in fields(cls))
+        names = tuple(f.name for f in fields(cast("type[DataclassInstance]", cls)))
         node.check_keys(("type", *names))
         return cls(*(params.number(node, name) for name in names))
 
@@ -161,3 +164,7 @@ class NotInBetweenCheck(_Interval):
     def describe(self, subject: str = "value") -> str:
         return f"{subject} < {_g(self.lower_bound)} or {subject} > {_g(self.upper_bound)}"
 
+
+for _check in (GaussCheck, ExactCheck, NotCheck, GreaterThanCheck, LessThanCheck, InBetweenCheck,
+               NotInBetweenCheck):
+    VALUE_CHECKS.add(_check.type_name, _check.from_config)

@@ -1,4 +1,5 @@
-"""Filters: streaming statistics over a window of samples, registered by type name.
+"""Filters: streaming statistics over a window of samples, one module each, registered by
+type name in :data:`~blackbox.observe.base.FILTERS` by that module.
 
 ``build_filter`` turns a configuration ``filter`` mapping into a filter; an absent, null
 or empty mapping means ``nofilter``. Every filter reports the sample standard deviation
@@ -8,7 +9,7 @@ as its deviation unless the configuration asks for ``deviation: min_max``.
 from __future__ import annotations
 
 from blackbox.config.node import ConfigNode
-from blackbox.observe.base import FILTERS, Filter, register
+from blackbox.observe.base import FILTERS, Filter
 from blackbox.observe.filters.ewma import EwmaFilter
 from blackbox.observe.filters.kmeans import KMeansFilter
 from blackbox.observe.filters.mean import MeanFilter
@@ -37,12 +38,6 @@ __all__ = [
     "WindowFilter",
     "build_filter",
 ]
-
-register(FILTERS, MeanFilter.type_name)(MeanFilter.from_config)
-register(FILTERS, MedianFilter.type_name)(MedianFilter.from_config)
-register(FILTERS, KMeansFilter.type_name)(KMeansFilter.from_config)
-register(FILTERS, EwmaFilter.type_name)(EwmaFilter.from_config)
-register(FILTERS, NoFilter.type_name)(NoFilter.from_config)
 
 
 def build_filter(node: ConfigNode | None) -> Filter:

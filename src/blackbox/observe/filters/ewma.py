@@ -11,6 +11,7 @@ from __future__ import annotations
 from math import isfinite
 
 from blackbox.config.node import ConfigNode
+from blackbox.observe.base import FILTERS
 from blackbox.observe.filters import params
 from blackbox.observe.filters.window import STD_DEVIATION, WindowFilter
 
@@ -69,3 +70,6 @@ class EwmaFilter(WindowFilter):
 
     def describe(self) -> str:
         return f"ewma (decay_rate {self.decay_rate:g}, {self._describe_window()})"
+
+
+FILTERS.add(EwmaFilter.type_name, EwmaFilter.from_config)

@@ -12,6 +12,7 @@ from __future__ import annotations
 from math import fsum
 
 from blackbox.config.node import ConfigNode
+from blackbox.observe.base import FILTERS
 from blackbox.observe.filters import params
 from blackbox.observe.filters.window import STD_DEVIATION, SortedWindowFilter
 
@@ -40,10 +41,14 @@ class KMeansFilter(SortedWindowFilter):
         if not n:
             return None
         if self._window.constant:
-            return s[0]
+            first: float = s[0]
+            return first
         k = min(self.k_size, n)
         start = (n - k) // 2
         return fsum(s.islice(start, start + k)) / k
 
     def describe(self) -> str:
         return f"kmeans (central {self.k_size} of {self._describe_window()})"
+
+
+FILTERS.add(KMeansFilter.type_name, KMeansFilter.from_config)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from blackbox.config.node import ConfigNode
+from blackbox.observe.base import FILTERS
 from blackbox.observe.filters import params
 from blackbox.observe.filters.window import STD_DEVIATION, WindowFilter
 
@@ -23,3 +24,6 @@ class MeanFilter(WindowFilter):
 
     def get(self) -> float | None:
         return self._window.mean()
+
+
+FILTERS.add(MeanFilter.type_name, MeanFilter.from_config)

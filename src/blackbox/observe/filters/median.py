@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from blackbox.config.node import ConfigNode
+from blackbox.observe.base import FILTERS
 from blackbox.observe.filters import params
 from blackbox.observe.filters.window import SortedWindowFilter
 
@@ -26,7 +27,13 @@ class MedianFilter(SortedWindowFilter):
         n = len(s)
         if not n:
             return None
+        median: float
         if self._window.constant:
-            return s[0]
-        mid = n // 2
-        return s[mid] if n % 2 else (s[mid - 1] + s[mid]) / 2.0
+            median = s[0]
+        else:
+            mid = n // 2
+            median = s[mid] if n % 2 else (s[mid - 1] + s[mid]) / 2.0
+        return median
+
+
+FILTERS.add(MedianFilter.type_name, MedianFilter.from_config)

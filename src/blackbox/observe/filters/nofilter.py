@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from blackbox.config.node import ConfigNode
+from blackbox.observe.base import FILTERS
 from blackbox.observe.filters import params
 from blackbox.observe.filters.window import STD_DEVIATION, WindowFilter
 
@@ -23,3 +24,6 @@ class NoFilter(WindowFilter):
 
     def get(self) -> float | None:
         return self._window.last
+
+
+FILTERS.add(NoFilter.type_name, NoFilter.from_config)

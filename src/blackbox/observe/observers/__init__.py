@@ -1,6 +1,7 @@
-"""The built-in observer types; importing this package registers each under its type name.
+"""The built-in observer types, one module each; each registers itself in
+:data:`~blackbox.observe.base.OBSERVERS`, which imports every module here when first read.
 
-One module per type. ``quantity`` (filtered quantities and state verdicts) and ``entry``
+``quantity`` (filtered quantities, state verdicts, the judged-observer base) and ``entry``
 (reading the keys every entry shares) are their common parts.
 """
 
@@ -8,7 +9,7 @@ from blackbox.observe.observers.activated import ActivatedObserver
 from blackbox.observe.observers.hz import HzObserver
 from blackbox.observe.observers.moving import MotionSource, MovingObserver
 from blackbox.observe.observers.network import NetworkObserver
-from blackbox.observe.observers.quantity import FilteredQuantity
+from blackbox.observe.observers.quantity import FilteredQuantity, JudgedObserver
 from blackbox.observe.observers.resources import ResourcesObserver
 from blackbox.observe.observers.scores import ScoresObserver
 from blackbox.observe.observers.timeout import TimeoutObserver
@@ -20,6 +21,7 @@ __all__ = [
     "ActivatedObserver",
     "FilteredQuantity",
     "HzObserver",
+    "JudgedObserver",
     "MotionSource",
     "MovingObserver",
     "NetworkObserver",

@@ -14,11 +14,19 @@ from __future__ import annotations
 
 from typing import ClassVar
 
+from blackbox.config import tug
 from blackbox.config.node import ConfigNode
+from blackbox.events import GraphSnapshot, Interest, NodeInfo
 from blackbox.model import Code, Observation, Resource
-from blackbox.observe.base import OBSERVERS, ObserverBase, register
+from blackbox.observe.base import (
+    OBSERVERS,
+    FixedThreshold,
+    ObserverBase,
+    ObserverKind,
+    Quantity,
+    Subject,
+)
 from blackbox.observe.observers.entry import COMMON_KEYS, read_every, read_name
-from blackbox.sources.base import GraphSnapshot, Interest, NodeInfo
 
 
 class ActivatedObserver(ObserverBase):
@@ -76,7 +84,6 @@ class ActivatedObserver(ObserverBase):
         return f"activated {self.node}: node alive{grace}, every {self.interval:g} s"
 
 
-@register(OBSERVERS, "activated")
 def activated_from_config(node: ConfigNode) -> ActivatedObserver:
     node.check_keys((*COMMON_KEYS, "node", "start_up_time"))
     start_up = node.get("start_up_time")
@@ -85,3 +92,18 @@ def activated_from_config(node: ConfigNode) -> ActivatedObserver:
         start_up_time=0.0 if start_up is None else start_up.float(min=0.0),
         every=read_every(node),
     )
+
+
+def activated_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
+    group.check_keys(["type", "main_loop_rate", "start_up_time", "nodes", *tug.IGNORED])
+    every = tug.every(group)
+    start_up = group.get("start_up_time")
+    for node in group["nodes"].list():
+        node.check_keys(["name"])
+        out.entries.append(tug.entry("activated", node, node=node["name"],
+                                     start_up_time=start_up, every=every))
+
+
+OBSERVERS.add("activated", ObserverKind(
+    "activated", activated_from_config, Subject.NODE, (Quantity("code"),),
+    thresholds=(FixedThreshold("code", "min", 0.0),), tug=activated_from_tug))

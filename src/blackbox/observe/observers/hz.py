@@ -19,46 +19,32 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import ClassVar
 
+from blackbox.config import tug
 from blackbox.config.node import ConfigNode
-from blackbox.model import Code, Observation, Resource
-from blackbox.observe.base import OBSERVERS, ObserverBase, register
-from blackbox.observe.observers.entry import (
-    COMMON_KEYS,
-    describe_publishers,
-    read_every,
-    read_name,
-    read_publishers,
-    read_quantity,
-)
-from blackbox.observe.observers.quantity import (
-    FilteredQuantity,
-    describe_states_inline,
-    judge,
-    number,
-)
-from blackbox.observe.states import StateSpec, parse_states
-from blackbox.sources.base import Interest, MessageArrival
+from blackbox.events import Interest, MessageArrival
+from blackbox.model import Observation
+from blackbox.observe.base import OBSERVERS, ObserverKind, Quantity, Subject
+from blackbox.observe.observers.entry import PublisherGroup, read_filtered_group
+from blackbox.observe.observers.quantity import FilteredQuantity, JudgedObserver, number
+from blackbox.observe.states import StateSpec
 
 
-class HzObserver(ObserverBase):
+class HzObserver(JudgedObserver):
     """Inter-arrival period of one publisher group on one topic."""
 
     type_name: ClassVar[str] = "hz"
 
-    def __init__(self, topic: str, publishers: Sequence[str], period: FilteredQuantity,
+    def __init__(self, group: PublisherGroup, period: FilteredQuantity,
                  states: Sequence[StateSpec] = (), every: float = 1.0) -> None:
-        self.topic = topic
-        self.publishers = tuple(publishers)
+        super().__init__(group.resource, (period,), states, every)
+        self.group = group
         self.period = period
-        self.states = tuple(states)
-        self.interval = every
-        self.resource = Resource(topic=topic, publishers=self.publishers)
-        self._group = frozenset(self.publishers)
+        self._group = group.members
         self._update = period.update
         self._last: float | None = None
 
     def interest(self) -> Interest:
-        return Interest(topics=frozenset({self.topic}))
+        return Interest(topics=frozenset({self.group.topic}))
 
     def on_message(self, msg: MessageArrival) -> None:
         group = self._group
@@ -75,11 +61,11 @@ class HzObserver(ObserverBase):
     def evaluate(self, now: float) -> list[Observation]:
         last = self._last
         if last is None:
-            return [self._unavailable(now, "waiting for first message")]
+            return [self.unavailable(now, "waiting for first message")]
         silent = max(0.0, now - last)
         summary = self.period.summary()
         if summary is None:
-            return [self._unavailable(
+            return [self.unavailable(
                 now, f"waiting for a second message (one so far, {silent:.3g} s ago)",
                 {"silent_for": silent})]
         note = ""
@@ -88,35 +74,23 @@ class HzObserver(ObserverBase):
             if provisional is not None:
                 summary = provisional
                 note = f"; no message for {silent:.3g} s (counted as a provisional period)"
-        verdict = judge(self.states, {"period": summary})
-        values = dict(verdict.values)
-        rate = ""
-        if summary.value > 0:
-            values["rate_hz"] = 1.0 / summary.value
-            rate = f" ({values['rate_hz']:.3g} Hz)"
-        values["silent_for"] = silent
-        message = f"period {number(summary.value)} s{rate} {verdict.fits}{note}"
-        return [Observation(now, self.type_name, self.resource, verdict.code, verdict.states,
-                            values, message)]
+        extra = {"rate_hz": 1.0 / summary.value} if summary.value > 0 else {}
+        rate = f" ({extra['rate_hz']:.3g} Hz)" if extra else ""
+        return [self.judged(now, {"period": summary}, f"period {number(summary.value)} s{rate}",
+                            {**extra, "silent_for": silent}, note)]
 
-    def _unavailable(self, now: float, why: str,
-                     values: dict[str, float] | None = None) -> Observation:
-        return Observation(now, self.type_name, self.resource, Code.NOT_AVAILABLE,
-                           values=values or {}, message=why)
-
-    def describe(self) -> str:
-        group = describe_publishers(self.publishers)
-        return (f"hz {self.topic} [{group}]: {self.period.describe()}; "
-                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
+    def subject(self) -> str:
+        return self.group.describe()
 
 
-@register(OBSERVERS, "hz")
 def hz_from_config(node: ConfigNode) -> HzObserver:
-    node.check_keys((*COMMON_KEYS, "topic", "publishers", "filter", "states"))
-    return HzObserver(
-        topic=read_name(node, "topic"),
-        publishers=read_publishers(node),
-        period=read_quantity(node, "filter", "period"),
-        states=parse_states(node.get("states"), ("period",)),
-        every=read_every(node),
-    )
+    group, judged = read_filtered_group(node, "period")
+    return HzObserver(group, judged.quantities["period"], judged.states, judged.every)
+
+
+def hz_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
+    out.filtered_per_publisher_group(group, "hz", {"frequenzy": "period", "frequenz": "period"})
+
+
+OBSERVERS.add("hz", ObserverKind(
+    "hz", hz_from_config, Subject.TOPIC, (Quantity("period", "s"),), tug=hz_from_tug))

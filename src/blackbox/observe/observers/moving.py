@@ -18,9 +18,11 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from blackbox.config import tug
 from blackbox.config.node import ConfigNode
-from blackbox.model import Code, Observation, Resource
-from blackbox.observe.base import OBSERVERS, ObserverBase, register
+from blackbox.events import Interest, MessageArrival
+from blackbox.model import Observation, Resource
+from blackbox.observe.base import OBSERVERS, Mode, ObserverKind, Quantity, Subject
 from blackbox.observe.fieldpath import compile_field_path
 from blackbox.observe.observers.entry import (
     COMMON_KEYS,
@@ -31,13 +33,11 @@ from blackbox.observe.observers.entry import (
 )
 from blackbox.observe.observers.quantity import (
     FilteredQuantity,
+    JudgedObserver,
     SampleProblems,
-    describe_states_inline,
-    judge,
     number,
 )
 from blackbox.observe.states import StateSpec, parse_states
-from blackbox.sources.base import Interest, MessageArrival
 
 AXES: tuple[str, ...] = ("x", "y", "z", "rot_x", "rot_y", "rot_z")
 ROTATION_SWITCHES: tuple[tuple[str, str], ...] = (
@@ -131,18 +131,21 @@ def axis_text(summaries: Mapping[str, Any]) -> str:
                      if s is not None)
 
 
-class MovingObserver(ObserverBase):
+AXIS_QUANTITIES: tuple[Quantity, ...] = tuple(Quantity(axis) for axis in AXES)
+"""The quantities of a motion observer: one per axis, without a unit (a speed for
+odometry and twist, an acceleration for imu)."""
+
+
+class MovingObserver(JudgedObserver):
     """Per-axis motion of one source, for telling moving from idle."""
 
     type_name: ClassVar[str] = "moving"
 
     def __init__(self, source: MotionSource, axes: Mapping[str, FilteredQuantity],
                  states: Sequence[StateSpec] = (), every: float = 1.0) -> None:
+        super().__init__(Resource(topic=source.topic), tuple(axes.values()), states, every)
         self.source = source
         self.axes = dict(axes)
-        self.states = tuple(states)
-        self.interval = every
-        self.resource = Resource(topic=source.topic)
         self._feeds = [(AXES.index(axis), q.update) for axis, q in self.axes.items()]
         self._problems = SampleProblems()
 
@@ -167,19 +170,13 @@ class MovingObserver(ObserverBase):
             return [skipped]
         summaries = {axis: q.summary() for axis, q in self.axes.items()}
         if any(s is None for s in summaries.values()):
-            return [Observation(now, self.type_name, self.resource, Code.NOT_AVAILABLE,
-                                message="waiting for first message")]
-        verdict = judge(self.states, summaries)
-        return [Observation(now, self.type_name, self.resource, verdict.code, verdict.states,
-                            verdict.values, f"{axis_text(summaries)} {verdict.fits}")]
+            return [self.unavailable(now, "waiting for first message")]
+        return [self.judged(now, summaries, axis_text(summaries))]
 
-    def describe(self) -> str:
-        filters = ", ".join(q.describe() for q in self.axes.values())
-        return (f"moving {self.source.describe()}: {filters}; "
-                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
+    def subject(self) -> str:
+        return self.source.describe()
 
 
-@register(OBSERVERS, "moving")
 def moving_from_config(node: ConfigNode) -> MovingObserver:
     node.check_keys((*COMMON_KEYS, "source", *(s for s, _ in ROTATION_SWITCHES),
                      *AXIS_FILTER_KEYS, "states"))
@@ -190,3 +187,23 @@ def moving_from_config(node: ConfigNode) -> MovingObserver:
         states=parse_states(node.get("states"), axes),
         every=read_every(node),
     )
+
+
+def moving_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
+    group.check_keys(["type", "main_loop_rate", "moveings", "correlations", *tug.IGNORED])
+    every = tug.every(group)
+    found = group.first("moveings", "correlations")
+    if found is None:
+        raise group.error("missing required key 'moveings'")
+    for item in found[1].list(allow_single=True):
+        item.check_keys(["source", *(u for u, _ in tug.ROTATIONS), *tug.AXIS_FILTERS, "states"])
+        source, _ = out.source(item, "source", acceleration=False)
+        if source is None:
+            continue
+        out.entries.append(tug.entry("moving", item, source=source, every=every,
+                                     **out.motion(item)))
+
+
+OBSERVERS.add("moving", ObserverKind(
+    "moving", moving_from_config, Subject.TOPIC, AXIS_QUANTITIES, judges=Mode.RIGHT,
+    tug=moving_from_tug, tug_names=("moving", "moveing")))

@@ -11,32 +11,25 @@ from collections.abc import Sequence
 from typing import ClassVar
 
 from blackbox.config.node import ConfigNode
-from blackbox.model import Code, Observation, Resource
-from blackbox.observe.base import OBSERVERS, ObserverBase, register
-from blackbox.observe.observers.entry import COMMON_KEYS, read_every, read_name, read_quantity
-from blackbox.observe.observers.quantity import (
-    FilteredQuantity,
-    byte_count,
-    describe_states_inline,
-    judge,
-)
-from blackbox.observe.states import StateSpec, parse_states
-from blackbox.sources.base import Interest, NetworkSample
+from blackbox.events import Interest, NetworkSample
+from blackbox.model import Observation, Resource
+from blackbox.observe.base import OBSERVERS, ObserverKind, Quantity, Subject
+from blackbox.observe.observers.entry import COMMON_KEYS, read_judged, read_name
+from blackbox.observe.observers.quantity import FilteredQuantity, JudgedObserver, byte_count
+from blackbox.observe.states import StateSpec
 
 
-class NetworkObserver(ObserverBase):
+class NetworkObserver(JudgedObserver):
     """Traffic rates of one network interface."""
 
     type_name: ClassVar[str] = "network"
 
     def __init__(self, interface: str, rx: FilteredQuantity, tx: FilteredQuantity,
                  states: Sequence[StateSpec] = (), every: float = 1.0) -> None:
+        super().__init__(Resource(interface=interface), (rx, tx), states, every)
         self.interface = interface
         self.rx = rx
         self.tx = tx
-        self.states = tuple(states)
-        self.interval = every
-        self.resource = Resource(interface=interface)
         self._previous: NetworkSample | None = None
 
     def interest(self) -> Interest:
@@ -64,26 +57,22 @@ class NetworkObserver(ObserverBase):
         if rx is None or tx is None:
             why = ("waiting for the first sample" if self._previous is None
                    else "waiting for a second sample (rates need two)")
-            return [Observation(now, self.type_name, self.resource, Code.NOT_AVAILABLE,
-                                message=f"{why} of interface {self.interface}")]
-        verdict = judge(self.states, {"rx": rx, "tx": tx})
-        message = (f"rx {byte_count(rx.value)}/s, tx {byte_count(tx.value)}/s "
-                   f"{verdict.fits}")
-        return [Observation(now, self.type_name, self.resource, verdict.code, verdict.states,
-                            verdict.values, message)]
+            return [self.unavailable(now, f"{why} of interface {self.interface}")]
+        return [self.judged(now, {"rx": rx, "tx": tx},
+                            f"rx {byte_count(rx.value)}/s, tx {byte_count(tx.value)}/s")]
 
-    def describe(self) -> str:
-        return (f"network {self.interface}: {self.rx.describe()}, {self.tx.describe()}; "
-                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
+    def subject(self) -> str:
+        return self.interface
 
 
-@register(OBSERVERS, "network")
 def network_from_config(node: ConfigNode) -> NetworkObserver:
     node.check_keys((*COMMON_KEYS, "interface", "rx_filter", "tx_filter", "states"))
-    return NetworkObserver(
-        interface=read_name(node, "interface"),
-        rx=read_quantity(node, "rx_filter", "rx"),
-        tx=read_quantity(node, "tx_filter", "tx"),
-        states=parse_states(node.get("states"), ("rx", "tx")),
-        every=read_every(node),
-    )
+    interface = read_name(node, "interface")
+    judged = read_judged(node, {"rx_filter": "rx", "tx_filter": "tx"})
+    q = judged.quantities
+    return NetworkObserver(interface, q["rx"], q["tx"], judged.states, judged.every)
+
+
+OBSERVERS.add("network", ObserverKind(
+    "network", network_from_config, Subject.INTERFACE,
+    (Quantity("rx", "B/s"), Quantity("tx", "B/s"))))

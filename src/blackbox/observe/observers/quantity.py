@@ -13,10 +13,10 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from blackbox.events import MessageArrival
 from blackbox.model import Code, Observation, Resource, State
-from blackbox.observe.base import Filter, Summary
+from blackbox.observe.base import Filter, ObserverBase, Summary
 from blackbox.observe.states import StateSpec, describe_states, evaluate_states
-from blackbox.sources.base import MessageArrival
 
 
 class FilteredQuantity:
@@ -118,6 +118,43 @@ class SampleProblems:
                                   message=message)
         self.clear()
         return observation
+
+
+class JudgedObserver(ObserverBase):
+    """An observer whose filtered quantities the configured states judge.
+
+    Holds what every such observer has (resource, quantities, states, interval) and says
+    it back in ``describe()``; a subclass says what it observes in :meth:`subject` and how
+    its samples come about.
+    """
+
+    def __init__(self, resource: Resource, quantities: Sequence[FilteredQuantity],
+                 states: Sequence[StateSpec], every: float) -> None:
+        self.resource = resource
+        self.quantities = tuple(quantities)
+        self.states = tuple(states)
+        self.interval = every
+
+    def subject(self) -> str:
+        """What is observed, as ``describe()`` names it."""
+        return self.resource.label()
+
+    def filtering(self) -> str:
+        """How the samples are filtered, as ``describe()`` says it."""
+        return ", ".join(q.describe() for q in self.quantities)
+
+    def describe(self) -> str:
+        return (f"{self.type_name} {self.subject()}: {self.filtering()}; "
+                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
+
+    def judged(self, now: float, summaries: Mapping[str, Summary | None], measured: str,
+               extra: Mapping[str, float] | None = None, note: str = "") -> Observation:
+        """The states' verdict on ``summaries``; the message is ``measured``, the states
+        that fit and ``note``; ``extra`` values follow the summaries' values."""
+        verdict = judge(self.states, summaries)
+        values = {**verdict.values, **(extra or {})}
+        return Observation(now, self.type_name, self.resource, verdict.code, verdict.states,
+                           values, f"{measured} {verdict.fits}{note}")
 
 
 def summary_values(summaries: Mapping[str, Summary | None]) -> dict[str, float]:

@@ -10,33 +10,27 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import ClassVar
 
+from blackbox.config import tug
 from blackbox.config.node import ConfigNode
-from blackbox.model import Code, Observation, Resource
-from blackbox.observe.base import OBSERVERS, ObserverBase, register
-from blackbox.observe.observers.entry import COMMON_KEYS, read_every, read_name, read_quantity
-from blackbox.observe.observers.quantity import (
-    FilteredQuantity,
-    byte_count,
-    describe_states_inline,
-    judge,
-)
-from blackbox.observe.states import StateSpec, parse_states
-from blackbox.sources.base import Interest, ResourceSample
+from blackbox.events import Interest, ResourceSample
+from blackbox.model import Observation, Resource
+from blackbox.observe.base import OBSERVERS, ObserverKind, Quantity, Subject
+from blackbox.observe.observers.entry import COMMON_KEYS, read_judged, read_name
+from blackbox.observe.observers.quantity import FilteredQuantity, JudgedObserver, byte_count
+from blackbox.observe.states import StateSpec
 
 
-class ResourcesObserver(ObserverBase):
+class ResourcesObserver(JudgedObserver):
     """CPU and memory use of one node."""
 
     type_name: ClassVar[str] = "resources"
 
     def __init__(self, node: str, cpu: FilteredQuantity, memory: FilteredQuantity,
                  states: Sequence[StateSpec] = (), every: float = 1.0) -> None:
+        super().__init__(Resource(node=node), (cpu, memory), states, every)
         self.node = node
         self.cpu = cpu
         self.memory = memory
-        self.states = tuple(states)
-        self.interval = every
-        self.resource = Resource(node=node)
         self._latest: ResourceSample | None = None
 
     def interest(self) -> Interest:
@@ -54,37 +48,44 @@ class ResourcesObserver(ObserverBase):
     def evaluate(self, now: float) -> list[Observation]:
         latest = self._latest
         if latest is None:
-            return [self._unavailable(now, f"waiting for the first resource sample of "
-                                           f"{self.node}")]
+            return [self.unavailable(now, f"waiting for the first resource sample of "
+                                          f"{self.node}")]
         if latest.cpu_percent is None or latest.memory_bytes is None:
             missing = " and ".join(name for name, v in (("cpu", latest.cpu_percent),
                                                          ("memory", latest.memory_bytes))
                                    if v is None)
             reason = latest.reason or "no reason given"
-            return [self._unavailable(now, f"no {missing} value for {self.node}: {reason}")]
+            return [self.unavailable(now, f"no {missing} value for {self.node}: {reason}")]
         cpu, memory = self.cpu.summary(), self.memory.summary()
         if cpu is None or memory is None:  # only after non-finite samples were rejected
-            return [self._unavailable(now, f"no valid resource sample of {self.node} yet")]
-        verdict = judge(self.states, {"cpu": cpu, "memory": memory})
-        message = f"cpu {cpu.value:.3g} %, memory {byte_count(memory.value)} {verdict.fits}"
-        return [Observation(now, self.type_name, self.resource, verdict.code, verdict.states,
-                            verdict.values, message)]
+            return [self.unavailable(now, f"no valid resource sample of {self.node} yet")]
+        return [self.judged(now, {"cpu": cpu, "memory": memory},
+                            f"cpu {cpu.value:.3g} %, memory {byte_count(memory.value)}")]
 
-    def _unavailable(self, now: float, why: str) -> Observation:
-        return Observation(now, self.type_name, self.resource, Code.NOT_AVAILABLE, message=why)
-
-    def describe(self) -> str:
-        return (f"resources {self.node}: {self.cpu.describe()}, {self.memory.describe()}; "
-                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
+    def subject(self) -> str:
+        return self.node
 
 
-@register(OBSERVERS, "resources")
 def resources_from_config(node: ConfigNode) -> ResourcesObserver:
     node.check_keys((*COMMON_KEYS, "node", "cpu_filter", "memory_filter", "states"))
-    return ResourcesObserver(
-        node=read_name(node, "node"),
-        cpu=read_quantity(node, "cpu_filter", "cpu"),
-        memory=read_quantity(node, "memory_filter", "memory"),
-        states=parse_states(node.get("states"), ("cpu", "memory")),
-        every=read_every(node),
-    )
+    name = read_name(node, "node")
+    judged = read_judged(node, {"cpu_filter": "cpu", "memory_filter": "memory"})
+    q = judged.quantities
+    return ResourcesObserver(name, q["cpu"], q["memory"], judged.states, judged.every)
+
+
+def resources_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
+    group.check_keys(["type", "main_loop_rate", "nodes", *tug.IGNORED])
+    every = tug.every(group)
+    for node in group["nodes"].list():
+        node.check_keys(["name", "cpu_filter", "mem_filter", "states"])
+        out.entries.append(tug.entry(
+            "resources", node, node=node["name"], every=every,
+            cpu_filter=tug.filter_entry(tug.child(node, "cpu_filter")),
+            memory_filter=tug.filter_entry(tug.child(node, "mem_filter")),
+            states=tug.states(tug.child(node, "states"), {"cpu": "cpu", "memory": "memory"})))
+
+
+OBSERVERS.add("resources", ObserverKind(
+    "resources", resources_from_config, Subject.NODE,
+    (Quantity("cpu", "%"), Quantity("memory", "B")), tug=resources_from_tug))

@@ -16,37 +16,35 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any, ClassVar
 
+from blackbox.config import tug
 from blackbox.config.node import ConfigNode
-from blackbox.model import Code, Observation, Resource
-from blackbox.observe.base import OBSERVERS, ObserverBase, register
+from blackbox.events import Interest, MessageArrival
+from blackbox.model import Observation, Resource
+from blackbox.observe.base import OBSERVERS, Mode, ObserverKind, Quantity, Subject
 from blackbox.observe.fieldpath import compile_field_path
-from blackbox.observe.observers.entry import COMMON_KEYS, read_every, read_name, read_quantity
+from blackbox.observe.observers.entry import COMMON_KEYS, read_judged, read_name
 from blackbox.observe.observers.quantity import (
     FilteredQuantity,
+    JudgedObserver,
     SampleProblems,
-    describe_states_inline,
-    judge,
     number,
 )
-from blackbox.observe.states import StateSpec, parse_states
-from blackbox.sources.base import Interest, MessageArrival
+from blackbox.observe.states import StateSpec
 
 DEFAULT_FIELD = "data"
 
 
-class ScoresObserver(ObserverBase):
+class ScoresObserver(JudgedObserver):
     """A numeric field of every message on one topic."""
 
     type_name: ClassVar[str] = "scores"
 
     def __init__(self, topic: str, field: str, score: FilteredQuantity,
                  states: Sequence[StateSpec] = (), every: float = 1.0) -> None:
+        super().__init__(Resource(topic=topic), (score,), states, every)
         self.topic = topic
         self.field = field
         self.score = score
-        self.states = tuple(states)
-        self.interval = every
-        self.resource = Resource(topic=topic)
         self._read: Callable[[Any], float] = compile_field_path(field)
         self._problems = SampleProblems()
 
@@ -74,18 +72,13 @@ class ScoresObserver(ObserverBase):
         if skipped is not None:
             return [skipped]
         if summary is None:
-            return [Observation(now, self.type_name, self.resource, Code.NOT_AVAILABLE,
-                                message="waiting for first message")]
-        verdict = judge(self.states, {"score": summary})
-        return [Observation(now, self.type_name, self.resource, verdict.code, verdict.states,
-                            verdict.values, f"score {number(summary.value)} {verdict.fits}")]
+            return [self.unavailable(now, "waiting for first message")]
+        return [self.judged(now, {"score": summary}, f"score {number(summary.value)}")]
 
-    def describe(self) -> str:
-        return (f"scores {self.topic} field {self.field}: {self.score.describe()}; "
-                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
+    def subject(self) -> str:
+        return f"{self.topic} field {self.field}"
 
 
-@register(OBSERVERS, "scores")
 def scores_from_config(node: ConfigNode) -> ScoresObserver:
     node.check_keys((*COMMON_KEYS, "topic", "field", "filter", "states"))
     field_node = node.get("field")
@@ -94,10 +87,22 @@ def scores_from_config(node: ConfigNode) -> ScoresObserver:
         compile_field_path(field)
     except ValueError as exc:
         raise (field_node or node).error(str(exc)) from None
-    return ScoresObserver(
-        topic=read_name(node, "topic"),
-        field=field,
-        score=read_quantity(node, "filter", "score"),
-        states=parse_states(node.get("states"), ("score",)),
-        every=read_every(node),
-    )
+    topic = read_name(node, "topic")
+    judged = read_judged(node, {"filter": "score"})
+    return ScoresObserver(topic, field, judged.quantities["score"], judged.states, judged.every)
+
+
+def scores_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
+    group.check_keys(["type", "main_loop_rate", "topics", *tug.IGNORED])
+    every = tug.every(group)
+    for topic in group["topics"].list():
+        topic.check_keys(["name", "filter", "states"])
+        out.entries.append(tug.entry(
+            "scores", topic, topic=topic["name"], every=every,
+            filter=tug.filter_entry(tug.child(topic, "filter")),
+            states=tug.states(tug.child(topic, "states"), {"score": "score"})))
+
+
+OBSERVERS.add("scores", ObserverKind(
+    "scores", scores_from_config, Subject.TOPIC, (Quantity("score"),), judges=Mode.RIGHT,
+    tug=scores_from_tug))

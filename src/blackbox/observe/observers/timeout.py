@@ -18,20 +18,21 @@ timeout / 4)))`` seconds, so a time-out shows within ``timeout + 0.25`` s (and w
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import ClassVar
 
+from blackbox.config import tug
 from blackbox.config.node import ConfigNode
-from blackbox.model import Code, Observation, Resource
-from blackbox.observe.base import OBSERVERS, ObserverBase, register
-from blackbox.observe.observers.entry import (
-    COMMON_KEYS,
-    describe_publishers,
-    read_every,
-    read_name,
-    read_publishers,
+from blackbox.events import Interest, MessageArrival
+from blackbox.model import Code, Observation
+from blackbox.observe.base import (
+    OBSERVERS,
+    FixedThreshold,
+    ObserverBase,
+    ObserverKind,
+    Quantity,
+    Subject,
 )
-from blackbox.sources.base import Interest, MessageArrival
+from blackbox.observe.observers.entry import COMMON_KEYS, PublisherGroup, read_every, read_group
 
 DEFAULT_MAX_TIMEOUTS_IN_A_ROW = 1
 _FINEST_INTERVAL = 0.01
@@ -47,28 +48,27 @@ class TimeoutObserver(ObserverBase):
 
     type_name: ClassVar[str] = "timeout"
 
-    def __init__(self, topic: str, publishers: Sequence[str], timeout: float,
+    def __init__(self, group: PublisherGroup, timeout: float,
                  max_timeouts_in_a_row: int = DEFAULT_MAX_TIMEOUTS_IN_A_ROW,
                  every: float = 1.0) -> None:
         if timeout <= 0:
             raise ValueError(f"timeout must be > 0, got {timeout}")
         if max_timeouts_in_a_row < 1:
             raise ValueError(f"max_timeouts_in_a_row must be >= 1, got {max_timeouts_in_a_row}")
-        self.topic = topic
-        self.publishers = tuple(publishers)
+        self.group = group
         self.timeout = timeout
         self.max_timeouts_in_a_row = max_timeouts_in_a_row
         self.every = every
         self.interval = detection_interval(every, timeout)
-        self.resource = Resource(topic=topic, publishers=self.publishers)
-        self._group = frozenset(self.publishers)
+        self.resource = group.resource
+        self._group = group.members
         self._last: float | None = None
         self._started: float | None = None
         self._reported_code: Code | None = None
         self._reported_at = 0.0
 
     def interest(self) -> Interest:
-        return Interest(topics=frozenset({self.topic}))
+        return Interest(topics=frozenset({self.group.topic}))
 
     def on_message(self, msg: MessageArrival) -> None:
         group = self._group
@@ -112,21 +112,27 @@ class TimeoutObserver(ObserverBase):
         return f"{what} ({limit}, {in_a_row} in a row)"
 
     def describe(self) -> str:
-        group = describe_publishers(self.publishers)
-        return (f"timeout {self.topic} [{group}]: no message for {self.timeout:g} s, "
+        return (f"timeout {self.group.describe()}: no message for {self.timeout:g} s, "
                 f"max {self.max_timeouts_in_a_row} in a row, checked every "
                 f"{self.interval:g} s, reported every {self.every:g} s")
 
 
-@register(OBSERVERS, "timeout")
 def timeout_from_config(node: ConfigNode) -> TimeoutObserver:
     node.check_keys((*COMMON_KEYS, "topic", "publishers", "timeout", "max_timeouts_in_a_row"))
+    group = read_group(node)
     limit = node.get("max_timeouts_in_a_row")
     return TimeoutObserver(
-        topic=read_name(node, "topic"),
-        publishers=read_publishers(node),
-        timeout=node["timeout"].float(min=0.0, min_exclusive=True),
+        group, timeout=node["timeout"].float(min=0.0, min_exclusive=True),
         max_timeouts_in_a_row=(DEFAULT_MAX_TIMEOUTS_IN_A_ROW if limit is None
                                else limit.int(min=1)),
-        every=read_every(node),
-    )
+        every=read_every(node))
+
+
+def timeout_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
+    out.per_publisher_group(group, "timeout", ["timeout", "max_timeouts_in_a_row"], lambda c: {
+        "timeout": c.get("timeout"), "max_timeouts_in_a_row": c.get("max_timeouts_in_a_row")})
+
+
+OBSERVERS.add("timeout", ObserverKind(
+    "timeout", timeout_from_config, Subject.TOPIC, (Quantity("code"),),
+    thresholds=(FixedThreshold("code", "min", 0.0),), tug=timeout_from_tug))

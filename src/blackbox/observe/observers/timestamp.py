@@ -13,27 +13,20 @@ from collections.abc import Mapping, Sequence
 from numbers import Real
 from typing import Any, ClassVar
 
+from blackbox.config import tug
 from blackbox.config.node import ConfigNode
-from blackbox.model import Code, Observation, Resource
-from blackbox.observe.base import OBSERVERS, ObserverBase, register
+from blackbox.events import Interest, MessageArrival
+from blackbox.model import Observation
+from blackbox.observe.base import OBSERVERS, ObserverKind, Quantity, Subject
 from blackbox.observe.fieldpath import compile_field_access, describe_value
-from blackbox.observe.observers.entry import (
-    COMMON_KEYS,
-    describe_publishers,
-    read_every,
-    read_name,
-    read_publishers,
-    read_quantity,
-)
+from blackbox.observe.observers.entry import PublisherGroup, read_filtered_group
 from blackbox.observe.observers.quantity import (
     FilteredQuantity,
+    JudgedObserver,
     SampleProblems,
-    describe_states_inline,
-    judge,
     number,
 )
-from blackbox.observe.states import StateSpec, parse_states
-from blackbox.sources.base import Interest, MessageArrival
+from blackbox.observe.states import StateSpec
 
 _STAMP_FIELDS = (("sec", "nanosec"), ("secs", "nsecs"))
 _read_stamp = compile_field_access("header.stamp")
@@ -47,7 +40,7 @@ def _part(stamp: Any, name: str) -> Any:
 
 def stamp_seconds(stamp: Any) -> float:
     """Seconds of a message time stamp in any of the accepted shapes."""
-    if isinstance(stamp, Real) and not isinstance(stamp, bool):
+    if not isinstance(stamp, bool) and isinstance(stamp, Real):
         return float(stamp)
     for sec_name, nsec_name in _STAMP_FIELDS:
         sec, nsec = _part(stamp, sec_name), _part(stamp, nsec_name)
@@ -57,24 +50,21 @@ def stamp_seconds(stamp: Any) -> float:
                      "(sec/nanosec, secs/nsecs or seconds)")
 
 
-class TimestampObserver(ObserverBase):
+class TimestampObserver(JudgedObserver):
     """Receive time minus header stamp for one publisher group on one topic."""
 
     type_name: ClassVar[str] = "timestamp"
 
-    def __init__(self, topic: str, publishers: Sequence[str], age: FilteredQuantity,
+    def __init__(self, group: PublisherGroup, age: FilteredQuantity,
                  states: Sequence[StateSpec] = (), every: float = 1.0) -> None:
-        self.topic = topic
-        self.publishers = tuple(publishers)
+        super().__init__(group.resource, (age,), states, every)
+        self.group = group
         self.age = age
-        self.states = tuple(states)
-        self.interval = every
-        self.resource = Resource(topic=topic, publishers=self.publishers)
-        self._group = frozenset(self.publishers)
+        self._group = group.members
         self._problems = SampleProblems()
 
     def interest(self) -> Interest:
-        return Interest(decoded=frozenset({self.topic}))
+        return Interest(decoded=frozenset({self.group.topic}))
 
     def on_message(self, msg: MessageArrival) -> None:
         if self._group and msg.publisher not in self._group:
@@ -99,25 +89,22 @@ class TimestampObserver(ObserverBase):
         if skipped is not None:
             return [skipped]
         if summary is None:
-            return [Observation(now, self.type_name, self.resource, Code.NOT_AVAILABLE,
-                                message="waiting for first message")]
-        verdict = judge(self.states, {"age": summary})
-        return [Observation(now, self.type_name, self.resource, verdict.code, verdict.states,
-                            verdict.values, f"age {number(summary.value)} s {verdict.fits}")]
+            return [self.unavailable(now, "waiting for first message")]
+        return [self.judged(now, {"age": summary}, f"age {number(summary.value)} s")]
 
-    def describe(self) -> str:
-        group = describe_publishers(self.publishers)
-        return (f"timestamp {self.topic} [{group}]: {self.age.describe()}; "
-                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
+    def subject(self) -> str:
+        return self.group.describe()
 
 
-@register(OBSERVERS, "timestamp")
 def timestamp_from_config(node: ConfigNode) -> TimestampObserver:
-    node.check_keys((*COMMON_KEYS, "topic", "publishers", "filter", "states"))
-    return TimestampObserver(
-        topic=read_name(node, "topic"),
-        publishers=read_publishers(node),
-        age=read_quantity(node, "filter", "age"),
-        states=parse_states(node.get("states"), ("age",)),
-        every=read_every(node),
-    )
+    group, judged = read_filtered_group(node, "age")
+    return TimestampObserver(group, judged.quantities["age"], judged.states, judged.every)
+
+
+def timestamp_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
+    out.filtered_per_publisher_group(group, "timestamp", {"age": "age"})
+
+
+OBSERVERS.add("timestamp", ObserverKind(
+    "timestamp", timestamp_from_config, Subject.TOPIC, (Quantity("age", "s"),),
+    tug=timestamp_from_tug))

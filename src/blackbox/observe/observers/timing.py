@@ -17,47 +17,39 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import ClassVar
 
+from blackbox.config import tug
 from blackbox.config.node import ConfigNode
-from blackbox.model import Code, Observation, Resource
-from blackbox.observe.base import OBSERVERS, ObserverBase, register
+from blackbox.events import Interest, MessageArrival
+from blackbox.model import Observation, Resource
+from blackbox.observe.base import OBSERVERS, ObserverKind, Quantity, Subject
 from blackbox.observe.observers.entry import (
     COMMON_KEYS,
-    describe_publishers,
+    PublisherGroup,
     read_bool,
-    read_every,
-    read_name,
-    read_publishers,
-    read_quantity,
+    read_group,
+    read_judged,
 )
-from blackbox.observe.observers.quantity import (
-    FilteredQuantity,
-    describe_states_inline,
-    judge,
-    number,
-)
-from blackbox.observe.states import StateSpec, parse_states
-from blackbox.sources.base import Interest, MessageArrival
+from blackbox.observe.observers.quantity import FilteredQuantity, JudgedObserver, number
+from blackbox.observe.states import StateSpec
 
 
-class TimingObserver(ObserverBase):
+class TimingObserver(JudgedObserver):
     """Delay between two topics (for example a goal and its result)."""
 
     type_name: ClassVar[str] = "timing"
 
-    def __init__(self, topic_a: str, publishers_a: Sequence[str], topic_b: str,
-                 publishers_b: Sequence[str], delay: FilteredQuantity,
+    def __init__(self, a: PublisherGroup, b: PublisherGroup, delay: FilteredQuantity,
                  states: Sequence[StateSpec] = (), single_shot: bool = False,
                  every: float = 1.0) -> None:
-        self.topic_a, self.topic_b = topic_a, topic_b
-        self.publishers_a, self.publishers_b = tuple(publishers_a), tuple(publishers_b)
-        self.delay = delay
-        self.states = tuple(states)
-        self.single_shot = single_shot
-        self.interval = every
         # Resource.publishers names A's group; B's group shows in describe() and messages.
-        self.resource = Resource(topic=topic_a, publishers=self.publishers_a, topic_b=topic_b)
-        self._group_a = frozenset(self.publishers_a)
-        self._group_b = frozenset(self.publishers_b)
+        super().__init__(Resource(topic=a.topic, publishers=a.publishers, topic_b=b.topic),
+                         (delay,), states, every)
+        self.a, self.b = a, b
+        self.topic_a, self.topic_b = a.topic, b.topic
+        self.delay = delay
+        self.single_shot = single_shot
+        self._group_a = a.members
+        self._group_b = b.members
         self._last_a: float | None = None
         self._running = False
 
@@ -79,11 +71,11 @@ class TimingObserver(ObserverBase):
     def evaluate(self, now: float) -> list[Observation]:
         last_a = self._last_a
         if last_a is None:
-            return [self._unavailable(now, f"waiting for a message on {self.topic_a}")]
+            return [self.unavailable(now, f"waiting for a message on {self.topic_a}")]
         summary = self.delay.summary()
         waiting = max(0.0, now - last_a) if self._running else None
         if summary is None:
-            return [self._unavailable(
+            return [self.unavailable(
                 now, f"waiting for a message on {self.topic_b} after the one on "
                 f"{self.topic_a} {max(0.0, now - last_a):.3g} s ago")]
         note = ""
@@ -93,36 +85,41 @@ class TimingObserver(ObserverBase):
                 summary = provisional
                 note = (f"; no message on {self.topic_b} for {waiting:.3g} s since "
                         f"{self.topic_a} (counted as a provisional delay)")
-        verdict = judge(self.states, {"delay": summary})
-        values = dict(verdict.values)
-        if waiting is not None:
-            values["waiting_for"] = waiting
-        return [Observation(now, self.type_name, self.resource, verdict.code, verdict.states,
-                            values, f"delay {number(summary.value)} s {verdict.fits}{note}")]
+        extra = {"waiting_for": waiting} if waiting is not None else {}
+        return [self.judged(now, {"delay": summary}, f"delay {number(summary.value)} s",
+                            extra, note)]
 
-    def _unavailable(self, now: float, why: str) -> Observation:
-        return Observation(now, self.type_name, self.resource, Code.NOT_AVAILABLE, message=why)
-
-    def describe(self) -> str:
+    def subject(self) -> str:
         shot = ", single shot" if self.single_shot else ""
-        group_a = describe_publishers(self.publishers_a)
-        group_b = describe_publishers(self.publishers_b)
-        return (f"timing {self.topic_a} [{group_a}] -> {self.topic_b} [{group_b}]{shot}: "
-                f"{self.delay.describe()}; "
-                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
+        return f"{self.a.describe()} -> {self.b.describe()}{shot}"
 
 
-@register(OBSERVERS, "timing")
 def timing_from_config(node: ConfigNode) -> TimingObserver:
     node.check_keys((*COMMON_KEYS, "topic_a", "publishers_a", "topic_b", "publishers_b",
                      "single_shot", "filter", "states"))
-    return TimingObserver(
-        topic_a=read_name(node, "topic_a"),
-        publishers_a=read_publishers(node, "publishers_a"),
-        topic_b=read_name(node, "topic_b"),
-        publishers_b=read_publishers(node, "publishers_b"),
-        delay=read_quantity(node, "filter", "delay"),
-        states=parse_states(node.get("states"), ("delay",)),
-        single_shot=read_bool(node, "single_shot", False),
-        every=read_every(node),
-    )
+    a = read_group(node, "topic_a", "publishers_a")
+    b = read_group(node, "topic_b", "publishers_b")
+    judged = read_judged(node, {"filter": "delay"})
+    return TimingObserver(a, b, judged.quantities["delay"], judged.states,
+                          read_bool(node, "single_shot", False), judged.every)
+
+
+def timing_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
+    group.check_keys(["type", "main_loop_rate", "topics", *tug.IGNORED])
+    every = tug.every(group)
+    for pair in group["topics"].list():
+        pair.check_keys(["topicA", "calleridA", "topicB", "calleridB", "single_shot_mode",
+                         "filter", "states"])
+        out.entries.append(tug.entry(
+            "timing", pair, topic_a=pair["topicA"],
+            publishers_a=tug.publishers(tug.child(pair, "calleridA"), pair),
+            topic_b=pair["topicB"],
+            publishers_b=tug.publishers(tug.child(pair, "calleridB"), pair),
+            single_shot=pair.get("single_shot_mode"), every=every,
+            filter=tug.filter_entry(tug.child(pair, "filter")),
+            states=tug.states(tug.child(pair, "states"), {"delay": "delay"})))
+
+
+OBSERVERS.add("timing", ObserverKind(
+    "timing", timing_from_config, Subject.TOPIC_PAIR, (Quantity("delay", "s"),),
+    tug=timing_from_tug))

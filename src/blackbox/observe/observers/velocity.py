@@ -18,13 +18,16 @@ from collections import deque
 from collections.abc import Mapping, Sequence
 from typing import ClassVar
 
+from blackbox.config import tug
 from blackbox.config.node import ConfigNode
-from blackbox.model import Code, Observation, Resource
-from blackbox.observe.base import OBSERVERS, ObserverBase, register
+from blackbox.events import Interest, MessageArrival
+from blackbox.model import Observation, Resource
+from blackbox.observe.base import OBSERVERS, Mode, ObserverKind, Subject
 from blackbox.observe.observers.entry import COMMON_KEYS, read_every
 from blackbox.observe.observers.moving import (
     AXES,
     AXIS_FILTER_KEYS,
+    AXIS_QUANTITIES,
     ROTATION_SWITCHES,
     MotionSource,
     axis_text,
@@ -32,14 +35,8 @@ from blackbox.observe.observers.moving import (
     read_axis_quantities,
     read_source,
 )
-from blackbox.observe.observers.quantity import (
-    FilteredQuantity,
-    SampleProblems,
-    describe_states_inline,
-    judge,
-)
+from blackbox.observe.observers.quantity import FilteredQuantity, JudgedObserver, SampleProblems
 from blackbox.observe.states import StateSpec, parse_states
-from blackbox.sources.base import Interest, MessageArrival
 
 DEFAULT_ACCELERATION_WINDOW = 10
 
@@ -67,9 +64,9 @@ class AccelerationEstimate:
         self.source = source
         self.window = window
         self.times: deque[float] = deque(maxlen=window)
-        self._axes = [(AXES.index(axis), axis in ("x", "y", "z")
-                       and source.linear_is_acceleration, deque(maxlen=window))
-                      for axis in axes]
+        self._axes: list[tuple[int, bool, deque[float]]] = [
+            (AXES.index(axis), axis in ("x", "y", "z") and source.linear_is_acceleration,
+             deque(maxlen=window)) for axis in axes]
         self.messages = 0
 
     @property
@@ -98,7 +95,7 @@ class AccelerationEstimate:
         return out
 
 
-class VelocityObserver(ObserverBase):
+class VelocityObserver(JudgedObserver):
     """Difference of two sources' accelerations, per axis."""
 
     type_name: ClassVar[str] = "velocity"
@@ -109,12 +106,11 @@ class VelocityObserver(ObserverBase):
                  every: float = 1.0) -> None:
         if acceleration_window_size < 2:
             raise ValueError("acceleration_window_size must be >= 2 (a slope needs two points)")
+        super().__init__(Resource(topic=source_a.topic, topic_b=source_b.topic),
+                         tuple(axes.values()), states, every)
         self.source_a, self.source_b = source_a, source_b
         self.axes = dict(axes)
-        self.states = tuple(states)
         self.acceleration_window_size = acceleration_window_size
-        self.interval = every
-        self.resource = Resource(topic=source_a.topic, topic_b=source_b.topic)
         names = tuple(self.axes)
         self._a = AccelerationEstimate(source_a, names, acceleration_window_size)
         self._b = AccelerationEstimate(source_b, names, acceleration_window_size)
@@ -155,21 +151,17 @@ class VelocityObserver(ObserverBase):
         if any(s is None for s in summaries.values()):
             waiting = ", ".join(f"{e.source.topic} {min(e.messages, e.needed)} of {e.needed}"
                                 for e in (self._a, self._b))
-            return [Observation(now, self.type_name, self.resource, Code.NOT_AVAILABLE,
-                                message=f"waiting for messages on both sources ({waiting})")]
-        verdict = judge(self.states, summaries)
-        return [Observation(now, self.type_name, self.resource, verdict.code, verdict.states,
-                            verdict.values,
-                            f"acceleration difference {axis_text(summaries)} {verdict.fits}")]
+            return [self.unavailable(now, f"waiting for messages on both sources ({waiting})")]
+        return [self.judged(now, summaries, f"acceleration difference {axis_text(summaries)}")]
 
-    def describe(self) -> str:
-        filters = ", ".join(q.describe() for q in self.axes.values())
-        return (f"velocity {self.source_a.describe()} vs {self.source_b.describe()}: "
-                f"acceleration over {self.acceleration_window_size} messages; {filters}; "
-                f"{describe_states_inline(self.states)}, every {self.interval:g} s")
+    def subject(self) -> str:
+        return f"{self.source_a.describe()} vs {self.source_b.describe()}"
+
+    def filtering(self) -> str:
+        return (f"acceleration over {self.acceleration_window_size} messages; "
+                f"{super().filtering()}")
 
 
-@register(OBSERVERS, "velocity")
 def velocity_from_config(node: ConfigNode) -> VelocityObserver:
     node.check_keys((*COMMON_KEYS, "source_a", "source_b", "acceleration_window_size",
                      *(s for s, _ in ROTATION_SWITCHES), *AXIS_FILTER_KEYS, "states"))
@@ -184,3 +176,25 @@ def velocity_from_config(node: ConfigNode) -> VelocityObserver:
                                   else window.int(min=2)),
         every=read_every(node),
     )
+
+
+def velocity_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
+    group.check_keys(["type", "main_loop_rate", "correlations", *tug.IGNORED])
+    every = tug.every(group)
+    for corr in group["correlations"].list(allow_single=True):
+        corr.check_keys(["source_A", "source_B", *(u for u, _ in tug.ROTATIONS),
+                         *tug.AXIS_FILTERS, "states"])
+        source_a, window_a = out.source(corr, "source_A", acceleration=True)
+        source_b, window_b = out.source(corr, "source_B", acceleration=True)
+        if source_a is None or source_b is None:
+            continue
+        out.entries.append(tug.entry(
+            "velocity", corr, source_a=source_a, source_b=source_b,
+            acceleration_window_size=tug.acceleration_window(
+                (source_a, window_a), (source_b, window_b)),
+            every=every, **out.motion(corr)))
+
+
+OBSERVERS.add("velocity", ObserverKind(
+    "velocity", velocity_from_config, Subject.TOPIC_PAIR, AXIS_QUANTITIES, judges=Mode.RIGHT,
+    aliases=("movement",), tug=velocity_from_tug))

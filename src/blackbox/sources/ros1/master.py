@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 from urllib.parse import urlsplit
 
-from blackbox.sources.base import GraphSnapshot, NodeInfo, TopicInfo
+from blackbox.events import GraphSnapshot, NodeInfo, TopicInfo
 
 CALLER_ID = "/blackbox"
 """The caller id the black box gives in XML-RPC calls; it is never registered."""

@@ -12,7 +12,7 @@ from functools import cache
 
 import psutil
 
-from blackbox.sources.base import NodeInfo, ResourceSample
+from blackbox.events import NodeInfo, ResourceSample
 
 
 @cache

@@ -25,8 +25,7 @@ from urllib.parse import urlsplit
 import psutil
 
 from blackbox.config.node import ConfigError
-from blackbox.model import BlackBoxEvent
-from blackbox.sources.base import (
+from blackbox.events import (
     Event,
     Interest,
     MessageArrival,
@@ -34,6 +33,8 @@ from blackbox.sources.base import (
     ResourceSample,
     TopicSchema,
 )
+from blackbox.model import BlackBoxEvent
+from blackbox.sources.base import SOURCES, Capabilities, SourceKind, SourceOptions
 from blackbox.sources.ros1.master import GraphPoller
 from blackbox.sources.ros1.resources import ResourceSampler
 from blackbox.sources.ros1.tcpros import DEFAULT_MAX_MESSAGE_BYTES, TcprosSubscriber
@@ -67,36 +68,56 @@ def master_uri_from_spec(spec: str, environ: dict[str, str] | os._Environ[str] =
     return f"http://{parts.hostname}:{port}/"
 
 
+ROS1_CAPABILITIES = Capabilities(snapshot_format="ros1")
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Ros1Settings:
+    """How a ROS 1 robot is watched: seconds between graph polls and resource samples,
+    the time an XML-RPC probe may take, how long a publisher may stay silent before its
+    connection counts as idle, the event queue's bound, reconnection back-off (seconds)
+    and the default cap of one message (bytes)."""
+
+    graph_period: float = 0.45
+    probe_timeout: float = 0.5
+    resource_period: float = 1.0
+    idle_grace: float = 2.0
+    queue_limit: int = 200_000
+    backoff_min: float = 0.1
+    backoff_max: float = 2.0
+    default_max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES
+
+
 class Ros1Source:
     """A live ROS 1 robot, observed without registering anything with its master."""
 
-    def __init__(self, master_uri: str, *, graph_period: float = 0.45,
-                 probe_timeout: float = 0.5, resource_period: float = 1.0,
-                 idle_grace: float = 2.0, queue_limit: int = 200_000,
-                 backoff_min: float = 0.1, backoff_max: float = 2.0,
-                 default_max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES) -> None:
+    def __init__(self, master_uri: str, settings: Ros1Settings | None = None) -> None:
+        settings = settings or Ros1Settings()
         self.master_uri = master_uri
+        self.settings = settings
         self.name = f"ros1 {master_uri}"
-        self._graph_period = graph_period
-        self._resource_period = resource_period
-        self._idle_grace = idle_grace
+        self.capabilities = ROS1_CAPABILITIES
+        self._graph_period = settings.graph_period
+        self._resource_period = settings.resource_period
+        self._idle_grace = settings.idle_grace
         self._queue: deque[Event | BlackBoxEvent] = deque()
         self._lock = threading.Lock()
-        self._queue_limit = queue_limit
+        self._queue_limit = settings.queue_limit
         self._dropped = 0
         self._held: list[Event | BlackBoxEvent] = []
         self._stop = threading.Event()
-        self._poller = GraphPoller(master_uri, self._report, probe_timeout=probe_timeout)
-        self._backoff = (backoff_min, backoff_max)
-        self._default_cap = default_max_message_bytes
+        self._poller = GraphPoller(master_uri, self._report,
+                                   probe_timeout=settings.probe_timeout)
+        self._backoff = (settings.backoff_min, settings.backoff_max)
+        self._default_cap = settings.default_max_message_bytes
         self._resources = ResourceSampler()
         self._subscriber: TcprosSubscriber | None = None
         self._thread: threading.Thread | None = None
         self._interest = Interest()
 
     @classmethod
-    def from_uri(cls, spec: str, **options: float) -> Ros1Source:
-        return cls(master_uri_from_spec(spec), **options)  # type: ignore[arg-type]
+    def from_uri(cls, spec: str, settings: Ros1Settings | None = None) -> Ros1Source:
+        return cls(master_uri_from_spec(spec), settings)
 
     # ---- Source protocol -------------------------------------------------------------------
 
@@ -136,7 +157,7 @@ class Ros1Source:
         while cut and events[cut - 1].time > until:
             cut -= 1
         self._held = events[cut:]
-        return events[:cut]  # type: ignore[return-value]
+        return events[:cut]
 
     def schema(self, topic: str) -> TopicSchema | None:
         return self._subscriber.schemas.get(topic) if self._subscriber else None
@@ -209,3 +230,11 @@ def _restamped(sample: ResourceSample, time: float) -> ResourceSample:
 
 def _time_of(event: Event | BlackBoxEvent) -> float:
     return event.time
+
+
+def open_ros1_source(spec: str, options: SourceOptions) -> Ros1Source:
+    return Ros1Source.from_uri(spec)
+
+
+SOURCES.add("ros1", SourceKind("ros1", open_ros1_source, ROS1_CAPABILITIES,
+                               "ros1 or ros1://HOST:PORT"))

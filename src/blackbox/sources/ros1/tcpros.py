@@ -24,11 +24,11 @@ import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from blackbox.sources.base import MessageArrival, TopicSchema
+from blackbox.events import MessageArrival, TopicSchema
 from blackbox.sources.ros1.master import CALLER_ID, Report, RosApi, RosApiError
 
 log = logging.getLogger("blackbox.sources.ros1")
@@ -114,7 +114,8 @@ class MessageDecoder:
 
     def decode(self, data: bytes | bytearray | memoryview, name: str) -> Any:
         with self._lock:
-            return self._store.deserialize_ros1(data, name)
+            # rosbags reads any buffer; its annotation leaves out bytearray.
+            return self._store.deserialize_ros1(cast(bytes, data), name)
 
 
 @dataclass(frozen=True, slots=True)
@@ -235,9 +236,9 @@ class TcprosReader:
             self._streams[stream.key] = stream
             self._selector.register(stream.sock, selectors.EVENT_READ, stream)
         for key, reason in drops:
-            stream = self._streams.get(key)
-            if stream is not None:
-                self._close(stream, reason)
+            dropped = self._streams.get(key)
+            if dropped is not None:
+                self._close(dropped, reason)
 
     def _close(self, stream: _Stream, reason: str, notify: bool = True) -> None:
         stream.closed = True

@@ -100,7 +100,7 @@ def has_field(store: Typestore, type_name: str, path: str) -> str | None:
         kind, arg = fields[part]
         last = i == len(parts) - 1
         if kind == Nodetype.NAME and not last:
-            current = arg
+            current = str(arg)
         elif kind == Nodetype.NAME:
             return str(arg)
         elif kind == Nodetype.BASE and last:
@@ -224,7 +224,8 @@ class TopicMessages:
             msg.header.stamp = self._time_cls(sec=sec, nanosec=nsec)
         model = self.model
         if isinstance(model, ScalarModel):
-            set_path(msg, model.field, round(value) if self._integer else value)
+            set_path(msg, model.field,
+                     round(value) if self._integer and value is not None else value)
         elif isinstance(model, ImageModel):
             msg.data = self.payload()
         elif isinstance(model, BytesModel):

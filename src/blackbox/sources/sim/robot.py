@@ -18,7 +18,8 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
-from blackbox.sources.base import (
+from blackbox.config.node import ConfigError
+from blackbox.events import (
     Event,
     GraphSnapshot,
     Interest,
@@ -29,8 +30,15 @@ from blackbox.sources.base import (
     TopicInfo,
     TopicSchema,
 )
+from blackbox.sources.base import (
+    SOURCES,
+    Capabilities,
+    RandomFaults,
+    SourceKind,
+    SourceOptions,
+)
 
-from .faults import Fault, GroundTruth, load_faults
+from .faults import FAULT_KINDS, Fault, GroundTruth, load_faults, random_campaign
 from .messages import ScalarModel, TopicMessages
 from .topology import NodeSpec, TopicSpec, Topology
 
@@ -96,6 +104,10 @@ class _LazyMessage:
         return self.messages.serialize(self.decode())
 
 
+SIM_CAPABILITIES = Capabilities(simulated_clock=True, fault_injection=True, ground_truth=True,
+                                snapshot_format="mcap")
+
+
 class SimulatedSource:
     """The robot of a :class:`Topology`, with ``faults`` injected, as a Source.
 
@@ -117,6 +129,7 @@ class SimulatedSource:
         self.realtime = realtime
         self.start_time = float(start_time)
         self.name = name or f"sim:{topology.name}"
+        self.capabilities = SIM_CAPABILITIES
         self._interest = Interest()
         self._arrivals: frozenset[str] = frozenset()
         self._started = False
@@ -207,6 +220,9 @@ class SimulatedSource:
         self._heap.clear()
 
     # ---- ground truth ----------------------------------------------------------------------
+
+    def topic_publishers(self) -> dict[str, str]:
+        return {t.name: t.publisher for t in self.topology.topics.values()}
 
     @property
     def ground_truth(self) -> list[GroundTruth]:
@@ -441,3 +457,29 @@ def open_sim(spec: str, *, faults: str | Path | Iterable[Fault] | None = None,
     name = f"sim:{body}" if body in BUILTIN_ROBOTS else f"sim:{topology.name}"
     return SimulatedSource(topology, fault_list, seed=seed, realtime=realtime,
                            start_time=start_time, name=name)
+
+
+def open_sim_source(spec: str, options: SourceOptions) -> SimulatedSource:
+    """``open_sim`` with typed options; a :class:`RandomFaults` plan is drawn on the robot's
+    topology with the options' seed."""
+    start = options.start_time
+    if start is None:
+        # A real-time robot stamps with the wall clock, so its records line up with
+        # everything else on the machine; a simulated clock starts at 0, reproducibly.
+        start = time.time() if options.realtime else 0.0
+    plan = options.faults
+    try:
+        source = open_sim(spec, faults=None if isinstance(plan, RandomFaults) else plan,
+                          seed=options.seed, realtime=options.realtime, start_time=start)
+    except ValueError as exc:
+        raise ConfigError(str(exc), "--source") from None
+    if not isinstance(plan, RandomFaults):
+        return source
+    faults = random_campaign(source.topology, plan.horizon, options.seed,
+                             plan.kinds or tuple(FAULT_KINDS), mean_gap=plan.mean_gap,
+                             warmup=plan.warmup, min_separation=plan.min_separation)
+    return SimulatedSource(source.topology, faults, seed=options.seed, realtime=options.realtime,
+                           start_time=start, name=source.name)
+
+
+SOURCES.add("sim", SourceKind("sim", open_sim_source, SIM_CAPABILITIES, "sim:thesis or sim:FILE"))

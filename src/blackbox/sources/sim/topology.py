@@ -6,6 +6,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
+from typing import cast
 
 from rosbags.typesys.store import Typestore
 
@@ -80,7 +81,7 @@ class Topology:
     def __post_init__(self) -> None:
         object.__setattr__(self, "nodes", MappingProxyType(dict(self.nodes)))
         object.__setattr__(self, "topics", MappingProxyType(dict(self.topics)))
-        if self.store is None:
+        if cast("Typestore | None", self.store) is None:
             object.__setattr__(self, "store", robot_typestore(self.definitions))
         problem = self._problem()
         if problem:
@@ -155,10 +156,10 @@ class Topology:
 
         topics: dict[str, TopicSpec] = {}
         for item in root["topics"].list():
-            spec = _topic(item, nodes, store)
-            if spec.name in topics:
-                raise item["name"].error(f"topic {spec.name} is defined twice")
-            topics[spec.name] = spec
+            topic = _topic(item, nodes, store)
+            if topic.name in topics:
+                raise item["name"].error(f"topic {topic.name} is defined twice")
+            topics[topic.name] = topic
 
         for node_name, req in requires_at.items():
             for r_item, r in zip(req["topics"].list(allow_single=True),

@@ -1,0 +1,176 @@
+"""The events every stage shares: what a source reports and what observers ask of it.
+
+A source turns a robot (simulated, ROS 1, bag replay, ...) into a time-ordered stream of
+these events; observers only ever see them, never the middleware; the recorder and the
+sinks keep them. They sit in their own module, below every stage, so that observe,
+diagnose, record and transport depend on the events and not on the sources that make them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from blackbox.model import BlackBoxEvent
+
+__all__ = [
+    "Event",
+    "GraphSnapshot",
+    "Interest",
+    "MessageArrival",
+    "NetworkSample",
+    "NodeInfo",
+    "ResourceSample",
+    "TopicInfo",
+    "TopicSchema",
+    "merge_interests",
+]
+
+
+@dataclass(frozen=True, slots=True)
+class NodeInfo:
+    """A node as the black box sees it. ``alive`` comes from the node itself, not a registry."""
+
+    name: str
+    alive: bool
+    pid: int | None = None
+    host: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class TopicInfo:
+    name: str
+    type: str = ""
+    publishers: tuple[str, ...] = ()
+    subscribers: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class GraphSnapshot:
+    """Nodes and topics at one moment."""
+
+    time: float
+    nodes: Mapping[str, NodeInfo] = field(default_factory=dict)
+    topics: Mapping[str, TopicInfo] = field(default_factory=dict)
+
+
+class MessageArrival:
+    """One message seen on a topic from one publisher.
+
+    ``value`` decodes lazily and at most once, so topics observed only for timing
+    never pay for decoding. ``raw`` returns the serialized bytes, also lazily.
+    """
+
+    __slots__ = ("_decode", "_raw", "_value", "publisher", "size", "time", "topic")
+
+    _MISSING: Any = object()
+
+    def __init__(
+        self,
+        time: float,
+        topic: str,
+        publisher: str,
+        size: int,
+        decode: Callable[[], Any] | None = None,
+        raw: Callable[[], bytes] | None = None,
+        value: Any = _MISSING,
+    ) -> None:
+        self.time = time
+        self.topic = topic
+        self.publisher = publisher
+        self.size = size
+        self._decode = decode
+        self._raw = raw
+        self._value = value
+
+    @property
+    def value(self) -> Any:
+        """The decoded message (``None`` if this source cannot decode this topic)."""
+        if self._value is MessageArrival._MISSING:
+            self._value = self._decode() if self._decode is not None else None
+        return self._value
+
+    def raw(self) -> bytes | None:
+        return self._raw() if self._raw is not None else None
+
+    def __repr__(self) -> str:
+        return (f"MessageArrival(t={self.time:.6f}, {self.topic} from {self.publisher}, "
+                f"{self.size} B)")
+
+
+@dataclass(frozen=True, slots=True)
+class ResourceSample:
+    """CPU and memory of one node. ``None`` values come with a ``reason``."""
+
+    time: float
+    node: str
+    cpu_percent: float | None
+    memory_bytes: float | None
+    reason: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class NetworkSample:
+    """Cumulative byte counters of one network interface."""
+
+    time: float
+    interface: str
+    rx_bytes: int
+    tx_bytes: int
+
+
+@dataclass(frozen=True, slots=True)
+class TopicSchema:
+    """How a topic's raw bytes are encoded, for writing them back out (bags, MCAP).
+
+    ``encoding`` is ``"ros1"`` (``definition`` is the ROS 1 ``message_definition`` text and
+    ``type`` like ``sensor_msgs/Image``) or ``"json"`` (``definition`` is a JSON schema).
+    """
+
+    topic: str
+    type: str
+    encoding: str
+    definition: str
+    md5sum: str = ""
+
+
+Event = GraphSnapshot | MessageArrival | ResourceSample | NetworkSample | BlackBoxEvent
+"""What ``Source.poll`` returns; a ``BlackBoxEvent`` reports trouble on the robot side
+(a lost master, a garbage publisher) and goes to every sink."""
+
+
+@dataclass(frozen=True, slots=True)
+class Interest:
+    """What the observers need from a source.
+
+    ``topics`` are read for arrival time and size; ``decoded`` additionally need values.
+    ``max_message_bytes`` caps a single message per topic (default applies otherwise).
+    """
+
+    topics: frozenset[str] = frozenset()
+    decoded: frozenset[str] = frozenset()
+    nodes: frozenset[str] = frozenset()
+    resources: frozenset[str] = frozenset()
+    network: bool = False
+    max_message_bytes: Mapping[str, int] = field(default_factory=dict)
+
+
+def merge_interests(interests: Iterable[Interest]) -> Interest:
+    """One interest asking for everything any of ``interests`` asks for."""
+    topics: set[str] = set()
+    decoded: set[str] = set()
+    nodes: set[str] = set()
+    resources: set[str] = set()
+    network = False
+    caps: dict[str, int] = {}
+    for i in interests:
+        topics |= i.topics
+        decoded |= i.decoded
+        nodes |= i.nodes
+        resources |= i.resources
+        network = network or i.network
+        for t, cap in i.max_message_bytes.items():
+            caps[t] = max(caps.get(t, 0), cap)
+    return Interest(frozenset(topics | decoded), frozenset(decoded), frozenset(nodes),
+                    frozenset(resources), network, caps)

@@ -1,0 +1,70 @@
+"""Named plug-ins of one kind (observers, filters, checks, sources), in one style.
+
+A plug-in is one module that defines its kind and registers it at import with
+``REGISTRY.add(name, entry)``. A registry that names a ``package`` imports every module of
+that package the first time it is read, the way the command line finds its commands, so a
+built-in plug-in needs no import line anywhere else. A plug-in outside the package (a
+test's throw-away observer, a site's own source) registers the same way: importing its
+module is enough.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from collections.abc import Iterator
+from typing import Generic, TypeVar
+
+T = TypeVar("T")
+
+
+class Registry(Generic[T]):
+    """Entries by name. Reading it (``get``, ``in``, iteration) first loads ``package``."""
+
+    def __init__(self, what: str, package: str | None = None) -> None:
+        self.what = what
+        self._package = package
+        self._loaded = package is None
+        self._entries: dict[str, T] = {}
+
+    def add(self, name: str, entry: T) -> T:
+        """Register ``entry`` under ``name``; a name registered twice is a programming error."""
+        if name in self._entries:
+            raise ValueError(f"{self.what} {name!r} registered twice")
+        self._entries[name] = entry
+        return entry
+
+    def remove(self, name: str) -> None:
+        """Forget ``name`` (for tests that register a throw-away plug-in)."""
+        self._entries.pop(name, None)
+
+    def get(self, name: str) -> T | None:
+        return self._all().get(name)
+
+    def __getitem__(self, name: str) -> T:
+        return self._all()[name]
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._all()
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(sorted(self._all()))
+
+    def __len__(self) -> int:
+        return len(self._all())
+
+    def items(self) -> list[tuple[str, T]]:
+        return sorted(self._all().items())
+
+    def _all(self) -> dict[str, T]:
+        if not self._loaded:
+            self._loaded = True
+            self._load()
+        return self._entries
+
+    def _load(self) -> None:
+        assert self._package is not None
+        package = importlib.import_module(self._package)
+        for info in pkgutil.iter_modules(package.__path__):
+            if not info.name.startswith("_"):
+                importlib.import_module(f"{self._package}.{info.name}")
