@@ -49,8 +49,10 @@ def main() -> int:
     recorder = None
     if args.store:
         from blackbox.record import Recorder
+        from blackbox.record.settings import RecorderSettings
 
-        recorder = Recorder(args.store, robot_id=args.robot, commit_interval=0.1)
+        recorder = Recorder(RecorderSettings(args.store, commit_interval=0.1),
+                            robot_id=args.robot)
     sink = DdsHealthSink(args.robot, domain_id=args.domain, partition=args.partition,
                          log_store_path=args.store, on_ibit=lambda: healthy(time.time()))
     sinks = [s for s in (recorder, sink) if s is not None]

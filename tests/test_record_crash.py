@@ -18,6 +18,7 @@ import pytest
 
 from blackbox.model import BlackBoxEvent, Code, Observation, Resource
 from blackbox.record import Recorder, Store
+from blackbox.record.settings import RecorderSettings
 from blackbox.record.store import Row
 
 COMMIT = 0.25
@@ -159,8 +160,9 @@ def test_full_disk_is_reported_observation_continues_and_writing_resumes(
         full_disk: FullDisk) -> None:
     log = full_disk.directory / "log.db"
     events: list[BlackBoxEvent] = []
-    rec = Recorder(log, robot_id="r1", commit_interval=0.05, retry_interval=0.05,
-                   snapshot=None, on_self_event=events.append, queue_limit=1_000_000)
+    rec = Recorder(RecorderSettings(log, commit_interval=0.05, retry_interval=0.05, snapshot=None,
+                                    queue_limit=1_000_000),
+                   robot_id="r1", on_self_event=events.append)
     t = [1_700_000_000.0]
     batches = [0]
 
