@@ -30,8 +30,10 @@ WRITER = """
 import sys, time
 from blackbox.model import Code, Observation, Resource
 from blackbox.record import Recorder
+from blackbox.record.settings import RecorderSettings
 run = int(sys.argv[2])
-rec = Recorder(sys.argv[1], robot_id="crash", commit_interval=float(sys.argv[3]), snapshot=None)
+rec = Recorder(RecorderSettings(sys.argv[1], commit_interval=float(sys.argv[3]), snapshot=None),
+               robot_id="crash")
 resources = [Resource(topic=f"/t{k}") for k in range(50)]
 print("ready", flush=True)
 seq = 0

@@ -13,8 +13,8 @@ from blackbox.cli import main
 from blackbox.config.node import ConfigError, ConfigNode
 from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource, State
 from blackbox.record import ConfigVersion, Recorder, SnapshotConfig, Store
-from blackbox.record.store import Row
 from blackbox.record.settings import RecorderSettings, SnapshotSettings, parse_size
+from blackbox.record.store import Row
 from blackbox.sources.base import MessageArrival, TopicSchema
 
 T0 = 1_700_000_000.0
@@ -221,10 +221,12 @@ def test_from_config_reads_the_recorder_section(tmp_path: Path) -> None:
         "    before: 4\n"
         "    max_bytes: 16 MiB\n"
         "    keep_one_of: {/usb_cam/image_raw: 5}\n", "bb.yaml")
+    (tmp_path / "data").mkdir()
     rec = Recorder.from_config(node["recorder"], "r1", tmp_path)
     try:
         assert rec.path == tmp_path / "data/health.db"
         assert rec.commit_interval == 0.5 and rec.snapshot_format == "mcap"
+        assert rec.settings == RecorderSettings.from_config(node["recorder"], tmp_path)
         assert rec.retention.budget_bytes == 1_500_000_000  # 25 % kept for snapshots
         assert rec.ring is not None and rec.ring.config.max_bytes == 16 * 1024**2
         assert rec.ring.config.keep_one_of == {"/usb_cam/image_raw": 5}

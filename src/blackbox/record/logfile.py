@@ -42,7 +42,7 @@ class RecordPathError(StorageError):
 
 def safe_name(text: str, fallback: str = "robot", limit: int = 64) -> str:
     """``text`` as one harmless file name component: ``[A-Za-z0-9._-]``, no leading dot."""
-    name = _UNSAFE.sub("_", text).lstrip(".")[:limit]
+    name = _UNSAFE.sub("_", text).strip("._-")[:limit]
     return name or fallback
 
 
@@ -100,20 +100,22 @@ def _filesystem_of(path: Path) -> str | None:
 
 
 def check_record_path(path: Path, *, replace_foreign: bool = False) -> Path | None:
-    """Make sure the health log can live at ``path``; create missing parent directories.
+    """Make sure the health log can live at ``path``.
 
-    Raises :class:`RecordPathError` with a message for the operator when it cannot. With
+    The directory must exist: creating it could put the log on the wrong disk (a mount
+    point whose disk is not mounted is just an empty directory's missing child). Raises
+    :class:`RecordPathError` with a message for the operator when it cannot. With
     ``replace_foreign`` a file that is not a health log is renamed aside (the new name is
     returned) instead of refused.
     """
     path = Path(os.path.abspath(path))
+    for parent in reversed(path.parents):
+        if parent.exists() and not parent.is_dir():
+            raise RecordPathError(f"{path}: {parent} is not a directory")
     fs = _filesystem_of(path)
     if fs in PSEUDO_FILESYSTEMS:
         raise RecordPathError(f"{path}: is on the {fs} pseudo file system, which cannot hold a "
                               "health log; choose a path on a disk")
-    for parent in reversed(path.parents):
-        if parent.exists() and not parent.is_dir():
-            raise RecordPathError(f"{path}: {parent} is not a directory")
     try:
         info = path.stat()
     except FileNotFoundError:
@@ -126,11 +128,9 @@ def check_record_path(path: Path, *, replace_foreign: bool = False) -> Path | No
                                   f"for example {path / 'blackbox.db'}")
         if not stat.S_ISREG(info.st_mode):
             raise RecordPathError(f"{path}: is not a regular file")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise RecordPathError(f"{path}: cannot create directory {path.parent}: "
-                              f"{exc.strerror}") from None
+    if not path.parent.is_dir():
+        raise RecordPathError(f"{path}: directory {path.parent} does not exist; create it "
+                              "first (the black box does not guess where its disk is)")
     if not os.access(path.parent, os.W_OK | os.X_OK):
         raise RecordPathError(f"{path}: directory {path.parent} is not writable")
     if classify(path) != "foreign":

@@ -133,6 +133,9 @@ class LogWriter:
                     self.captures.close(timeout=20.0)
                     with contextlib.suppress(Exception):
                         self._write_pending()  # the snapshot rows of the last captures
+                        if self._store is not None:
+                            self._enforce_budget()
+                            self._write_pending()
                 break
         if self._store is not None:
             with contextlib.suppress(Exception):
