@@ -142,6 +142,47 @@ def test_a_snapshot_failing_on_a_full_disk_leaves_no_file_and_is_retried(
     assert "error" not in row.payload and row.payload["messages"] > 0
 
 
+# ---- under load ----------------------------------------------------------------------------
+
+
+def changes(t: float, n: int, bad: bool) -> list[Observation]:
+    code = Code.NO_STATE_FITS if bad else Code.GENERAL_OK
+    return [Observation(t, "hz", Resource(topic=f"/t{k}"), code) for k in range(n)]
+
+
+def test_on_a_simulated_clock_the_pipeline_waits_for_the_disk_and_drops_nothing(
+        tmp_path: Path) -> None:
+    rec = Recorder(RecorderSettings(tmp_path / "log.db", commit_interval=30.0, commit_rows=100,
+                                    queue_limit=100, overflow="block", snapshot=None),
+                   robot_id="r1")
+    most = 0
+    for i in range(40):  # 1,600 changes, far more than the queue holds
+        rec.on_observations(T0 + i, changes(T0 + i, 40, i % 2 == 0))
+        most = max(most, int(rec.health().values["queued_rows"]))
+    rec.close()
+    assert rec.dropped == 0 and most <= 100
+    with Store.open(tmp_path / "log.db", readonly=True) as store:
+        assert store.count("observation") + store.count("exceedance") == 1600
+
+
+def test_in_real_time_the_least_valuable_rows_go_and_the_log_counts_them(
+        tmp_path: Path) -> None:
+    rec = Recorder(RecorderSettings(tmp_path / "log.db", commit_interval=30.0, commit_rows=10**6,
+                                    queue_limit=100, snapshot=None), robot_id="r1")
+    for i in range(40):
+        rec.on_observations(T0 + i, changes(T0 + i, 40, i % 2 == 0))
+        rec.on_diagnosis(Diagnosis(T0 + i, (frozenset({f"/n{i}"}),) if i % 2 == 0 else ()))
+    rec.close()
+    with Store.open(tmp_path / "log.db", readonly=True) as store:
+        *_, counted = [e.payload for e in store.query(kinds=["blackbox_event"])
+                       if e.payload.get("event") == "records_dropped"]  # totals so far
+        assert store.count("failure") == 40  # never dropped: failures and own events
+        kept_changes = store.count("observation") + store.count("exceedance")
+    assert counted["total"] == rec.dropped > 0
+    assert kept_changes + counted["by_kind"]["observation"] + \
+        counted["by_kind"].get("exceedance", 0) == 1600
+
+
 # ---- closing -------------------------------------------------------------------------------
 
 

@@ -28,7 +28,7 @@ from typing import Any
 
 from blackbox.model import BlackBoxEvent, Code, Observation
 from blackbox.record.capture_writer import PART, CaptureWriter
-from blackbox.record.handoff import Handoff, Pending
+from blackbox.record.handoff import ALWAYS_KEPT, Handoff, Pending
 from blackbox.record.logfile import classify, set_aside
 from blackbox.record.policy import observation_payload
 from blackbox.record.retention import Retention, enforce_directory
@@ -161,15 +161,21 @@ class LogWriter:
         return captures
 
     def _trim_backlog(self) -> None:
+        """While the disk fails the backlog is bounded like the hand-over: samples go
+        first, then changes; failures, events, snapshots and configurations stay (up to
+        four times the limit, the oldest going first beyond that)."""
         limit = self.settings.queue_limit
-        if len(self._backlog) <= limit:
+        backlog = self._backlog
+        if len(backlog) <= limit * 5 // 4:
             return
-        kept = [r for r in self._backlog if r[1] != "sample"]
-        if len(kept) > limit:
-            kept = kept[-limit:]
+        kept = [r for r in backlog if r[1] != "sample"]
+        if len(kept) > limit * 5 // 4:
+            kept = [r for r in kept if r[1] in ALWAYS_KEPT]
+        if len(kept) > limit * 4:
+            kept = kept[-limit * 4:]
         kept_ids = {id(r) for r in kept}
         by_kind: dict[str, int] = {}
-        for r in self._backlog:
+        for r in backlog:
             if id(r) not in kept_ids:
                 by_kind[r[1]] = by_kind.get(r[1], 0) + 1
         for kind, n in by_kind.items():
