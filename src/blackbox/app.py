@@ -181,7 +181,7 @@ def open_dds(options: RunOptions, config: LoadedConfig, recorder: Recorder | Non
     from blackbox.health.describe import describe_observer
     from blackbox.transport.publisher import DdsHealthSink, transport_options
 
-    kwargs = transport_options(config.sections.get("transport"))
+    kwargs = transport_options(config.sections.get("transport"), Path(options.config).parent)
     if options.dds_domain is not None:
         kwargs["domain_id"] = options.dds_domain
     if recorder is not None:
