@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
-from test_dds_health import BlackBox, _env, fresh_domain, station_key
 
 from blackbox.config.node import ConfigError, ConfigNode
 from blackbox.health.types import C_Log_Request, T_DateTimeType, T_IdentifierType
@@ -21,6 +20,7 @@ from blackbox.transport.auth import (
     StationAccess,
 )
 from blackbox.transport.logservice import check_request, request_fields
+from test_dds_health import BlackBox, _env, fresh_domain, station_key
 
 ROBOT = "thesis"
 
