@@ -24,7 +24,8 @@ from blackbox.config.node import ConfigNode
 from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource
 from blackbox.record.handoff import Handoff, Pending
 from blackbox.record.logfile import check_record_path, safe_name
-from blackbox.record.policy import PolicyTracker, observation_payload
+from blackbox.record.policy import LoggingPolicy, PolicyTracker, observation_payload
+from blackbox.record.retention import Retention
 from blackbox.record.settings import RecorderSettings
 from blackbox.record.snapshot import SUFFIXES, Capture, RingBuffer
 from blackbox.record.store import Row
@@ -117,7 +118,7 @@ class Recorder(SinkBase):
         return self.settings.snapshot_dir
 
     @property
-    def policy(self) -> Any:
+    def policy(self) -> LoggingPolicy:
         return self.settings.policy
 
     @property
@@ -125,7 +126,7 @@ class Recorder(SinkBase):
         return self.settings.commit_interval
 
     @property
-    def retention(self) -> Any:
+    def retention(self) -> Retention:
         return self._writer.retention
 
     @property

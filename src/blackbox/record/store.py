@@ -92,6 +92,10 @@ class Row(NamedTuple):
     payload: dict[str, Any] | str = {}  # shared default: rows without a payload never mutate it
 
 
+RowTuple = tuple[float, str, Channel | None, int | None, dict[str, Any] | str]
+"""What :meth:`Store.append` takes: a :class:`Row` or a plain tuple of its five fields."""
+
+
 def _script(db: sqlite3.Connection, sql: str) -> None:
     # executescript() would commit the migration's transaction half way.
     for statement in sql.split(";"):
@@ -316,7 +320,8 @@ class Store:
             self._channels[key] = cid
         return cid
 
-    def append(self, rows: Sequence[Row], meta: Mapping[str, str] | None = None) -> list[int]:
+    def append(self, rows: Sequence[RowTuple],
+               meta: Mapping[str, str] | None = None) -> list[int]:
         """Write ``rows`` (and ``meta`` keys) in one transaction; returns their ids.
 
         All or nothing. Configuration rows whose payload ``version`` is ``None`` get the
@@ -344,7 +349,7 @@ class Store:
             "WHERE kind = ?", (KINDS["config"],)).fetchone()
         return int(row[0] or 0) + 1
 
-    def _insert(self, rows: Sequence[Row],
+    def _insert(self, rows: Sequence[RowTuple],
                 numbered: list[dict[str, Any]] | None = None) -> list[int]:
         if not rows:
             return []
@@ -355,16 +360,16 @@ class Store:
         version: int | None = None
         for row in rows:
             time, kind, channel, code, payload = row
-            if type(payload) is not str:
+            if not isinstance(payload, str):
                 if kind == "config" and payload.get("version") is None:
                     version = self._next_config_version() if version is None else version + 1
                     payload["version"] = version
                     if numbered is not None:
                         numbered.append(payload)
                 payload = dumps(payload)
-            if channel is not None:
-                channel = channels.get(channel) or self._channel_id(channel)
-            params.append((time, kinds[kind], channel, code, payload))
+            cid = None if channel is None else \
+                (channels.get(channel) or self._channel_id(channel))
+            params.append((time, kinds[kind], cid, code, payload))
         db.executemany("INSERT INTO entries (time, kind, channel, code, payload) "
                        "VALUES (?, ?, ?, ?, ?)", params)
         # Inside one write transaction AUTOINCREMENT ids are consecutive.

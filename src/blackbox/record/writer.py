@@ -28,13 +28,13 @@ from typing import Any
 
 from blackbox.model import BlackBoxEvent, Code, Observation
 from blackbox.record.capture_writer import PART, CaptureWriter
-from blackbox.record.handoff import ALWAYS_KEPT, Handoff, Pending
+from blackbox.record.handoff import ALWAYS_KEPT, Handoff
 from blackbox.record.logfile import classify, set_aside
 from blackbox.record.policy import observation_payload
 from blackbox.record.retention import Retention, enforce_directory
 from blackbox.record.settings import RecorderSettings
 from blackbox.record.snapshot import Capture
-from blackbox.record.store import Row, StorageError, Store, StoreCorrupt, dumps
+from blackbox.record.store import Row, RowTuple, StorageError, Store, StoreCorrupt, dumps
 
 COMPONENT = "blackbox/recorder"
 OWN = (COMPONENT, "event", "{}")
@@ -75,7 +75,7 @@ class LogWriter:
         self.used_bytes = 0
         self.error: str | None = None
         self._error_since: float | None = None
-        self._backlog: list[Pending] = []
+        self._backlog: list[RowTuple] = []
         self._backlog_wall = 0.0
         self._dropped_logged = 0
         self._store: Store | None = None
@@ -151,12 +151,12 @@ class LogWriter:
                 continue
             wall, rows = item
             self._backlog_wall = max(self._backlog_wall, wall)
-            for row in rows:
-                obs = row[4]
-                if isinstance(obs, Observation):
-                    kind = row[1]
-                    row = (row[0], kind, row[2], int(obs.code), _encoded(obs, kind))
-                backlog.append(row)
+            for time, kind, channel, code, payload in rows:
+                if isinstance(payload, Observation):
+                    backlog.append((time, kind, channel, int(payload.code),
+                                    _encoded(payload, kind)))
+                else:
+                    backlog.append((time, kind, channel, code, payload))
         self._trim_backlog()
         return captures
 
@@ -202,7 +202,7 @@ class LogWriter:
     def _commit(self, store: Store) -> None:
         dropped = self.handoff.dropped
         total = self.handoff.dropped_total
-        extra: list[Pending] = []
+        extra: list[RowTuple] = []
         if total != self._dropped_logged:
             extra.append(own_event(self.clock(), {"event": "records_dropped", "total": total,
                                                   "by_kind": dict(dropped)}))
