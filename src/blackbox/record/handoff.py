@@ -58,7 +58,12 @@ class Handoff:
 
     @property
     def dropped_total(self) -> int:
-        return sum(self.dropped.values())
+        with self._cond:
+            return sum(self.dropped.values())
+
+    def dropped_by_kind(self) -> dict[str, int]:
+        with self._cond:
+            return dict(self.dropped)
 
     def put(self, rows: list[Pending], force: bool = False) -> bool:
         """Hand ``rows`` over; returns whether the writer should be woken now."""
@@ -107,7 +112,7 @@ class Handoff:
         """The writer dropped ``n`` rows of ``kind`` from its backlog (disk failing)."""
         with self._cond:
             self.dropped[kind] = self.dropped.get(kind, 0) + n
-            self.pending -= n
+            self.pending = max(0, self.pending - n)
             self._cond.notify_all()
 
     def take(self) -> list[tuple[float, list[Pending]] | Capture]:
@@ -120,7 +125,7 @@ class Handoff:
     def committed(self, n: int) -> None:
         """``n`` rows are durable now: make room for the pipeline."""
         with self._cond:
-            self.pending -= n
+            self.pending = max(0, self.pending - n)
             self._cond.notify_all()
 
     def set_failing(self, failing: bool) -> None:

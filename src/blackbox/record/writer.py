@@ -77,6 +77,7 @@ class LogWriter:
         self._error_since: float | None = None
         self._backlog: list[RowTuple] = []
         self._backlog_wall = 0.0
+        self._handed = 0  # rows of the backlog that came through the hand-over
         self._dropped_logged = 0
         self._store: Store | None = None
         self._next_retry = 0.0
@@ -151,6 +152,7 @@ class LogWriter:
                 continue
             wall, rows = item
             self._backlog_wall = max(self._backlog_wall, wall)
+            self._handed += len(rows)
             for time, kind, channel, code, payload in rows:
                 if isinstance(payload, Observation):
                     backlog.append((time, kind, channel, int(payload.code),
@@ -180,6 +182,7 @@ class LogWriter:
                 by_kind[r[1]] = by_kind.get(r[1], 0) + 1
         for kind, n in by_kind.items():
             self.handoff.count_dropped(kind, n)
+        self._handed = max(0, self._handed - sum(by_kind.values()))
         self._backlog = kept
 
     def _write_pending(self) -> None:
@@ -200,12 +203,12 @@ class LogWriter:
             self._poll_imports(self._store)
 
     def _commit(self, store: Store) -> None:
-        dropped = self.handoff.dropped
-        total = self.handoff.dropped_total
+        dropped = self.handoff.dropped_by_kind()
+        total = sum(dropped.values())
         extra: list[RowTuple] = []
         if total != self._dropped_logged:
             extra.append(own_event(self.clock(), {"event": "records_dropped", "total": total,
-                                                  "by_kind": dict(dropped)}))
+                                                  "by_kind": dropped}))
         rows = self._backlog + extra
         progress = dumps({"wall": self._backlog_wall, "pid": os.getpid(),
                           "time": max((r[0] for r in self._backlog), default=None)})
@@ -215,7 +218,8 @@ class LogWriter:
             self._storage_trouble(exc)
             return
         self.written += len(rows)
-        self.handoff.committed(len(self._backlog))
+        self.handoff.committed(self._handed)
+        self._handed = 0
         self._dropped_logged = total
         self._backlog = []
         if self.error is not None:
