@@ -183,6 +183,44 @@ def test_in_real_time_the_least_valuable_rows_go_and_the_log_counts_them(
         counted["by_kind"].get("exceedance", 0) == 1600
 
 
+def test_a_slow_snapshot_never_holds_up_the_rows(tmp_path: Path,
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """A capture that takes seconds to encode (a big bag) is written beside the log's
+    commits, not before them."""
+    import threading
+    import time
+
+    real = WRITERS["ros1"]
+    writing = threading.Event()
+    release = threading.Event()
+
+    def slow_bag(messages, schemas, path):  # type: ignore[no-untyped-def]
+        writing.set()
+        release.wait(20)
+        return real(messages, schemas, path)
+
+    monkeypatch.setitem(WRITERS, "ros1", slow_bag)
+    now = [T0]
+    rec = Recorder(snapshot_settings(tmp_path / "log.db"), robot_id="r1",
+                   clock=lambda: now[0], schema_lookup={"/chatter": STRING}.get)
+    try:
+        faulty_run(rec, now, faults=1)
+        assert writing.wait(20), "the snapshot was never started"
+        before = rec.written
+        for i in range(5):  # rows that arrive while the snapshot is being written
+            t = T0 + 1000 + i
+            rec.on_observations(t, changes(t, 10, i % 2 == 0))
+        deadline = time.monotonic() + 10
+        while rec.written < before + 50:
+            assert time.monotonic() < deadline, "rows waited for the snapshot"
+            time.sleep(0.02)
+        assert rec.snapshots_written == 0  # still being written
+    finally:
+        release.set()
+        rec.close()
+    assert rec.snapshots_written >= 1
+
+
 # ---- closing -------------------------------------------------------------------------------
 
 
@@ -230,7 +268,10 @@ def test_record_refuses_a_file_that_is_not_a_health_log(tmp_path: Path) -> None:
     (aside,) = tmp_path.glob("my_config.yaml.replaced-*")
     assert aside.read_text() == text  # moved aside, never overwritten
     with Store.open(config, readonly=True) as store:
-        assert store.count("blackbox_event") > 0
+        (start,) = [e for e in store.query(kinds=["blackbox_event"],
+                                           entity="blackbox/recorder")
+                    if e.payload.get("event") == "start"]
+    assert start.payload["moved_aside"] == str(aside)
 
 
 def test_a_foreign_database_is_refused_by_the_recorder_too(tmp_path: Path) -> None:

@@ -90,8 +90,10 @@ class Recorder(SinkBase):
         self._handoff = Handoff(settings.queue_limit, settings.overflow, settings.commit_rows)
         self._writer = LogWriter(settings, robot_id, self._handoff, clock, self.snapshot_format)
         self._handoff.on_full = self._writer.wake.set
-        self._queue_rows([own_event(self.clock(), {"event": "start", "robot_id": robot_id,
-                                                   "pid": os.getpid()})], force=True)
+        start = {"event": "start", "robot_id": robot_id, "pid": os.getpid()}
+        if self.replaced is not None:  # --force: say where the other file went
+            start["moved_aside"] = str(self.replaced)
+        self._queue_rows([own_event(self.clock(), start)], force=True)
         self._writer.start()
 
     # ---- configuration ----------------------------------------------------------------------
