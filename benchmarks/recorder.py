@@ -30,6 +30,7 @@ from blackbox.events import MessageArrival
 from blackbox.model import Code, Observation, Resource, State
 from blackbox.record import Recorder, SnapshotConfig
 from blackbox.record.retention import estimate_capacity, hundred_topic_robot, thesis_robot
+from blackbox.record.settings import RecorderSettings
 from blackbox.record.snapshot import RingBuffer
 from blackbox.record.store import Row, Store
 
@@ -71,8 +72,9 @@ def _observations(count: int, realistic: bool) -> list[list[Observation]]:
 
 def recorder_rate(tmp: Path, observations: int, realistic: bool = False) -> tuple[float, float]:
     """(pipeline-side µs per observation, records/s from first hand-over to last commit)."""
-    rec = Recorder(tmp / f"recorder-{realistic}.db", robot_id="bench", snapshot=None,
-                   queue_limit=observations * 2)
+    rec = Recorder(RecorderSettings(tmp / f"recorder-{realistic}.db", snapshot=None,
+                                    queue_limit=observations * 2),
+                   robot_id="bench")
     batches = _observations(observations, realistic)
     written_before = rec.written
     t0 = time.perf_counter()
@@ -89,9 +91,10 @@ def recorder_rate(tmp: Path, observations: int, realistic: bool = False) -> tupl
 
 def pipeline_cost(tmp: Path, observations: int, realistic: bool) -> float:
     """Pipeline-side µs per logged observation with the writer thread idle (no GIL sharing)."""
-    rec = Recorder(tmp / f"pipeline-{realistic}.db", robot_id="bench", snapshot=None,
-                   queue_limit=observations * 2, commit_interval=3600.0,
-                   commit_rows=observations * 2)
+    rec = Recorder(RecorderSettings(tmp / f"pipeline-{realistic}.db", snapshot=None,
+                                    queue_limit=observations * 2, commit_interval=3600.0,
+                                    commit_rows=observations * 2),
+                   robot_id="bench")
     batches = _observations(observations, realistic)
     t0 = time.perf_counter()
     for batch in batches:
@@ -103,7 +106,7 @@ def pipeline_cost(tmp: Path, observations: int, realistic: bool) -> float:
 
 def unlogged_cost(tmp: Path, observations: int) -> float:
     """Pipeline-side µs per observation that the policy does not log (steady, healthy)."""
-    rec = Recorder(tmp / "unlogged.db", robot_id="bench", snapshot=None)
+    rec = Recorder(RecorderSettings(tmp / "unlogged.db", snapshot=None), robot_id="bench")
     resources = [Resource(topic=f"/robot/topic_{k:03d}") for k in range(100)]
     ok = (State(1, "ok"),)
     batches = [[Observation(1.7e9 + b * 0.1, "hz", r, Code.GENERAL_OK, ok, {"period": 0.0667})

@@ -45,14 +45,31 @@ def main() -> int:
     p.add_argument("--domain", type=int, required=True)
     p.add_argument("--partition", default="blackbox")
     p.add_argument("--store", default=None)
+    p.add_argument("--allow", action="append", default=[], metavar="PUBFILE=RIGHTS",
+                   help="trust this station key for RIGHTS (comma separated: logs,ibit)")
     args = p.parse_args()
+    stations = []
+    for item in args.allow:
+        from pathlib import Path
+
+        from blackbox.transport.auth import StationAccess, parse_public_key
+
+        pub, rights = item.split("=")
+        text = Path(pub).read_text()
+        stations.append(StationAccess(text.split()[2], parse_public_key(text),
+                                      frozenset(rights.split(","))))
     recorder = None
     if args.store:
         from blackbox.record import Recorder
+        from blackbox.record.settings import RecorderSettings
 
-        recorder = Recorder(args.store, robot_id=args.robot, commit_interval=0.1)
+        recorder = Recorder(RecorderSettings(args.store, commit_interval=0.1),
+                            robot_id=args.robot)
+    from blackbox.transport.auth import AccessPolicy
+
     sink = DdsHealthSink(args.robot, domain_id=args.domain, partition=args.partition,
-                         log_store_path=args.store, on_ibit=lambda: healthy(time.time()))
+                         log_store_path=args.store, on_ibit=lambda: healthy(time.time()),
+                         access=AccessPolicy.of(stations))
     sinks = [s for s in (recorder, sink) if s is not None]
     print("ready", flush=True)
     for line in sys.stdin:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from blackbox.transport.auth import RequestSigner
 from blackbox.transport.ibit import request_ibit
 from blackbox.transport.logservice import LogClient
 from blackbox.transport.participant import Bus, TransportSettings
@@ -20,6 +21,7 @@ from blackbox.transport.participant import Bus, TransportSettings
 pytestmark = [pytest.mark.dds]
 
 BLACKBOX = [sys.executable, "-m", "blackbox"]
+THESIS = Path(__file__).resolve().parent.parent / "src/blackbox/configs/thesis.yaml"
 
 
 def test_station_sees_state_runs_ibit_and_fetches_failures(tmp_path: Path) -> None:
@@ -27,7 +29,13 @@ def test_station_sees_state_runs_ibit_and_fetches_failures(tmp_path: Path) -> No
     faults = tmp_path / "faults.yaml"
     faults.write_text("faults:\n  - {kind: kill, component: /usb_cam, start: 3, end: 8}\n")
     env = {k: v for k, v in os.environ.items() if k != "CYCLONEDDS_URI"}
+    key = tmp_path / "depot"
+    assert subprocess.run([*BLACKBOX, "keygen", str(key)], capture_output=True).returncode == 0
+    config = tmp_path / "robot.yaml"
+    config.write_text(THESIS.read_text() + "\ntransport:\n  access:\n    stations:\n"
+                      "      - {name: depot, public_key_file: depot.pub, may: [logs, ibit]}\n")
     box = subprocess.Popen([*BLACKBOX, "run", "--dds", "--domain", str(domain), "--quiet",
+                            "--config", str(config),
                             "--faults", str(faults), "--record", str(tmp_path / "bb.db"),
                             "--duration", "25"], env=env, stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, text=True)
@@ -45,10 +53,12 @@ def test_station_sees_state_runs_ibit_and_fetches_failures(tmp_path: Path) -> No
 
         bus = Bus.open(TransportSettings(domain))
         try:
-            result = request_ibit(bus, "thesis-robot", timeout=10.0)
+            signer = RequestSigner.from_file(key)
+            result = request_ibit(bus, "thesis-robot", timeout=10.0, signer=signer)
             assert result is not None, "no run_IBIT answer"
             assert result.A_observations >= 10
-            answer = LogClient(bus).request("thesis-robot", kinds=["failure"], timeout=10.0)
+            answer = LogClient(bus, signer=signer).request("thesis-robot", kinds=["failure"],
+                                                           timeout=10.0)
         finally:
             bus.close()
         logged = json.dumps([e for e in answer.entries])

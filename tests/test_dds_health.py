@@ -39,13 +39,24 @@ def fresh_domain() -> int:
     return 100 + (os.getpid() * 7 + next(_counter)) % 120
 
 
+def station_key(directory: Path, name: str = "depot") -> Path:
+    """A station key pair made by ``blackbox keygen``: returns the private key file."""
+    key = directory / name
+    done = subprocess.run([sys.executable, "-m", "blackbox", "keygen", str(key), "--name", name],
+                          capture_output=True, text=True, timeout=30)
+    assert done.returncode == 0, done.stderr
+    return key
+
+
 class BlackBox:
     def __init__(self, robot: str, domain: int, store: Path | None = None,
-                 partition: str = "blackbox") -> None:
+                 partition: str = "blackbox", allow: dict[Path, str] | None = None) -> None:
         cmd = [sys.executable, str(DRIVER), "--robot", robot, "--domain", str(domain),
                "--partition", partition]
         if store is not None:
             cmd += ["--store", str(store)]
+        for key, rights in (allow or {}).items():
+            cmd += ["--allow", f"{key}.pub={rights}"]
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      text=True, env=_env())
         assert self._line() == "ready"
@@ -71,11 +82,14 @@ class BlackBox:
 class Listener:
     """``blackbox listen --json`` in its own process; a thread collects its state lines."""
 
-    def __init__(self, domain: int, *extra: str) -> None:
+    def __init__(self, domain: int, *extra: str, key: Path | None = None) -> None:
+        env = _env()
+        if key is not None:
+            env["BLACKBOX_STATION_KEY"] = str(key)  # its backfill requests are signed
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "blackbox", "listen", "--domain", str(domain), "--json",
              "--duration", "30", *extra],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
         self.lines: queue.Queue[str] = queue.Queue()
         self.state: dict[str, Any] = {}
         threading.Thread(target=self._pump, daemon=True).start()
@@ -155,7 +169,8 @@ def test_late_joiner_gets_the_full_state(cleanup):
 
 def test_restarted_listener_gets_state_again_and_missed_events_from_the_log(cleanup, tmp_path):
     domain = fresh_domain()
-    box = BlackBox("thesis", domain, store=tmp_path / "health.db")
+    key = station_key(tmp_path)
+    box = BlackBox("thesis", domain, store=tmp_path / "health.db", allow={key: "logs"})
     cleanup.append(box)
     box.send("ok")
     first = Listener(domain, "--backfill", "0")
@@ -163,7 +178,7 @@ def test_restarted_listener_gets_state_again_and_missed_events_from_the_log(clea
     first.wait_for(lambda s: entities(s, "thesis").get("/usb_cam") == "OPERATIONAL")
     first.kill()
     box.send("fault")  # nobody is listening: the events are missed live
-    second = Listener(domain, "--backfill", "300")
+    second = Listener(domain, "--backfill", "300", key=key)
     cleanup.append(second)
     state = second.wait_for(lambda s: entities(s, "thesis").get("/usb_cam") == "NOT_OPERATIONAL"
                             and any(e["origin"] == "log" and e["kind"] == "failure"
@@ -211,15 +226,16 @@ def test_two_black_boxes_on_one_domain_are_kept_apart(cleanup):
 
 def test_log_request_is_answered_only_by_the_addressed_robot(cleanup, tmp_path):
     domain = fresh_domain()
-    a = BlackBox("alpha", domain, store=tmp_path / "a.db")
-    b = BlackBox("bravo", domain, store=tmp_path / "b.db")
+    key = station_key(tmp_path)
+    a = BlackBox("alpha", domain, store=tmp_path / "a.db", allow={key: "logs"})
+    b = BlackBox("bravo", domain, store=tmp_path / "b.db", allow={key: "logs"})
     cleanup.extend([a, b])
     a.send("fault")
     b.send("ok")
     out = tmp_path / "alpha.jsonl"
     done = subprocess.run(
         [sys.executable, "-m", "blackbox", "request-logs", "--domain", str(domain), "--robot",
-         "alpha", "--kind", "failure", "--out", str(out)],
+         "alpha", "--kind", "failure", "--out", str(out), "--key", str(key)],
         capture_output=True, text=True, env=_env(), timeout=30)
     assert done.returncode == 0, done.stderr
     entries = [json.loads(line) for line in out.read_text().splitlines()]
@@ -261,18 +277,22 @@ def test_foreign_and_garbage_samples_do_not_crash_the_listener(cleanup):
     assert set(state["robots"]) == {"thesis", "#12345"}
 
 
-def test_run_ibit_evaluates_and_answers_with_the_reference_number(cleanup, monkeypatch):
+def test_run_ibit_evaluates_and_answers_with_the_reference_number(cleanup, monkeypatch,
+                                                                  tmp_path):
+    from blackbox.transport.auth import RequestSigner
     from blackbox.transport.ibit import request_ibit
     from blackbox.transport.participant import Bus, TransportSettings
 
     monkeypatch.delenv("CYCLONEDDS_URI", raising=False)
     domain = fresh_domain()
-    box = BlackBox("thesis", domain)
+    key = station_key(tmp_path)
+    box = BlackBox("thesis", domain, allow={key: "ibit"})
     cleanup.append(box)
     box.send("fault")
     bus = Bus.open(TransportSettings(domain))
     try:
-        result = request_ibit(bus, "thesis", timeout=10.0)
+        result = request_ibit(bus, "thesis", timeout=10.0,
+                              signer=RequestSigner.from_file(key))
     finally:
         bus.close()
     assert result is not None

@@ -18,6 +18,7 @@ import pytest
 
 from blackbox.model import BlackBoxEvent, Code, Observation, Resource
 from blackbox.record import Recorder, Store
+from blackbox.record.settings import RecorderSettings
 from blackbox.record.store import Row
 
 COMMIT = 0.25
@@ -29,8 +30,10 @@ WRITER = """
 import sys, time
 from blackbox.model import Code, Observation, Resource
 from blackbox.record import Recorder
+from blackbox.record.settings import RecorderSettings
 run = int(sys.argv[2])
-rec = Recorder(sys.argv[1], robot_id="crash", commit_interval=float(sys.argv[3]), snapshot=None)
+rec = Recorder(RecorderSettings(sys.argv[1], commit_interval=float(sys.argv[3]), snapshot=None),
+               robot_id="crash")
 resources = [Resource(topic=f"/t{k}") for k in range(50)]
 print("ready", flush=True)
 seq = 0
@@ -159,8 +162,9 @@ def test_full_disk_is_reported_observation_continues_and_writing_resumes(
         full_disk: FullDisk) -> None:
     log = full_disk.directory / "log.db"
     events: list[BlackBoxEvent] = []
-    rec = Recorder(log, robot_id="r1", commit_interval=0.05, retry_interval=0.05,
-                   snapshot=None, on_self_event=events.append, queue_limit=1_000_000)
+    rec = Recorder(RecorderSettings(log, commit_interval=0.05, retry_interval=0.05, snapshot=None,
+                                    queue_limit=1_000_000),
+                   robot_id="r1", on_self_event=events.append)
     t = [1_700_000_000.0]
     batches = [0]
 

@@ -110,6 +110,9 @@ def test_purge_needs_confirmation_then_records_itself(log: Path,
     snapshots = log.with_name("log.db.snapshots")
     snapshots.mkdir()
     (snapshots / "r1-x.bag").write_bytes(b"bag")
+    (snapshots / "mine.bag").write_bytes(b"a user's own bag, not the recorder's")
+    with Store.open(log) as store:
+        store.register_snapshot("r1-x.bag", 1.0)
     assert main(["log", "purge", "--db", str(log), "--yes", "--by", "depot"]) == 0
     assert "purged 5 entries and 1 snapshot files" in capsys.readouterr().out
     with Store.open(log, readonly=True) as store:
@@ -117,7 +120,7 @@ def test_purge_needs_confirmation_then_records_itself(log: Path,
     assert entry.kind == "blackbox_event"
     assert entry.payload == {"event": "purge", "deleted": 5, "by": "depot",
                              "kept_config_entry": None}
-    assert not any(snapshots.iterdir())
+    assert [p.name for p in snapshots.iterdir()] == ["mine.bag"]
 
 
 def test_db_from_the_configuration(log: Path, tmp_path: Path,

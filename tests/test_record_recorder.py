@@ -14,7 +14,8 @@ from blackbox.config.node import ConfigError, ConfigNode
 from blackbox.events import MessageArrival, TopicSchema
 from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource, State
 from blackbox.record import ConfigVersion, Recorder, SnapshotConfig, Store
-from blackbox.record.recorder import parse_size
+from blackbox.record.settings import RecorderSettings, SnapshotSettings, parse_size
+from blackbox.record.store import Row
 
 T0 = 1_700_000_000.0
 OK = (State(1, "ok"),)
@@ -47,8 +48,8 @@ def entries(path: Path, **filters: object) -> list:
 
 def test_records_changes_samples_and_own_start_stop(tmp_path: Path) -> None:
     now = [T0]
-    rec = Recorder(tmp_path / "log.db", robot_id="r1", commit_interval=0.05,
-                   clock=lambda: now[0], snapshot=None)
+    rec = Recorder(RecorderSettings(tmp_path / "log.db", commit_interval=0.05, snapshot=None),
+                   robot_id="r1", clock=lambda: now[0])
     for i in range(130):
         now[0] = T0 + i
         rec.on_observations(now[0], [obs(now[0], Code.NO_STATE_FITS if 40 <= i < 42 else
@@ -68,7 +69,8 @@ def test_records_changes_samples_and_own_start_stop(tmp_path: Path) -> None:
 
 def test_next_start_appends_to_the_same_log(tmp_path: Path) -> None:
     for run in range(2):
-        rec = Recorder(tmp_path / "log.db", robot_id="r1", commit_interval=0.05, snapshot=None)
+        rec = Recorder(RecorderSettings(tmp_path / "log.db", commit_interval=0.05, snapshot=None),
+                       robot_id="r1")
         rec.on_observations(T0 + run, [obs(T0 + run, Code.GENERAL_OK, Resource(topic=f"/t{run}"))])
         rec.close()
     assert [e.entity for e in entries(tmp_path / "log.db", kinds=["observation"])] == \
@@ -79,9 +81,10 @@ def test_fault_snapshot_is_written_and_referenced_by_the_failure(tmp_path: Path)
     from rosbags.rosbag1 import Reader
 
     now = [T0]
-    rec = Recorder(tmp_path / "log.db", robot_id="r1", commit_interval=0.05,
-                   clock=lambda: now[0], snapshot=SnapshotConfig(before=2.0, after=1.0),
-                   schema_lookup={"/chatter": STRING}.get)
+    ring = SnapshotConfig(before=2.0, after=1.0)
+    rec = Recorder(RecorderSettings(tmp_path / "log.db", commit_interval=0.05,
+                                    snapshot=SnapshotSettings(ring)),
+                   robot_id="r1", clock=lambda: now[0], schema_lookup={"/chatter": STRING}.get)
     assert rec.wants_messages
     for i in range(60):  # 10 Hz chatter, evaluation at 1 Hz, fault at 3 s
         t = T0 + i * 0.1
@@ -110,7 +113,8 @@ def test_fault_snapshot_is_written_and_referenced_by_the_failure(tmp_path: Path)
 
 
 def test_diagnosis_logged_on_change_and_failure_rectified(tmp_path: Path) -> None:
-    rec = Recorder(tmp_path / "log.db", robot_id="r1", commit_interval=0.05, snapshot=None)
+    rec = Recorder(RecorderSettings(tmp_path / "log.db", commit_interval=0.05, snapshot=None),
+                   robot_id="r1")
     cam = frozenset({"/usb_cam"})
     for t, cands in [(1, ()), (2, (cam,)), (3, (cam,)), (4, ())]:
         rec.on_diagnosis(Diagnosis(T0 + t, cands))
@@ -122,16 +126,32 @@ def test_diagnosis_logged_on_change_and_failure_rectified(tmp_path: Path) -> Non
     assert fail == [("detection", ["/usb_cam"]), ("rectification", ["/usb_cam"])]
 
 
+def corrupt_log(log: Path) -> bytes:
+    """A health log of ours whose pages after the header are garbage."""
+    with Store.open(log) as store:
+        store.append([Row(T0, "failure", None, None, {"components": ["/a"]})] * 50)
+    data = bytearray(log.read_bytes())
+    data[100:] = b"\x00garbage" * ((len(data) - 100) // 8) + b"\x00" * ((len(data) - 100) % 8)
+    log.write_bytes(bytes(data))
+    for extra in tmp_path_wal(log):
+        extra.unlink()
+    return bytes(data)
+
+
+def tmp_path_wal(log: Path) -> list[Path]:
+    return [p for p in (Path(f"{log}-wal"), Path(f"{log}-shm")) if p.exists()]
+
+
 def test_corrupt_log_is_set_aside_and_a_new_one_started(tmp_path: Path) -> None:
     log = tmp_path / "log.db"
-    log.write_bytes(b"\x00garbage, not SQLite" * 500)
+    garbage = corrupt_log(log)
     events: list[BlackBoxEvent] = []
-    rec = Recorder(log, robot_id="r1", commit_interval=0.05, snapshot=None,
-                   on_self_event=events.append)
+    rec = Recorder(RecorderSettings(log, commit_interval=0.05, snapshot=None),
+                   robot_id="r1", on_self_event=events.append)
     rec.on_observations(T0, [obs(T0)])
     rec.close()
     (aside,) = tmp_path.glob("log.db.corrupt-*")
-    assert aside.read_bytes().startswith(b"\x00garbage")
+    assert aside.read_bytes() == garbage
     assert [(e.kind, e.component) for e in events] == [("storage_corrupt", "blackbox/recorder")]
     assert "moved to log.db.corrupt-" in events[0].message
     kinds = [(e.kind, e.payload.get("event")) for e in entries(log)]
@@ -141,8 +161,8 @@ def test_corrupt_log_is_set_aside_and_a_new_one_started(tmp_path: Path) -> None:
 def test_imported_configuration_is_handed_over_without_restart(tmp_path: Path) -> None:
     log = tmp_path / "log.db"
     applied: list[ConfigVersion] = []
-    rec = Recorder(log, robot_id="r1", commit_interval=0.05, snapshot=None,
-                   on_config=applied.append)
+    rec = Recorder(RecorderSettings(log, commit_interval=0.05, snapshot=None),
+                   robot_id="r1", on_config=applied.append)
     rec.record_config("observers: []\n", "startup")
     wait_for(lambda: rec.written >= 2)  # start event and startup configuration committed
     assert main(["log", "import", "--db", str(log), str(THESIS), "--note", "new thresholds"]) == 0
@@ -164,7 +184,8 @@ def test_rejected_configuration_is_recorded(tmp_path: Path) -> None:
     def refuse(version: ConfigVersion) -> None:
         raise ValueError("observer /x cannot be rebuilt")
 
-    rec = Recorder(log, robot_id="r1", commit_interval=0.05, snapshot=None, on_config=refuse)
+    rec = Recorder(RecorderSettings(log, commit_interval=0.05, snapshot=None),
+                   robot_id="r1", on_config=refuse)
     assert main(["log", "import", "--db", str(log), str(THESIS)]) == 0
     wait_for(lambda: any(e.payload.get("event") == "config_rejected"
                          for e in entries(log, kinds=["blackbox_event"])),
@@ -200,10 +221,12 @@ def test_from_config_reads_the_recorder_section(tmp_path: Path) -> None:
         "    before: 4\n"
         "    max_bytes: 16 MiB\n"
         "    keep_one_of: {/usb_cam/image_raw: 5}\n", "bb.yaml")
+    (tmp_path / "data").mkdir()
     rec = Recorder.from_config(node["recorder"], "r1", tmp_path)
     try:
         assert rec.path == tmp_path / "data/health.db"
         assert rec.commit_interval == 0.5 and rec.snapshot_format == "mcap"
+        assert rec.settings == RecorderSettings.from_config(node["recorder"], tmp_path)
         assert rec.retention.budget_bytes == 1_500_000_000  # 25 % kept for snapshots
         assert rec.ring is not None and rec.ring.config.max_bytes == 16 * 1024**2
         assert rec.ring.config.keep_one_of == {"/usb_cam/image_raw": 5}
@@ -238,8 +261,9 @@ def test_sizes() -> None:
 
 
 def test_bounded_queue_drops_samples_first_and_counts(tmp_path: Path) -> None:
-    rec = Recorder(tmp_path / "log.db", robot_id="r1", commit_interval=30.0, snapshot=None,
-                   queue_limit=100)
+    rec = Recorder(RecorderSettings(tmp_path / "log.db", commit_interval=30.0, snapshot=None,
+                                    queue_limit=100),
+                   robot_id="r1")
     # The writer commits every 30 s: everything below stays queued until close().
     for i in range(300):
         rec.on_observations(T0 + i * 60, [obs(T0 + i * 60, resource=Resource(topic="/a")),
@@ -248,13 +272,19 @@ def test_bounded_queue_drops_samples_first_and_counts(tmp_path: Path) -> None:
     assert health.values["dropped"] > 0
     rec.close()
     logged = entries(tmp_path / "log.db")
-    assert len(logged) + int(rec.dropped) == 2 + 300 + 300  # start, stop, samples, changes
+    counted = [e.payload for e in logged if e.payload.get("event") == "records_dropped"]
+    # The log itself says what it lost, by kind: samples went first.
+    assert counted and counted[-1]["total"] == rec.dropped
+    by_kind = counted[-1]["by_kind"]
+    assert set(by_kind) == {"sample", "observation"} and by_kind["sample"] >= 250
+    assert len(logged) - len(counted) + rec.dropped == 2 + 300 + 300  # start, stop, both
 
 
 def test_logged_observation_payloads_are_complete_changes_and_lean_samples(
         tmp_path: Path) -> None:
     degraded = (State(2, "degraded"), State(5, "warm"))
-    rec = Recorder(tmp_path / "log.db", robot_id="r1", commit_interval=0.05, snapshot=None)
+    rec = Recorder(RecorderSettings(tmp_path / "log.db", commit_interval=0.05, snapshot=None),
+                   robot_id="r1")
     rec.on_observations(T0, [Observation(T0, "hz", CAM, Code.GENERAL_OK, degraded,
                                          {"period": 0.25, "rate_hz": 4.0, "silent": float("nan")},
                                          "period 0.25 s fits degraded, warm")])
@@ -278,8 +308,8 @@ def test_logged_observation_payloads_are_complete_changes_and_lean_samples(
 def test_an_observation_that_cannot_be_encoded_is_logged_as_such_and_writing_goes_on(
         tmp_path: Path) -> None:
     events: list[BlackBoxEvent] = []
-    rec = Recorder(tmp_path / "log.db", robot_id="r1", commit_interval=0.05, snapshot=None,
-                   on_self_event=events.append)
+    rec = Recorder(RecorderSettings(tmp_path / "log.db", commit_interval=0.05, snapshot=None),
+                   robot_id="r1", on_self_event=events.append)
     bad = Observation(T0, "hz", CAM, Code.GENERAL_OK, OK, {("not", "a", "key"): 1.0},  # type: ignore[dict-item]
                       "odd values")
     rec.on_observations(T0, [bad, obs(T0, resource=Resource(topic="/t"))])
@@ -293,8 +323,9 @@ def test_an_observation_that_cannot_be_encoded_is_logged_as_such_and_writing_goe
 
 
 def test_a_full_batch_is_committed_before_the_commit_interval_ends(tmp_path: Path) -> None:
-    rec = Recorder(tmp_path / "log.db", robot_id="r1", commit_interval=3600.0,
-                   commit_rows=100, snapshot=None)
+    rec = Recorder(RecorderSettings(tmp_path / "log.db", commit_interval=3600.0, commit_rows=100,
+                                    snapshot=None),
+                   robot_id="r1")
     # The start event and 150 changes: more than commit_rows, so the writer goes at once.
     rec.on_observations(T0, [obs(T0, resource=Resource(topic=f"/t{k}")) for k in range(150)])
     wait_for(lambda: rec.written == 151)

@@ -77,16 +77,20 @@ def test_under_budget_nothing_happens(tmp_path: Path) -> None:
     store.close()
 
 
-def test_snapshot_directory_loses_its_oldest_files_first(tmp_path: Path) -> None:
+def test_snapshot_directory_loses_the_oldest_of_its_own_files_only(tmp_path: Path) -> None:
     import os
 
     for i in range(5):
         f = tmp_path / f"snap{i}.bag"
         f.write_bytes(b"b" * 1000)
         os.utime(f, (1000 + i, 1000 + i))
-    removed = enforce_directory(tmp_path, 2500)
-    assert [p.name for p in removed] == ["snap0.bag", "snap1.bag", "snap2.bag"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["snap3.bag", "snap4.bag"]
+    user = tmp_path / "notes.bag"  # same suffix, older, bigger than the budget: not ours
+    user.write_bytes(b"u" * 5000)
+    os.utime(user, (10, 10))
+    outside = ["../escape.bag", "/etc/passwd", ".hidden.bag", "snap-a.txt"]
+    removed = enforce_directory(tmp_path, 2500, [f"snap{i}.bag" for i in range(5)] + outside)
+    assert removed == ["snap0.bag", "snap1.bag", "snap2.bag"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.bag", "snap3.bag", "snap4.bag"]
 
 
 def test_capacity_of_the_thesis_robot_meets_4000_hours_in_1_gb() -> None:

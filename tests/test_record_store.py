@@ -7,7 +7,9 @@ from pathlib import Path
 
 import pytest
 
+from blackbox.record.logfile import classify
 from blackbox.record.store import (
+    APPLICATION_ID,
     MIGRATIONS,
     SCHEMA_VERSION,
     Row,
@@ -49,8 +51,11 @@ def test_old_schema_is_migrated_in_place(tmp_path: Path) -> None:
     db.execute("INSERT INTO entries (time, kind, channel, code, payload) "
                "VALUES (5.0, 31, NULL, NULL, '{\"event\":\"start\"}')")
     db.close()
+    assert classify(path) == "health_log"  # a log from before the application id
     with Store.open(path) as store:
-        assert store.schema_version == 2
+        assert store.schema_version == SCHEMA_VERSION == 3
+        assert store.snapshot_files() == []
+        assert store.execute("PRAGMA application_id").fetchone()[0] == APPLICATION_ID
         indexes = {r[0] for r in store.execute("SELECT name FROM sqlite_master WHERE type='index'")}
         assert "entries_kind_time" in indexes
         (entry,) = store.query()

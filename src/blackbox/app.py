@@ -23,7 +23,8 @@ from blackbox.observe.build import build_observers, load_config, load_config_tex
 from blackbox.output.jsonlines import JsonLinesSink
 from blackbox.output.live import LiveStatusView
 from blackbox.pipeline import Pipeline, RunStats
-from blackbox.record.recorder import Recorder, recorder_options
+from blackbox.record.recorder import Recorder
+from blackbox.record.settings import RecorderSettings
 from blackbox.selfmonitor import ProbeObserver
 from blackbox.sinks import Sink
 from blackbox.sources import open_source
@@ -61,6 +62,8 @@ class RunOptions:
     ground_truth: Path | None = None
     diagnosis: bool = True
     record: Path | None = None
+    force_record: bool = False
+    """Start a new log over a file at ``record`` that is not a health log (moved aside)."""
     dds: bool = False
     dds_domain: int | None = None
     extra_sinks: list[Sink] = field(default_factory=list)
@@ -177,7 +180,7 @@ def open_dds(options: RunOptions, config: LoadedConfig, recorder: Recorder | Non
     from blackbox.health.describe import describe_observer
     from blackbox.transport.publisher import DdsHealthSink, transport_options
 
-    kwargs = transport_options(config.sections.get("transport"))
+    kwargs = transport_options(config.sections.get("transport"), Path(options.config).parent)
     if options.dds_domain is not None:
         kwargs["domain_id"] = options.dds_domain
     if recorder is not None:
@@ -187,13 +190,21 @@ def open_dds(options: RunOptions, config: LoadedConfig, recorder: Recorder | Non
 
 
 def open_recorder(options: RunOptions, config: LoadedConfig, source: Source) -> Recorder:
-    """The on-board store; snapshots are ROS 1 bags for ROS 1 robots, MCAP otherwise."""
-    kwargs = recorder_options(config.sections.get("recorder"), Path(options.config).parent)
-    if options.record is not None:
-        kwargs["path"] = options.record
-    kwargs.setdefault("snapshot_format", source.capabilities.snapshot_format)
-    Path(kwargs["path"]).parent.mkdir(parents=True, exist_ok=True)
-    return Recorder(**kwargs, robot_id=config.robot_id, schema_lookup=source.schema,
+    """The on-board store; snapshots are ROS 1 bags for ROS 1 robots, MCAP otherwise.
+
+    A simulated clock waits for the disk when the recorder's queue is full (``block``);
+    a real-time robot cannot wait, so the recorder drops the least valuable rows.
+    """
+    settings = RecorderSettings.from_config(config.sections.get("recorder"),
+                                            Path(options.config).parent)
+    snapshot = settings.snapshot
+    if snapshot is not None and snapshot.format is None:
+        snapshot = dataclasses.replace(snapshot, format=source.capabilities.snapshot_format)
+    settings = settings.replace(
+        path=options.record if options.record is not None else settings.path,
+        snapshot=snapshot, replace_foreign=options.force_record,
+        overflow="block" if options.simulated_clock else "drop")
+    return Recorder(settings, robot_id=config.robot_id, schema_lookup=source.schema,
                     clock=source.now)
 
 

@@ -12,18 +12,15 @@ from typing import Any, cast
 
 from blackbox.config.node import ConfigError, ConfigNode
 from blackbox.record.export import FORMATS, export
-from blackbox.record.recorder import (
-    DEFAULT_BUDGET,
-    config_entry_row,
-    parse_size,
-    recorder_options,
-)
+from blackbox.record.recorder import config_entry_row
 from blackbox.record.retention import (
     ObservedCharacteristic,
+    enforce_directory,
     estimate_capacity,
     hundred_topic_robot,
     thesis_robot,
 )
+from blackbox.record.settings import DEFAULT_BUDGET, parse_size, recorder_settings
 from blackbox.record.store import KINDS, LogEntry, StorageError, Store
 
 EXIT_ERROR = 1
@@ -107,7 +104,7 @@ def _db_path(args: argparse.Namespace) -> Path:
         db: Path = args.db
         return db
     if args.config is not None:
-        return Path(recorder_options(_recorder_section(args.config), args.config.parent)["path"])
+        return recorder_settings(_recorder_section(args.config), args.config.parent).path
     raise ConfigError("give the health log with --db FILE or --config FILE", "<command line>")
 
 
@@ -211,24 +208,22 @@ def _purge(args: argparse.Namespace) -> int:
                 print("nothing deleted")
                 return EXIT_ERROR
         entry = store.purge(time.time(), by=args.by)
-        removed = _purge_snapshots(args, store.path)
+        removed = _purge_snapshots(args, store)
     print(f"purged {entry.payload['deleted']} entries and {removed} snapshot files; "
           f"recorded as entry {entry.id}")
     return 0
 
 
-def _purge_snapshots(args: argparse.Namespace, db: Path) -> int:
-    directory = db.with_name(db.name + ".snapshots")
+def _purge_snapshots(args: argparse.Namespace, store: Store) -> int:
+    """Delete the snapshot files the recorder wrote (the log's manifest), nothing else."""
+    directory = store.path.with_name(store.path.name + ".snapshots")
     if args.config is not None:
-        opts = recorder_options(_recorder_section(args.config), args.config.parent)
-        directory = Path(opts.get("snapshot_dir") or directory)
-    removed = 0
-    if directory.is_dir():
-        for f in directory.iterdir():
-            if f.is_file() and f.suffix in (".bag", ".mcap"):
-                f.unlink()
-                removed += 1
-    return removed
+        directory = recorder_settings(_recorder_section(args.config),
+                                      args.config.parent).snapshot_dir
+    ours = store.snapshot_files()
+    removed = enforce_directory(directory, 0, ours) if directory.is_dir() else []
+    store.forget_snapshots(removed)
+    return len(removed)
 
 
 def validate_configuration(path: Path) -> str:
@@ -266,10 +261,10 @@ def _capacity(args: argparse.Namespace) -> int:
         loaded = load_config(args.config)
         observers = [_characteristic(node) for node in loaded.observers]
         section = loaded.sections.get("recorder")
-        opts = recorder_options(section, args.config.parent)
-        budget = opts.get("budget_bytes", budget)
-        policy = opts.get("policy")
-        share = opts.get("snapshot_share", share) if opts.get("snapshot") else 0.0
+        settings = recorder_settings(section, args.config.parent)
+        budget = settings.budget_bytes
+        policy = settings.policy
+        share = settings.snapshot.share if settings.snapshot else 0.0
         name = str(args.config)
     elif args.robot == "thesis":
         observers, name = thesis_robot(), "thesis robot (3 nodes, 10 observers at 1 Hz)"

@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 from datetime import datetime
+from pathlib import Path
 from typing import Any
 
 from blackbox.cli.listen import add_bus_arguments, open_bus
@@ -23,6 +24,18 @@ def _time(text: str) -> float:
             f"expected seconds since the epoch or an ISO date-time, got {text!r}") from None
 
 
+def max_entries(text: str) -> int:
+    from blackbox.transport.logservice import MAX_ENTRIES
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if not 0 <= value <= MAX_ENTRIES:
+        raise argparse.ArgumentTypeError(f"must be 0 (all) or 1..{MAX_ENTRIES}, got {value}")
+    return value
+
+
 def register(sub: Any) -> None:
     p = sub.add_parser("request-logs", help="fetch a robot's health log over DDS",
                        description=__doc__)
@@ -35,25 +48,36 @@ def register(sub: Any) -> None:
     p.add_argument("--kind", action="append", default=[], dest="kinds",
                    help="entry kind (repeatable): observation, exceedance, diagnosis, "
                         "failure, sample, blackbox_event, config, snapshot")
-    p.add_argument("--max", type=int, default=0, dest="max_entries",
-                   help="at most this many entries (default: all)")
+    p.add_argument("--max", type=max_entries, default=0, dest="max_entries",
+                   help="at most this many entries, 1..1000000 (default 0: all, at most "
+                        "1000000)")
+    p.add_argument("--key", type=Path, default=None, metavar="FILE",
+                   help="sign the request with this station key (blackbox keygen; default: "
+                        "$BLACKBOX_STATION_KEY); robots answer only stations they list")
     p.add_argument("--timeout", type=float, default=10.0, help="seconds to wait (default 10)")
     p.add_argument("--out", help="write JSON lines here instead of standard output")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from blackbox.transport.auth import AuthError, RequestSigner
     from blackbox.transport.logservice import LogClient
 
+    try:
+        signer = RequestSigner.from_file(args.key) if args.key else \
+            RequestSigner.from_environment()
+    except AuthError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     bus = open_bus(args)
     if bus is None:
         return 2
     try:
-        client = LogClient(bus)
+        client = LogClient(bus, signer=signer)
         answer = client.request(args.robot, entity=args.entity,
                                 characteristic=args.characteristic, since=args.since,
                                 until=args.until, kinds=args.kinds,
-                                max_entries=max(0, args.max_entries), timeout=args.timeout)
+                                max_entries=args.max_entries, timeout=args.timeout)
     finally:
         bus.close()
     if answer.status != "ok":

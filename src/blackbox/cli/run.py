@@ -7,6 +7,32 @@ import sys
 from pathlib import Path
 
 from blackbox.app import DEFAULT_CONFIG, RunOptions, build, graceful_interrupts
+from blackbox.record.store import StorageError
+
+EXIT_USAGE = 2
+MAX_DOMAIN_ID = 232
+
+
+def positive_seconds(text: str) -> float:
+    """``--duration``: a finite number of seconds above zero."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
+    return value
+
+
+def domain_id(text: str) -> int:
+    """``--domain``: a DDS domain id, 0..232 (what Cyclone can map to ports)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if not 0 <= value <= MAX_DOMAIN_ID:
+        raise argparse.ArgumentTypeError(f"must be 0..{MAX_DOMAIN_ID}, got {value}")
+    return value
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -21,7 +47,7 @@ def add_run_arguments(p: argparse.ArgumentParser, default_config: Path = DEFAULT
                    help="native or tug_observers YAML (default: the thesis robot's observers)")
     p.add_argument("--source", default="sim:thesis",
                    help="sim:thesis, sim:TOPOLOGY.yaml, ros1 or ros1://HOST:PORT")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
+    p.add_argument("--duration", type=positive_seconds, default=None, metavar="S",
                    help="stop after S seconds of source time (default: until Ctrl-C)")
     p.add_argument("--simulated-clock", action="store_true",
                    help="run a simulated source as fast as possible instead of in real time")
@@ -37,10 +63,14 @@ def add_run_arguments(p: argparse.ArgumentParser, default_config: Path = DEFAULT
     p.add_argument("--events", type=Path, default=None, metavar="FILE",
                    help="write the black box's own events as JSON lines")
     p.add_argument("--record", type=Path, default=None, metavar="DB",
-                   help="keep the health log in this SQLite file (see docs/recorder.md)")
+                   help="keep the health log in this SQLite file (see docs/recorder.md); an "
+                        "existing file that is not a health log is refused")
+    p.add_argument("--force", action="store_true",
+                   help="with --record: move a file that is not a health log aside and start "
+                        "a new log (never overwritten)")
     p.add_argument("--dds", action="store_true",
                    help="publish UCMS health over DDS (loopback unless configured; docs/health.md)")
-    p.add_argument("--domain", type=int, default=None, metavar="ID",
+    p.add_argument("--domain", type=domain_id, default=None, metavar="ID",
                    help="DDS domain id (default: transport.domain_id, else 0)")
     p.add_argument("--quiet", action="store_true", help="no live status view")
 
@@ -51,12 +81,16 @@ def options_from_args(args: argparse.Namespace) -> RunOptions:
         simulated_clock=args.simulated_clock, observations=args.observations,
         diagnoses=args.diagnoses, events=args.events, live=not args.quiet,
         faults=args.faults, seed=args.seed, ground_truth=args.ground_truth,
-        record=args.record, dds=args.dds, dds_domain=args.domain,
+        record=args.record, force_record=args.force, dds=args.dds, dds_domain=args.domain,
     )
 
 
 def run_command(args: argparse.Namespace) -> int:
-    blackbox = build(options_from_args(args))
+    try:
+        blackbox = build(options_from_args(args))
+    except StorageError as exc:  # the record path cannot be used: nothing was touched
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     with graceful_interrupts() as stop:
         stats = blackbox.run(stop)
     span = stats.ended - stats.started

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 from cyclonedds.idl import IdlEnum, IdlStruct
 from cyclonedds.idl.annotations import key
-from cyclonedds.idl.types import int32, int64, sequence, uint32
+from cyclonedds.idl.types import int32, int64, sequence, uint8, uint32
 
 # ---- P_LDM_Common ----------------------------------------------------------------------
 
@@ -270,6 +270,17 @@ class C_Threshold_Specification(IdlStruct, typename="P_UCMS_PSM.C_Threshold_Spec
 
 
 @dataclass
+class C_Request_Signature(IdlStruct, typename="P_BlackBox_Remote.C_Request_Signature"):
+    """Who signed a remote request, until when (ns since the epoch), a nonce, the Ed25519
+    signature (``blackbox.transport.auth``). An empty ``A_station`` means unsigned."""
+
+    A_station: str = ""
+    A_expiresNs: int64 = 0
+    A_nonce: str = ""
+    A_signature: sequence[uint8] = field(default_factory=list)
+
+
+@dataclass
 class C_Log_Request(IdlStruct, typename="P_BlackBox_Remote.C_Log_Request"):
     """Ask the black box ``A_recipientID`` (its robot identifier) for recorded entries.
 
@@ -288,6 +299,7 @@ class C_Log_Request(IdlStruct, typename="P_BlackBox_Remote.C_Log_Request"):
     A_until: T_DateTimeType = field(default_factory=T_DateTimeType)
     A_kinds: sequence[str] = field(default_factory=list)
     A_maxEntries: uint32 = 0
+    A_signed: C_Request_Signature = field(default_factory=C_Request_Signature)
 
 
 @dataclass
@@ -326,6 +338,19 @@ class C_IBIT_Result(IdlStruct, typename="P_BlackBox_Remote.C_IBIT_Result"):
     A_report: sequence[str] = field(default_factory=list)
 
 
+@dataclass
+class C_IBIT_Request(IdlStruct, typename="P_BlackBox_Remote.C_IBIT_Request"):
+    """A signed ``C_Monitored_Entity_run_IBIT``: the same fields plus the signature."""
+
+    A_recipientID: T_IdentifierType
+    key("A_recipientID")
+    A_sourceID: T_IdentifierType
+    key("A_sourceID")
+    A_referenceNum: int32 = 0
+    A_timeOfDataGeneration: T_DateTimeType = field(default_factory=T_DateTimeType)
+    A_signed: C_Request_Signature = field(default_factory=C_Request_Signature)
+
+
 UCMS_TOPICS: dict[str, type] = {
     "C_Monitored_Entity": C_Monitored_Entity,
     "C_Monitored_Entity_Specification": C_Monitored_Entity_Specification,
@@ -345,5 +370,6 @@ REMOTE_TOPICS: dict[str, type] = {
     "BlackBox_Log_Request": C_Log_Request,
     "BlackBox_Log_Reply": C_Log_Reply,
     "BlackBox_IBIT_Result": C_IBIT_Result,
+    "BlackBox_IBIT_Request": C_IBIT_Request,
 }
 """Topic name -> type of the black box's remote interface topics."""

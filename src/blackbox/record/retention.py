@@ -10,10 +10,14 @@ so only a heavy thinning actually frees pages.
 
 from __future__ import annotations
 
+import stat
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from blackbox.record.store import KINDS, Store
+
+SNAPSHOT_SUFFIXES = (".bag", ".mcap")
 
 _SAMPLE = KINDS["sample"]
 _CHANGES = (KINDS["observation"], KINDS["exceedance"], KINDS["diagnosis"], KINDS["snapshot"])
@@ -119,25 +123,36 @@ class Retention:
         return 0
 
 
-def enforce_directory(directory: Path, budget_bytes: int) -> list[Path]:
-    """Delete the oldest snapshot files until the directory fits ``budget_bytes``."""
-    try:
-        files = sorted((p for p in directory.iterdir() if p.is_file()),
-                       key=lambda p: p.stat().st_mtime)
-    except OSError:
-        return []
-    total = sum(p.stat().st_size for p in files)
-    removed: list[Path] = []
-    for p in files:
+def enforce_directory(directory: Path, budget_bytes: int, ours: Sequence[str]) -> list[str]:
+    """Delete the oldest of *our* snapshot files until they fit ``budget_bytes``.
+
+    ``ours`` is the log's manifest, oldest first: the names the recorder wrote. Nothing else
+    in ``directory`` is ever deleted (or counted): a name must be a plain file name with a
+    snapshot suffix, and the file a regular file, not a link. Returns the deleted names.
+    """
+    files: list[tuple[str, Path, int]] = []
+    for name in ours:
+        if Path(name).name != name or not name.endswith(SNAPSHOT_SUFFIXES) or \
+                name.startswith("."):
+            continue
+        path = directory / name
+        try:
+            info = path.lstat()
+        except OSError:
+            continue
+        if stat.S_ISREG(info.st_mode):
+            files.append((name, path, info.st_size))
+    total = sum(size for _, _, size in files)
+    removed: list[str] = []
+    for name, path, size in files:
         if total <= budget_bytes:
             break
-        size = p.stat().st_size
         try:
-            p.unlink()
+            path.unlink()
         except OSError:
             continue
         total -= size
-        removed.append(p)
+        removed.append(name)
     return removed
 
 

@@ -14,12 +14,14 @@ import json
 import math
 import sqlite3
 import time as _time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
+APPLICATION_ID = 0x42424C47
+"""``PRAGMA application_id`` of a health log ("BBLG"): how a file is recognised as one."""
 
 #: Entry kinds and their retention priority: lower numbers are thinned and dropped first.
 KINDS: dict[str, int] = {
@@ -72,8 +74,6 @@ class LogEntry:
 
 
 Channel = tuple[str | None, str | None, str]
-RowTuple = tuple[float, str, Channel | None, int | None, "dict[str, Any] | str"]
-"""A row as a plain tuple, as the recorder's hot path builds it."""
 
 
 class Row(NamedTuple):
@@ -90,6 +90,10 @@ class Row(NamedTuple):
     channel: Channel | None = None
     code: int | None = None
     payload: dict[str, Any] | str = {}  # shared default: rows without a payload never mutate it
+
+
+RowTuple = tuple[float, str, Channel | None, int | None, dict[str, Any] | str]
+"""What :meth:`Store.append` takes: a :class:`Row` or a plain tuple of its five fields."""
 
 
 def _script(db: sqlite3.Connection, sql: str) -> None:
@@ -130,7 +134,13 @@ def _v2(db: sqlite3.Connection) -> None:
     db.execute("CREATE INDEX entries_kind_time ON entries (kind, time)")
 
 
-MIGRATIONS: tuple[Callable[[sqlite3.Connection], None], ...] = (_v1, _v2)
+def _v3(db: sqlite3.Connection) -> None:
+    # The files the recorder wrote into its snapshot directory: retention deletes only these.
+    db.execute("CREATE TABLE snapshot_files (name TEXT PRIMARY KEY, created REAL NOT NULL)")
+    db.execute(f"PRAGMA application_id = {APPLICATION_ID}")
+
+
+MIGRATIONS: tuple[Callable[[sqlite3.Connection], None], ...] = (_v1, _v2, _v3)
 
 
 def _loads(text: str) -> dict[str, Any]:
@@ -310,17 +320,21 @@ class Store:
             self._channels[key] = cid
         return cid
 
-    def append(self, rows: Sequence[RowTuple]) -> list[int]:
-        """Write ``rows`` in one transaction; returns their ids. All or nothing.
+    def append(self, rows: Sequence[RowTuple],
+               meta: Mapping[str, str] | None = None) -> list[int]:
+        """Write ``rows`` (and ``meta`` keys) in one transaction; returns their ids.
 
-        Configuration rows whose payload ``version`` is ``None`` get the next version
-        number inside the transaction, so concurrent writers never share a version.
+        All or nothing. Configuration rows whose payload ``version`` is ``None`` get the
+        next version number inside the transaction, so concurrent writers never share a
+        version.
         """
         db = self._db
         numbered: list[dict[str, Any]] = []
         db.execute("BEGIN IMMEDIATE")
         try:
             ids = self._insert(rows, numbered)
+            if meta:
+                db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", meta.items())
             db.execute("COMMIT")
         except BaseException:
             self._rollback()
@@ -353,9 +367,9 @@ class Store:
                     if numbered is not None:
                         numbered.append(payload)
                 payload = dumps(payload)
-            channel_id = (None if channel is None
-                          else channels.get(channel) or self._channel_id(channel))
-            params.append((time, kinds[kind], channel_id, code, payload))
+            cid = None if channel is None else \
+                (channels.get(channel) or self._channel_id(channel))
+            params.append((time, kinds[kind], cid, code, payload))
         db.executemany("INSERT INTO entries (time, kind, channel, code, payload) "
                        "VALUES (?, ?, ?, ?, ?)", params)
         # Inside one write transaction AUTOINCREMENT ids are consecutive.
@@ -429,6 +443,20 @@ class Store:
         except OSError:
             wal_size = 0
         return int((count - free) * page + wal_size)
+
+    # ---- the snapshot manifest -------------------------------------------------------------
+
+    def register_snapshot(self, name: str, created: float) -> None:
+        """Note a snapshot file before it is written: retention may delete only these."""
+        self._db.execute("INSERT OR IGNORE INTO snapshot_files VALUES (?, ?)", (name, created))
+
+    def snapshot_files(self) -> list[str]:
+        """Names of the snapshot files this log's recorder wrote, oldest first."""
+        return [r[0] for r in self._db.execute(
+            "SELECT name FROM snapshot_files ORDER BY created, name")]
+
+    def forget_snapshots(self, names: Sequence[str]) -> None:
+        self._db.executemany("DELETE FROM snapshot_files WHERE name = ?", [(n,) for n in names])
 
     def meta(self, key: str) -> str | None:
         row = self._db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()

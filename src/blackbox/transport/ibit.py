@@ -5,6 +5,12 @@ robot's entities (the robot itself for everything). The black box marks its enti
 ``A_bitInProgress``, evaluates every observer now, publishes the resulting characteristics
 and events like any others, clears the flag and answers with a ``C_IBIT_Result`` carrying
 the command's reference number and the entity's health after the test.
+
+A built-in test makes the robot work, so it runs only for the stations the robot's
+configuration allows (:mod:`blackbox.transport.auth`): they send the same command signed,
+as ``C_IBIT_Request`` on ``BlackBox_IBIT_Request``. The plain UCMS command carries no
+signature and is answered only where the configuration grants ``ibit`` to unsigned
+requests; otherwise the answer's report says ``refused: <reason>`` and nothing runs.
 """
 
 from __future__ import annotations
@@ -12,54 +18,118 @@ from __future__ import annotations
 import secrets
 import time
 from collections.abc import Callable
+from typing import Any
 
 from blackbox.health.ids import SourceIds, stable_int
 from blackbox.health.types import (
+    C_IBIT_Request,
     C_IBIT_Result,
     C_Monitored_Entity_run_IBIT,
+    T_DateTimeType,
+    T_HealthStatus,
     T_IdentifierType,
     datetime_of,
 )
+from blackbox.transport.auth import (
+    AccessPolicy,
+    RequestSigner,
+    RequestVerifier,
+    from_wire,
+    to_wire,
+)
 from blackbox.transport.participant import Bus
+
+
+def ibit_fields(command: C_Monitored_Entity_run_IBIT | C_IBIT_Request) -> dict[str, Any]:
+    """What a station's signature covers: every field of the command."""
+    t: T_DateTimeType = command.A_timeOfDataGeneration
+    return {"recipient": [int(command.A_recipientID.A_resourceId),
+                          int(command.A_recipientID.A_instanceId)],
+            "source": [int(command.A_sourceID.A_resourceId),
+                       int(command.A_sourceID.A_instanceId)],
+            "reference": int(command.A_referenceNum),
+            "time_ns": int(t.A_second) * 1_000_000_000 + int(t.A_nanoseconds)}
 
 
 class IbitService:
     """Takes run_IBIT commands addressed to one robot and answers them."""
 
     def __init__(self, bus: Bus, robot_id: str,
-                 run: Callable[[C_Monitored_Entity_run_IBIT], C_IBIT_Result]) -> None:
+                 run: Callable[[C_Monitored_Entity_run_IBIT], C_IBIT_Result],
+                 verifier: RequestVerifier | None = None) -> None:
         self.resource_id = SourceIds(robot_id).resource_id
+        self.robot_id = robot_id
         self.run = run
+        self.verifier = verifier or RequestVerifier(robot_id, AccessPolicy())
         self.reader = bus.reader("C_Monitored_Entity_run_IBIT")
+        self.signed_reader = bus.reader("BlackBox_IBIT_Request")
+        self.readers = (self.reader, self.signed_reader)
         self.writer = bus.writer("BlackBox_IBIT_Result")
+        self.refused = 0
 
     def poll(self) -> int:
         count = 0
-        for command in self.reader.take(N=8):
-            if not isinstance(command, C_Monitored_Entity_run_IBIT):
+        for command in [*self.reader.take(N=8), *self.signed_reader.take(N=8)]:
+            if not isinstance(command, C_Monitored_Entity_run_IBIT | C_IBIT_Request):
                 continue
             if command.A_recipientID.A_resourceId != self.resource_id:
                 continue
-            self.writer.write(self.run(command))
+            signed = from_wire(command.A_signed) if isinstance(command, C_IBIT_Request) \
+                else None
+            verdict = self.verifier.verify("ibit", ibit_fields(command), signed)
+            if not verdict.allowed:
+                self.refused += 1
+                self.writer.write(self._refusal(command, verdict.reason))
+                continue
+            plain = command if isinstance(command, C_Monitored_Entity_run_IBIT) else \
+                C_Monitored_Entity_run_IBIT(
+                    A_recipientID=command.A_recipientID, A_sourceID=command.A_sourceID,
+                    A_referenceNum=command.A_referenceNum,
+                    A_timeOfDataGeneration=command.A_timeOfDataGeneration)
+            self.writer.write(self.run(plain))
             count += 1
         return count
 
+    def _refusal(self, command: C_Monitored_Entity_run_IBIT | C_IBIT_Request,
+                 reason: str) -> C_IBIT_Result:
+        return C_IBIT_Result(A_recipientID=command.A_recipientID,
+                             A_referenceNum=command.A_referenceNum,
+                             A_sourceID=T_IdentifierType(self.resource_id, 0),
+                             A_timeOfDataGeneration=datetime_of(time.time()),
+                             A_healthStatus=T_HealthStatus.L_HealthStatus_UNKNOWN,
+                             A_report=[f"refused: {reason}"])
 
-def request_ibit(bus: Bus, robot_id: str, *, entity: str = "",
-                 timeout: float = 10.0) -> C_IBIT_Result | None:
-    """Ask robot ``robot_id`` for a built-in test of ``entity`` ("" = the whole robot)."""
+
+def request_ibit(bus: Bus, robot_id: str, *, entity: str = "", timeout: float = 10.0,
+                 signer: RequestSigner | None = None) -> C_IBIT_Result | None:
+    """Ask robot ``robot_id`` for a built-in test of ``entity`` ("" = the whole robot).
+
+    Signed with ``signer`` (default: the key named by ``$BLACKBOX_STATION_KEY``, if set);
+    without a key the plain UCMS command is sent. A refusal is an answer whose report
+    starts with ``refused:``.
+    """
+    signer = signer if signer is not None else RequestSigner.from_environment()
     ids = SourceIds(robot_id)
-    writer = bus.writer("C_Monitored_Entity_run_IBIT")
+    topic = "BlackBox_IBIT_Request" if signer is not None else "C_Monitored_Entity_run_IBIT"
+    writer = bus.writer(topic)
     reader = bus.reader("BlackBox_IBIT_Result")
-    station = T_IdentifierType(stable_int("station", secrets.token_hex(4)), 1)
+    station = T_IdentifierType(stable_int("station", signer.station if signer else
+                                          secrets.token_hex(4)), 1)
     reference = secrets.randbits(31)
     recipient = ids.of("entity", entity)
     deadline = time.monotonic() + timeout
     while not writer.get_matched_subscriptions() and time.monotonic() < deadline:
         time.sleep(0.05)
-    writer.write(C_Monitored_Entity_run_IBIT(A_recipientID=recipient, A_sourceID=station,
-                                             A_referenceNum=reference,
-                                             A_timeOfDataGeneration=datetime_of(time.time())))
+    command = C_Monitored_Entity_run_IBIT(A_recipientID=recipient, A_sourceID=station,
+                                          A_referenceNum=reference,
+                                          A_timeOfDataGeneration=datetime_of(time.time()))
+    if signer is not None:
+        writer.write(C_IBIT_Request(
+            A_recipientID=recipient, A_sourceID=station, A_referenceNum=reference,
+            A_timeOfDataGeneration=command.A_timeOfDataGeneration,
+            A_signed=to_wire(signer.sign("ibit", robot_id, ibit_fields(command)))))
+    else:
+        writer.write(command)
     while time.monotonic() < deadline:
         for result in reader.take(N=16):
             if (isinstance(result, C_IBIT_Result) and result.A_referenceNum == reference

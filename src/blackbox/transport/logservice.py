@@ -7,6 +7,11 @@ time range and kinds. The black box answers with numbered ``C_Log_Reply`` chunks
 flagged; a request it cannot answer gets a single chunk whose status says why. The reply
 carries the request id and the requesting station's id, so any number of stations can ask
 at once.
+
+Only stations the robot's configuration allows are answered: the request is signed
+(:mod:`blackbox.transport.auth`) over :func:`request_fields`, and anything else gets the
+single chunk ``refused: <reason>``. Every field is checked against bounds first
+(:func:`check_request`): a request outside them is an error, never "no limit".
 """
 
 from __future__ import annotations
@@ -31,10 +36,19 @@ from blackbox.health.types import (
     datetime_of,
     seconds_of,
 )
+from blackbox.transport.auth import (
+    AccessPolicy,
+    RequestSigner,
+    RequestVerifier,
+    from_wire,
+    to_wire,
+)
 from blackbox.transport.participant import Bus
 
 DEFAULT_CHUNK = 200
 MAX_ENTRIES = 1_000_000
+MAX_TEXT = 256
+MAX_KINDS = 16
 
 
 class LogEntryLike(Protocol):
@@ -61,17 +75,53 @@ def _time_or_none(dt: T_DateTimeType) -> float | None:
     return None if dt.A_second == 0 and dt.A_nanoseconds == 0 else seconds_of(dt)
 
 
+def _ns(dt: T_DateTimeType) -> int:
+    return int(dt.A_second) * 1_000_000_000 + int(dt.A_nanoseconds)
+
+
+def request_fields(request: C_Log_Request) -> dict[str, Any]:
+    """What a station's signature covers: every field of the request but the signature."""
+    return {"request_id": [int(request.A_requestID.A_resourceId),
+                           int(request.A_requestID.A_instanceId)],
+            "recipient": [int(request.A_recipientID.A_resourceId),
+                          int(request.A_recipientID.A_instanceId)],
+            "time_ns": _ns(request.A_timeOfDataGeneration),
+            "entity": request.A_entity, "characteristic": request.A_characteristic,
+            "since_ns": _ns(request.A_since), "until_ns": _ns(request.A_until),
+            "kinds": list(request.A_kinds), "max_entries": int(request.A_maxEntries)}
+
+
+def check_request(request: C_Log_Request) -> str | None:
+    """Why a request is out of bounds, or ``None``. Bounds keep a request from making the
+    robot work without limit; ``A_maxEntries`` 0 means "all", at most :data:`MAX_ENTRIES`."""
+    if not 0 <= int(request.A_maxEntries) <= MAX_ENTRIES:
+        return f"A_maxEntries must be 0 (all, at most {MAX_ENTRIES:,}) or 1..{MAX_ENTRIES:,}"
+    if len(request.A_entity) > MAX_TEXT or len(request.A_characteristic) > MAX_TEXT:
+        return f"A_entity and A_characteristic are at most {MAX_TEXT} characters"
+    if len(request.A_kinds) > MAX_KINDS:
+        return f"at most {MAX_KINDS} kinds"
+    for dt in (request.A_since, request.A_until):
+        if dt.A_second < 0 or not 0 <= dt.A_nanoseconds < 1_000_000_000:
+            return "A_since and A_until must be valid times"
+    start, end = _time_or_none(request.A_since), _time_or_none(request.A_until)
+    if start is not None and end is not None and start > end:
+        return "A_since is after A_until"
+    return None
+
+
 class LogService:
     """Answers log requests addressed to one robot."""
 
     def __init__(self, bus: Bus, robot_id: str, open_source: Callable[[], LogSource],
-                 chunk_size: int = DEFAULT_CHUNK) -> None:
+                 chunk_size: int = DEFAULT_CHUNK, verifier: RequestVerifier | None = None) -> None:
         self.robot = T_IdentifierType(robot_resource_id(robot_id), 0)
+        self.verifier = verifier or RequestVerifier(robot_id, AccessPolicy())
         self._open_source = open_source
         self.chunk_size = max(1, chunk_size)
         self.reader = bus.reader("BlackBox_Log_Request")
         self.writer = bus.writer("BlackBox_Log_Reply")
         self.answered = 0
+        self.refused = 0
 
     def poll(self) -> int:
         """Answer every pending request; returns how many were answered."""
@@ -96,6 +146,16 @@ class LogService:
                                    time.time()),
                                A_last=last, A_status=status, A_entries=entries)
 
+        problem = check_request(request)
+        if problem is not None:
+            yield reply(0, True, f"error: {problem}", [])
+            return
+        verdict = self.verifier.verify("logs", request_fields(request),
+                                       from_wire(request.A_signed))
+        if not verdict.allowed:
+            self.refused += 1
+            yield reply(0, True, f"refused: {verdict.reason}", [])
+            return
         start, end = _time_or_none(request.A_since), _time_or_none(request.A_until)
         limit = request.A_maxEntries or MAX_ENTRIES
         try:
@@ -128,8 +188,13 @@ class LogAnswer:
 class LogClient:
     """Asks robots for their logs (``blackbox request-logs``, the listener's backfill)."""
 
-    def __init__(self, bus: Bus, station: str | None = None) -> None:
-        station = station or f"station-{secrets.token_hex(4)}"
+    def __init__(self, bus: Bus, station: str | None = None,
+                 signer: RequestSigner | None = None) -> None:
+        """``signer`` signs the requests; without one the key named by
+        ``$BLACKBOX_STATION_KEY`` is used if set, else requests go unsigned."""
+        self.signer = signer if signer is not None else RequestSigner.from_environment()
+        station = station or (self.signer.station if self.signer else
+                              f"station-{secrets.token_hex(4)}")
         self.station = stable_int("station", station)
         self.writer = bus.writer("BlackBox_Log_Request")
         self.reader = bus.reader("BlackBox_Log_Reply")
@@ -151,17 +216,23 @@ class LogClient:
                 characteristic: str | None = None, since: float | None = None,
                 until: float | None = None, kinds: Iterable[str] = (),
                 max_entries: int = 0, timeout: float = 10.0) -> LogAnswer:
+        if not 0 <= max_entries <= MAX_ENTRIES:
+            raise ValueError(f"max_entries must be 0 (all) or 1..{MAX_ENTRIES:,}")
         number = next(self._numbers) & 0x7FFF_FFFF
         request_id = T_IdentifierType(self.station, number)
         self.wait_for_robot(min(timeout, 5.0))
-        self.writer.write(C_Log_Request(
+        request = C_Log_Request(
             A_requestID=request_id,
             A_recipientID=T_IdentifierType(robot_resource_id(robot_id), 0),
             A_timeOfDataGeneration=datetime_of(time.time()),
             A_entity=entity or "", A_characteristic=characteristic or "",
             A_since=datetime_of(since) if since is not None else T_DateTimeType(),
             A_until=datetime_of(until) if until is not None else T_DateTimeType(),
-            A_kinds=list(kinds), A_maxEntries=max_entries))
+            A_kinds=list(kinds), A_maxEntries=max_entries)
+        if self.signer is not None:
+            request.A_signed = to_wire(self.signer.sign("logs", robot_id,
+                                                        request_fields(request)))
+        self.writer.write(request)
         chunks: dict[int, C_Log_Reply] = {}
         last: int | None = None
         deadline = time.monotonic() + timeout

@@ -3,7 +3,10 @@
 Which Cyclone configuration applies, first match wins: an explicit ``cyclone_config`` (XML
 or a ``file://`` URI), the ``CYCLONEDDS_URI`` environment variable (Cyclone's own
 convention), else :data:`LOOPBACK_CONFIG`, so that nothing leaves the machine unless
-the operator says so.
+the operator says so. The receiving sockets Cyclone binds to the wildcard address are then
+pinned to that configuration's interface (:mod:`blackbox.transport.sockets`), and its
+log output is filtered so that a flood of malformed datagrams cannot flood the log
+(:mod:`blackbox.transport.cyclone_log`).
 """
 
 from __future__ import annotations
@@ -21,7 +24,9 @@ from cyclonedds.topic import Topic
 
 from blackbox.health.extension import EXTENSION_TOPICS
 from blackbox.health.types import REMOTE_TOPICS, UCMS_TOPICS
+from blackbox.transport.cyclone_log import limit_malformed_packet_logging
 from blackbox.transport.qos import partition, qos_for
+from blackbox.transport.sockets import configured_interface, pin_new_sockets, udp_wildcard_sockets
 
 LOOPBACK_CONFIG = (
     '<General><Interfaces><NetworkInterface name="lo"/></Interfaces>'
@@ -59,12 +64,17 @@ class Bus:
     publisher: Publisher
     subscriber: Subscriber
     topics: dict[str, Topic[Any]] = field(default_factory=dict)
+    interface: str | None = None
+    """The interface Cyclone's receiving sockets are pinned to (``None``: not pinned)."""
+    pin_errors: tuple[str, ...] = ()
 
     @classmethod
     def open(cls, settings: TransportSettings) -> Bus:
         config = settings.cyclone_config
         if config is None and not os.environ.get("CYCLONEDDS_URI"):
             config = LOOPBACK_CONFIG
+        limit_malformed_packet_logging()
+        before = set(udp_wildcard_sockets())
         domain = None
         if config is not None:
             try:
@@ -72,9 +82,11 @@ class Bus:
             except DDSException:
                 domain = None  # this process already created the domain
         participant = DomainParticipant(settings.domain_id)
+        interface = configured_interface(config or os.environ.get("CYCLONEDDS_URI", ""))
+        errors = tuple(pin_new_sockets(before, interface)) if interface else ()
         qos = partition(settings.partition)
         return cls(settings, participant, domain, Publisher(participant, qos),
-                   Subscriber(participant, qos))
+                   Subscriber(participant, qos), interface=interface, pin_errors=errors)
 
     def topic(self, name: str) -> Topic[Any]:
         topic = self.topics.get(name)

@@ -41,6 +41,7 @@ from blackbox.health.types import (
 )
 from blackbox.model import BlackBoxEvent, Diagnosis, Observation
 from blackbox.sinks import SinkBase
+from blackbox.transport.auth import AccessPolicy, RequestVerifier
 from blackbox.transport.ibit import IbitService
 from blackbox.transport.logservice import DEFAULT_CHUNK, LogService, LogSource, open_store
 from blackbox.transport.participant import ALL_TOPICS, TOPIC_OF_TYPE, Bus, TransportSettings
@@ -59,7 +60,8 @@ class DdsHealthSink(SinkBase):
     units, thresholds, noise and filters before the first observation; without them
     characteristics are created from the observations alone, without thresholds.
     ``log_store_path`` (or ``log_source``) enables remote log requests; ``on_ibit``
-    (typically ``pipeline.evaluate_all``) enables run_IBIT.
+    (typically ``pipeline.evaluate_all``) enables run_IBIT. Both are answered only as
+    ``access`` allows (default: nobody; see :mod:`blackbox.transport.auth`).
     """
 
     def __init__(
@@ -78,6 +80,7 @@ class DdsHealthSink(SinkBase):
         log_source: LogSource | None = None,
         log_chunk_size: int = DEFAULT_CHUNK,
         on_ibit: Callable[[], Sequence[Observation]] | None = None,
+        access: AccessPolicy | None = None,
         clock: Callable[[], float] = time.time,
     ) -> None:
         if not robot_id:
@@ -106,12 +109,15 @@ class DdsHealthSink(SinkBase):
 
         self._stop = threading.Event()
         self._services: list[Any] = []
+        self.verifier = RequestVerifier(robot_id, access or AccessPolicy())
         if log_source is not None or log_store_path is not None:
             opener = (lambda: log_source) if log_source is not None else \
                 (lambda: open_store(str(log_store_path)))
-            self._services.append(LogService(self.bus, robot_id, opener, log_chunk_size))
+            self._services.append(LogService(self.bus, robot_id, opener, log_chunk_size,
+                                             self.verifier))
         if on_ibit is not None:
-            self._services.append(IbitService(self.bus, robot_id, self._run_ibit))
+            self._services.append(IbitService(self.bus, robot_id, self._run_ibit,
+                                              self.verifier))
         self._thread: threading.Thread | None = None
         if self._services:
             self._thread = threading.Thread(target=self._serve, name="blackbox-dds-service",
@@ -217,7 +223,8 @@ class DdsHealthSink(SinkBase):
         waitset = WaitSet(self.bus.participant)
         mask = SampleState.NotRead | ViewState.Any | InstanceState.Any
         for service in self._services:
-            waitset.attach(ReadCondition(service.reader, mask))
+            for reader in getattr(service, "readers", (service.reader,)):
+                waitset.attach(ReadCondition(reader, mask))
         while not self._stop.is_set():
             waitset.wait(duration(milliseconds=200))
             for service in self._services:
@@ -227,13 +234,18 @@ class DdsHealthSink(SinkBase):
                     self.last_error = f"{type(service).__name__}: {exc}"
 
 
-def transport_options(section: ConfigNode | None) -> dict[str, Any]:
+def transport_options(section: ConfigNode | None,
+                      base_dir: Path = Path(".")) -> dict[str, Any]:
     """Keyword arguments of :class:`DdsHealthSink` from a native ``transport:`` section."""
     if section is None:
         return {}
     section.check_keys(["domain_id", "partition", "cyclone_config", "owners",
                         "failure_actions", "status", "logging_interval", "log_store",
-                        "log_chunk_size"])
+                        "log_chunk_size", "access"])
+    if (node := section.get("access")) is not None:
+        out_access = AccessPolicy.from_config(node, base_dir)
+    else:
+        out_access = None
     out: dict[str, Any] = {}
     if (node := section.get("domain_id")) is not None:
         out["domain_id"] = node.int(min=0, max=232)
@@ -270,4 +282,6 @@ def transport_options(section: ConfigNode | None) -> dict[str, Any]:
         out["log_store_path"] = node.str()
     if (node := section.get("log_chunk_size")) is not None:
         out["log_chunk_size"] = node.int(min=1, max=10_000)
+    if out_access is not None:
+        out["access"] = out_access
     return out

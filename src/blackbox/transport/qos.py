@@ -61,7 +61,8 @@ EVENT_TOPICS = frozenset({"C_Threshold_Exceedence_Event", "C_Failure_Event",
                           "C_Preventive_Maintenance_Recommended_Event",
                           "BlackBox_Event_Extension"})
 COMMAND_TOPICS = frozenset({"C_Monitored_Entity_run_IBIT", "BlackBox_Log_Request",
-                            "BlackBox_Log_Reply", "BlackBox_IBIT_Result"})
+                            "BlackBox_Log_Reply", "BlackBox_IBIT_Result",
+                            "BlackBox_IBIT_Request"})
 
 
 def qos_for(topic: str) -> Qos:
