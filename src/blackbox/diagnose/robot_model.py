@@ -41,7 +41,7 @@ from blackbox.sources.base import GraphSnapshot
 
 RATE_MODES = ("learn", "always", "never")
 RATE_TYPES = frozenset({"hz", "timeout", "timestamp", "timing"})
-VALUE_TYPES = frozenset({"scores", "velocity", "moving", "movement"})
+VALUE_TYPES = frozenset({"scores", "fields", "velocity", "moving", "movement"})
 NODE_TYPES = frozenset({"activated", "resources"})
 NETWORK_TYPES = frozenset({"network"})
 OBSERVATION_TYPES = RATE_TYPES | VALUE_TYPES | NODE_TYPES | NETWORK_TYPES

@@ -5,6 +5,7 @@ One module per type. ``quantity`` (filtered quantities and state verdicts) and `
 """
 
 from blackbox.observe.observers.activated import ActivatedObserver
+from blackbox.observe.observers.fields import FieldsObserver
 from blackbox.observe.observers.hz import HzObserver
 from blackbox.observe.observers.moving import MotionSource, MovingObserver
 from blackbox.observe.observers.network import NetworkObserver
@@ -18,6 +19,7 @@ from blackbox.observe.observers.velocity import VelocityObserver
 
 __all__ = [
     "ActivatedObserver",
+    "FieldsObserver",
     "FilteredQuantity",
     "HzObserver",
     "MotionSource",
