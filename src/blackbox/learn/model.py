@@ -46,7 +46,7 @@ MAX_DELAY = 2.0
 """Largest filter window, in seconds of messages: a longer window delays detection."""
 IRREGULAR = 4.0
 TIMEOUT_FLOOR = 0.5
-AGE_FLOOR = 0.05
+AGE_FLOOR = 0.1
 RESOURCE_WINDOW = 5
 START_UP_TIME = 1.0
 LOGGING_TOPICS = frozenset({"/rosout", "/rosout_agg"})
