@@ -15,7 +15,7 @@ from blackbox.learn import Recording, learn_from, render_config, render_model, u
 from blackbox.learn.update import write_files
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         "learn", help="learn a configuration from a healthy run of a robot",
         description="Watch a healthy robot for a while and write a native configuration "

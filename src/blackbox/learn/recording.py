@@ -161,15 +161,15 @@ class Recorder:
             elif node.dead_since is None:
                 node.dead_since = graph.time
                 node.dead_spans.append((graph.time, None))
-        for name, info in graph.topics.items():
+        for name, tinfo in graph.topics.items():
             topic = rec.topics.get(name)
             if topic is None:
-                if info.publishers:
+                if tinfo.publishers:
                     rec.late_topics.add(name)
                 continue
-            topic.publishers.update(info.publishers)
-            topic.subscribers.update(info.subscribers)
-            topic.type = topic.type or info.type
+            topic.publishers.update(tinfo.publishers)
+            topic.subscribers.update(tinfo.subscribers)
+            topic.type = topic.type or tinfo.type
 
     def on_message(self, msg: MessageArrival) -> None:
         topic = self.recording.topics.get(msg.topic)

@@ -40,8 +40,8 @@ def _plain(value: Any) -> Any:
 def flow(value: Any) -> str:
     """``value`` as one line of YAML flow style."""
     value = _plain(value)
-    text = yaml.safe_dump(value, default_flow_style=True, width=1 << 30, sort_keys=False)
-    text = text.strip()
+    text = str(yaml.safe_dump(value, default_flow_style=True, width=1 << 30,
+                              sort_keys=False)).strip()
     if text.endswith("\n..."):
         text = text[:-4].strip()
     return text.removesuffix("...").strip()

@@ -54,7 +54,8 @@ def rolling_mean(x: np.ndarray, window: int) -> np.ndarray:
     if window <= 1:
         return x
     c = np.cumsum(np.concatenate(([0.0], x)))
-    return (c[window:] - c[:-window]) / window
+    out: np.ndarray = (c[window:] - c[:-window]) / window
+    return out
 
 
 @dataclass(frozen=True, slots=True)
