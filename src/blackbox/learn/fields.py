@@ -90,10 +90,15 @@ def discover(message: Any) -> Discovery:
             found.append(FieldInfo(path, "scalar", value.dtype.kind in "biu"))
             return
         if isinstance(value, (bytes, bytearray)):
-            found.append(FieldInfo(path, "array", True))
+            if value:
+                found.append(FieldInfo(path, "array", True))
+            else:
+                skipped.append(f"{path} (empty array)")
             return
         if isinstance(value, np.ndarray):
-            if value.dtype.kind in "biuf":
+            if value.size == 0:
+                skipped.append(f"{path} (empty array)")
+            elif value.dtype.kind in "biuf":
                 found.append(FieldInfo(path, "array", value.dtype.kind in "biu"))
             else:
                 skipped.append(f"{path} (array of {value.dtype})")
@@ -103,7 +108,7 @@ def discover(message: Any) -> Discovery:
                 found.append(FieldInfo(path, "array", all(isinstance(v, Integral)
                                                           for v in value)))
             elif not value:
-                skipped.append(f"{path} (empty list: element type unknown)")
+                skipped.append(f"{path} (empty array)")
             else:
                 skipped.append(f"{path} (array of messages)")
             return
