@@ -62,7 +62,7 @@ def test_a_source_without_any_graph_gives_an_empty_but_loadable_file() -> None:
     learned = learn_from(lambda: MemorySource([]), 5.0, discovery_timeout=1.0)
     text, entries = rendered(learned)
     assert entries == []
-    assert "the source sent no graph snapshot within 1 s" in text
+    assert "the source showed no graph snapshot within 1 s of discovery" in text
     assert "nothing could be learned" in text
 
 
@@ -113,3 +113,23 @@ def test_cli_on_a_silent_robot_explains_and_writes(tmp_path: Path,
     assert "could not learn: topic /value: rate: only 0 periods measured" in err
     assert out.is_file()
     assert main(["check-config", str(out)]) == 0
+
+
+def test_cli_without_a_master_says_so_without_waiting_out_the_run(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import socket
+    import time
+
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    out = tmp_path / "none.yaml"
+    started = time.monotonic()
+    assert main(["learn", "--source", f"ros1://127.0.0.1:{port}", "--duration", "600",
+                 "--discovery", "2", "-o", str(out), "--quiet"]) == 1
+    assert time.monotonic() - started < 60  # the 600 s run is skipped
+    err = capsys.readouterr().err
+    assert "could not learn: the source showed no node and no topic within 2 s of discovery" \
+        in err
+    assert "refused" in err  # why: the master does not answer
+    assert "nothing could be learned" in out.read_text()

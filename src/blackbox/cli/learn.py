@@ -74,6 +74,9 @@ def learn_command(args: argparse.Namespace) -> int:
           f"observers in {output} (diagnosis model {model_path})", file=sys.stderr)
     for note in learned.notes:
         print(f"  could not learn: {note}", file=sys.stderr)
+    if not observers:
+        print(f"blackbox learn: nothing was learned; {output} only says why", file=sys.stderr)
+        return 1
     return 0
 
 

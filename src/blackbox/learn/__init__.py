@@ -21,7 +21,7 @@ from blackbox.learn.model import Block, Learned, learn_model
 from blackbox.learn.recording import Progress, Recording, discover_graph, record
 from blackbox.learn.render import render_config, render_model
 from blackbox.learn.update import update_config
-from blackbox.sources.base import GraphSnapshot, Source
+from blackbox.sources.base import Source
 
 DISCOVERY_TIMEOUT = 10.0
 
@@ -35,14 +35,20 @@ def learn_from(open_robot: Callable[[], Source], duration: float, *,
     run each use one). A robot with no graph at all still gives a :class:`Learned` whose
     notes say why nothing was learned.
     """
-    graph = discover_graph(open_robot(), discovery_timeout)
-    recording = record(open_robot(), graph or GraphSnapshot(0.0), duration, progress,
-                       stop=stop)
-    learned = learn_model(recording)
-    if graph is None:
-        learned.notes.insert(0, f"the source sent no graph snapshot within "
-                                f"{discovery_timeout:g} s")
-    return learned
+    troubles: list[str] = []
+    graph = discover_graph(open_robot(), discovery_timeout, troubles=troubles)
+    if graph is None or not (graph.nodes or graph.topics):
+        # nothing to watch: say why at once instead of waiting out the learning run
+        unused = open_robot()
+        unused.close()
+        learned = learn_model(Recording(unused.name, 0.0))
+        what = "no graph snapshot" if graph is None else "no node and no topic"
+        why = f" ({'; '.join(troubles)})" if troubles else ""
+        learned.notes.insert(0, f"the source showed {what} within {discovery_timeout:g} s "
+                                f"of discovery{why}")
+        return learned
+    recording = record(open_robot(), graph, duration, progress, stop=stop)
+    return learn_model(recording)
 
 
 __all__ = ["Block", "Learned", "Progress", "Recording", "learn_from", "learn_model",

@@ -257,9 +257,12 @@ Progress = Callable[[float, Recording], None]
 """Called after each poll with the seconds learnt so far."""
 
 
-def discover_graph(source: Source, timeout: float, step: float = 0.25) -> GraphSnapshot | None:
+def discover_graph(source: Source, timeout: float, step: float = 0.25,
+                   troubles: list[str] | None = None) -> GraphSnapshot | None:
     """The first graph snapshot that names a topic with a publisher (or the last one seen
-    when none does within ``timeout`` seconds of source time). Closes ``source``."""
+    when none does within ``timeout`` seconds of source time). Closes ``source``. What the
+    source reported as trouble meanwhile (a master that does not answer) is appended to
+    ``troubles``."""
     latest: GraphSnapshot | None = None
     try:
         source.start(Interest())
@@ -271,6 +274,9 @@ def discover_graph(source: Source, timeout: float, step: float = 0.25) -> GraphS
                     latest = event
                     if any(info.publishers for info in event.topics.values()):
                         return event
+                elif isinstance(event, BlackBoxEvent) and troubles is not None \
+                        and len(troubles) < 5 and event.message not in troubles:
+                    troubles.append(event.message)
             if t - start >= timeout:
                 return latest
             t = min(t + step, start + timeout)
