@@ -105,9 +105,10 @@ def test_learned_configuration_is_quiet_on_another_healthy_run(tmp_path: Path) -
     (Fault("stall", "/audio", 60, 70), "timeout", Resource(topic="/audio")),
     (Fault("rate", "/signal", 60, 70, {"factor": 0.6}), "hz", Resource(topic="/signal")),
     (Fault("offset", "/signal", 60, 70, {"value": 2.0}), "fields", Resource(topic="/signal")),
+    (Fault("stuck", "/signal", 60, 70), "fields", Resource(topic="/signal")),
     (Fault("cpu_hog", "/audio_capture", 60, 70, {"percent": 60.0}), "resources",
      Resource(node="/audio_capture")),
-], ids=["kill", "stall", "rate", "offset", "cpu_hog"])
+], ids=["kill", "stall", "rate", "offset", "stuck", "cpu_hog"])
 def test_learned_configuration_sees_injected_faults_within_two_seconds(
         tmp_path: Path, fault: Fault, observer: str, resource: Resource) -> None:
     observations = run(write_learned(tmp_path), 80.0, [fault])

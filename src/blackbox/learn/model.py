@@ -16,7 +16,9 @@ The rules (also in docs/learn.md):
   their mean, min, max and the fraction of elements that are finite and inside the learned
   element range (widened by 10 % of its span): bounds by the same rule. Constant fields,
   counters and monotonic fields (clocks, odometers) are listed, not observed; discrete
-  fields (a few integer levels) must stay within their learned levels +- 0.5.
+  fields (a few integer levels) must stay within their learned levels +- 0.5. A numeric
+  value filtered over 3 or more samples also gets a lower bound on the window's standard
+  deviation, a quarter of its 0.1 % quantile while learning, so a frozen value is seen.
 * **Nodes**: ``activated`` for every node seen running; ``resources`` with upper bounds
   ``cpu < hi + max(hi - lo, hi / 2, 5 %)`` and ``memory < hi + max(hi - lo, hi / 4,
   16 MB)`` where lo..hi is the robust band of the 5-sample mean.
@@ -49,6 +51,8 @@ TIMEOUT_FLOOR = 0.5
 AGE_FLOOR = 0.1
 RESOURCE_WINDOW = 5
 START_UP_TIME = 1.0
+MIN_STUCK_WINDOW = 3
+"""Smallest filter window that also watches the spread of a value (a frozen value)."""
 LOGGING_TOPICS = frozenset({"/rosout", "/rosout_agg"})
 STATE = {"number": 1, "name": "nominal"}
 
@@ -294,11 +298,20 @@ def _value_entries(topic: TopicRecord, block: Block, periods: np.ndarray | None)
                 continue
             b = learn_bounds(x, max_window=max_window)
             assert b is not None
+            filt = _filter(b)
+            checks[name] = _between(b.lower, b.upper)
+            least = least_spread(x, b.window)
+            note = ""
+            if least is not None:
+                filt["deviation"] = "std_deviation"
+                checks[name]["deviation"] = [{"type": "greater_than",
+                                              "greater_than": round_down(least / 4, 3)}]
+                note = (f"; window std >= {_s(least)} (0.1 % quantile) while learning, must "
+                        f"stay > a quarter of it (a frozen value)")
             quantities.append({"name": name, "field": rec.info.path,
                                **({} if summary == "value" else {"summary": summary}),
-                               "filter": _filter(b)})
-            checks[name] = _between(b.lower, b.upper)
-            block.comments.append(f"{label}: {_bounds_note(b)}")
+                               "filter": filt})
+            block.comments.append(f"{label}: {_bounds_note(b)}{note}")
         if rec.info.kind == "array" and "numeric" in kinds:
             _in_range(rec, max_window, quantities, checks, block)
     if listed:
@@ -306,6 +319,17 @@ def _value_entries(topic: TopicRecord, block: Block, periods: np.ndarray | None)
     if quantities:
         block.entries.append({"type": "fields", "topic": topic.name, "fields": quantities,
                               "states": [{**STATE, **checks}]})
+
+
+def least_spread(x: np.ndarray, window: int) -> float | None:
+    """The 0.1 % quantile of the standard deviation of ``window`` consecutive samples, or
+    ``None`` when a frozen value cannot be told from the healthy spread (windows under
+    ``MIN_STUCK_WINDOW`` samples, or healthy windows that were already frozen)."""
+    if window < MIN_STUCK_WINDOW or x.size < window * 10:
+        return None
+    spread = np.lib.stride_tricks.sliding_window_view(x, window).std(axis=1, ddof=1)
+    least = quantile(spread, 0.001)
+    return least if least > 0 else None
 
 
 def _in_range(rec: FieldRecord, max_window: int, quantities: list[dict[str, Any]],
