@@ -5,7 +5,8 @@
 Starts ``roscore``, the thesis nodes and a laser driver with a node using its scans
 (``scripts/ros1_robot/laser_nodes.py``), learns a configuration for ``--learn`` seconds,
 then for each configuration (the shipped thesis observers plus a hand-written value
-observer of ``/min_distance``, and the learned one) runs the black box: ``--healthy``
+observer of ``/min_distance``; the same plus a hand-written rate observer of ``/scan``,
+the situation of issue 14; and the learned one) runs the black box: ``--healthy``
 fault-free seconds (false alarms = episodes of faulty observations), then one fault of
 each kind for ``--fault`` seconds, ``--gap`` seconds apart: killed camera driver, stopped
 audio driver, ``/signal`` slowed to 5 Hz, and the laser driver publishing ranges 0.5 m too
@@ -46,6 +47,15 @@ HAND_EXTRA = """
       - number: 1
         name: ok
         score: {value: {type: in_between, lower_bound: 1.9, upper_bound: 2.1}}
+"""
+SCAN_RATE = """
+  - type: hz
+    topic: /scan
+    filter: {type: mean, window_size: 10}
+    states:
+      - number: 1
+        name: ok
+        period: {value: {type: in_between, lower_bound: 0.08, upper_bound: 0.12}}
 """
 GRACE = 2.0
 
@@ -131,11 +141,15 @@ def main(argv: list[str] | None = None) -> int:
         (out / "robot.model.yaml").write_text(render_model(learned, "benchmark"))
         hand_path = out / "hand.yaml"
         hand_path.write_text(DEFAULT_CONFIG.read_text() + HAND_EXTRA)
+        rate_path = out / "hand-scan-rate.yaml"
+        rate_path.write_text(DEFAULT_CONFIG.read_text() + HAND_EXTRA + SCAN_RATE)
         print(f"learned {learned_path} from {args.learn:g} s; notes: {learned.notes}")
         print("| configuration | fault | first faulty observation | first-ranked candidate | "
               "faulty node among candidates |")
         print("|---|---|---|---|---|")
-        for name, path in (("hand-written", hand_path), ("learned", learned_path)):
+        for name, path in (("hand-written", hand_path),
+                           ("hand-written + hz /scan", rate_path),
+                           ("learned", learned_path)):
             for line in run_config(name, path, robot, args.healthy, args.fault, args.gap):
                 print(line, flush=True)
     finally:

@@ -131,7 +131,11 @@ def test_merge_rule() -> None:
            "states": [{"number": 1, "period": {"value": {"type": "in_between",
                                                           "lower_bound": 1.2,
                                                           "upper_bound": 2.5}}}]}
+    old["states"][0]["period"]["deviation"] = [{"type": "greater_than", "greater_than": 0.1}]
+    new["states"][0]["period"]["deviation"] = [{"type": "greater_than", "greater_than": 0.2}]
     merged = merge_values(old, new)
+    assert merged["states"][0]["period"].pop("deviation") == [{"type": "greater_than",
+                                                              "greater_than": 0.1}]
     assert merged["timeout"] == 0.5 and merged["filter"]["window_size"] == 20
     assert merged["states"][0]["period"]["value"] == {"type": "in_between",
                                                       "lower_bound": 1.0, "upper_bound": 2.5}

@@ -112,6 +112,9 @@ def merge_values(old: Any, new: Any, key: str = "") -> Any:
         for k, v in old.items():
             out[k] = merge_values(v, new[k], k) if k in new else v
         return out
+    if isinstance(old, list) and isinstance(new, list) and key == "deviation" \
+            and len(old) == len(new):
+        return [merge_values(o, n) for o, n in zip(old, new, strict=True)]
     if isinstance(old, list) and isinstance(new, list) and key in _LIST_KEYS:
         ident = _LIST_KEYS[key]
         old_by = {item.get(ident): item for item in old if isinstance(item, dict)}
