@@ -23,6 +23,8 @@ from blackbox.learn.model import Block, Learned
 START = "# >>> learned {id} >>>"
 END = "# <<< learned {id} <<<"
 SUMMARY_ID = "summary"
+LINE = 120
+"""A state longer than this is written one check per line."""
 MODEL_ID = "diagnosis model"
 
 
@@ -58,7 +60,13 @@ def entry_lines(entry: dict[str, Any], indent: str = "  ") -> list[str]:
         first = False
         if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
             lines.append(f"{lead}{key}:")
-            lines.extend(f"{indent}    - {flow(v)}" for v in value)
+            for item in value:
+                one = f"{indent}    - {flow(item)}"
+                if len(one) <= LINE or key != "states":
+                    lines.append(one)
+                    continue
+                for n, (k, v) in enumerate(item.items()):  # a long state: one check a line
+                    lines.append(f"{indent}    {'- ' if n == 0 else '  '}{k}: {flow(v)}")
         else:
             lines.append(f"{lead}{key}: {flow(value)}")
     return lines
