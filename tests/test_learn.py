@@ -183,3 +183,25 @@ def test_cli_learns_and_check_config_accepts_the_file(tmp_path: Path,
     assert main(["check-config", str(out)]) == 0
     assert main(["learn", "--source", "bogus:x", "-o", str(tmp_path / "x.yaml")]) == 2
     assert "unknown source" in capsys.readouterr().err
+
+
+def test_a_topic_with_two_publishers_gets_one_rate_observer_per_publisher() -> None:
+    from blackbox.config.loader import load_config_text
+    from blackbox.sources.base import GraphSnapshot, MessageArrival, NodeInfo, TopicInfo
+    from blackbox.sources.memory import MemorySource
+
+    nodes = {n: NodeInfo(n, True) for n in ("/left", "/right")}
+    graph = GraphSnapshot(0.0, nodes, {"/wheel": TopicInfo("/wheel", "std_msgs/Float64",
+                                                           ("/left", "/right"), ())})
+    events: list = [graph]
+    events += [MessageArrival(0.1 * i, "/wheel", "/left", 8) for i in range(1, 300)]
+    events += [MessageArrival(0.25 * i + 0.01, "/wheel", "/right", 8) for i in range(1, 120)]
+    learned = learn_from(lambda: MemorySource(events), 30.0)
+    config = load_config_text(render_config(learned, "r", "m.yaml", "now"), "r.yaml")
+    hz = {tuple(e["publishers"].str_list()): e.to_python() for e in config.observers
+          if e["type"].str() == "hz"}
+    assert set(hz) == {("/left",), ("/right",)}
+    left = hz[("/left",)]["states"][0]["period"]["value"]
+    right = hz[("/right",)]["states"][0]["period"]["value"]
+    assert left["lower_bound"] < 0.1 < left["upper_bound"] < 0.25
+    assert right["lower_bound"] < 0.25 < right["upper_bound"]
