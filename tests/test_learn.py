@@ -205,3 +205,18 @@ def test_a_topic_with_two_publishers_gets_one_rate_observer_per_publisher() -> N
     right = hz[("/right",)]["states"][0]["period"]["value"]
     assert left["lower_bound"] < 0.1 < left["upper_bound"] < 0.25
     assert right["lower_bound"] < 0.25 < right["upper_bound"]
+
+
+def test_learned_configuration_scores_at_least_the_hand_written_one(tmp_path: Path) -> None:
+    """A short version of benchmarks/learn_evaluation.py (docs/evaluation.md)."""
+    from blackbox.app import DEFAULT_CONFIG
+    from blackbox.evaluate import CampaignSettings, run_campaign
+
+    learned = write_learned(tmp_path)
+    results = {name: run_campaign(CampaignSettings(config=config, runs=2, duration=120.0))
+               for name, config in (("hand", DEFAULT_CONFIG), ("learned", learned))}
+    hand, mine = results["hand"], results["learned"]
+    assert mine.confusion.fp == 0
+    assert (mine.confusion.f1 or 0.0) >= (hand.confusion.f1 or 0.0)
+    assert mine.diagnosis is not None and hand.diagnosis is not None
+    assert mine.diagnosis.isolated >= hand.diagnosis.isolated
