@@ -28,7 +28,7 @@ from typing import Literal
 
 from blackbox.config.node import ConfigNode
 from blackbox.model import Resource
-from blackbox.observe.base import observer_kind
+from blackbox.observe.base import NamedQuantities, observer_kind
 from blackbox.observe.build import build_observer, kind_of
 
 
@@ -99,10 +99,13 @@ def _bounds(check: ConfigNode) -> tuple[float | None, float | None, float | None
 def describe_observer(node: ConfigNode) -> ObserverDescription:
     """Describe one native observer entry; raises ``ConfigError`` via ``node.error``."""
     kind = kind_of(node)
-    resource = build_observer(node).resource
+    observer = build_observer(node)
+    resource = observer.resource
     every = node.get("every")
     interval = every.float(min=0.0, min_exclusive=True) if every is not None else 1.0
     quantities = tuple(q.name for q in kind.quantities)
+    if not quantities and isinstance(observer, NamedQuantities):
+        quantities = observer.quantity_names()
     states_node = node.get("states")
     states = states_node.list() if states_node is not None else []
     names: list[str] = []

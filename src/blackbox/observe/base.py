@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from enum import Enum
-from typing import ClassVar, Literal, Protocol
+from typing import ClassVar, Literal, Protocol, runtime_checkable
 
 from blackbox.config.node import ConfigNode
 from blackbox.config.tug import TugForm
@@ -195,6 +195,14 @@ class ObserverKind:
 
     def unit(self, quantity: str) -> str:
         return next((q.unit for q in self.quantities if q.name == quantity), "")
+
+
+@runtime_checkable
+class NamedQuantities(Protocol):
+    """An observer whose quantities are named by its configuration entry (``fields``), so
+    its type registers none: the health description asks the observer instead."""
+
+    def quantity_names(self) -> tuple[str, ...]: ...
 
 
 OBSERVERS: Registry[ObserverKind] = Registry("observer type", "blackbox.observe.observers")

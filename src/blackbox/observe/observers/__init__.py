@@ -6,6 +6,7 @@
 """
 
 from blackbox.observe.observers.activated import ActivatedObserver
+from blackbox.observe.observers.fields import FieldsObserver
 from blackbox.observe.observers.hz import HzObserver
 from blackbox.observe.observers.moving import MotionSource, MovingObserver
 from blackbox.observe.observers.network import NetworkObserver
@@ -19,6 +20,7 @@ from blackbox.observe.observers.velocity import VelocityObserver
 
 __all__ = [
     "ActivatedObserver",
+    "FieldsObserver",
     "FilteredQuantity",
     "HzObserver",
     "JudgedObserver",
