@@ -44,7 +44,7 @@ def test_passwords_are_stored_as_argon2id_hashes(auth: Auth, tmp_path: Path) -> 
     import sqlite3
 
     stored = sqlite3.connect(tmp_path / "station.db").execute(
-        "SELECT hash FROM auth_users").fetchone()[0]
+        "SELECT hash FROM web_users").fetchone()[0]
     assert stored.startswith("$argon2id$")
     assert PASSWORD not in stored
 

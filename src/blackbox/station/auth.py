@@ -13,10 +13,12 @@ built-in test, send their logs), so it is treated as a security boundary:
 * failed log-ins are counted per user name and per client address; past
   :attr:`AuthPolicy.free_failures` each further attempt must wait twice as long as the last
   (capped at :attr:`AuthPolicy.max_backoff`), and answers "try again in N s";
-* every state-changing action, refused ones included, is a row of the ``audit`` table.
+* every state-changing action, refused ones included, is a row of the ``web_audit`` table.
 
 Tables live in the station's SQLite file next to the fleet data, under their own names
-(``auth_users``, ``auth_sessions``, ``auth_failures``, ``audit``).
+(``web_users``, ``web_sessions``, ``web_login_failures``, ``web_audit``). Open the
+:class:`~blackbox.station.store.StationStore` on the file first: it refuses a file that
+already has tables but not its own.
 """
 
 from __future__ import annotations
@@ -115,25 +117,25 @@ class AuditEntry:
 
 
 SCHEMA = """
-CREATE TABLE IF NOT EXISTS auth_users (
+CREATE TABLE IF NOT EXISTS web_users (
     name TEXT PRIMARY KEY,
     role INTEGER NOT NULL,
     hash TEXT NOT NULL,
     created REAL NOT NULL
 );
-CREATE TABLE IF NOT EXISTS auth_sessions (
+CREATE TABLE IF NOT EXISTS web_sessions (
     token_hash TEXT PRIMARY KEY,
-    user TEXT NOT NULL REFERENCES auth_users(name) ON DELETE CASCADE,
+    user TEXT NOT NULL REFERENCES web_users(name) ON DELETE CASCADE,
     csrf TEXT NOT NULL,
     created REAL NOT NULL,
     last_seen REAL NOT NULL
 );
-CREATE TABLE IF NOT EXISTS auth_failures (
+CREATE TABLE IF NOT EXISTS web_login_failures (
     key TEXT PRIMARY KEY,
     count INTEGER NOT NULL,
     last REAL NOT NULL
 );
-CREATE TABLE IF NOT EXISTS audit (
+CREATE TABLE IF NOT EXISTS web_audit (
     id INTEGER PRIMARY KEY AUTOINCREMENT,
     time REAL NOT NULL,
     user TEXT NOT NULL,
@@ -143,7 +145,7 @@ CREATE TABLE IF NOT EXISTS audit (
     address TEXT NOT NULL,
     detail TEXT NOT NULL
 );
-CREATE INDEX IF NOT EXISTS audit_time ON audit (time)
+CREATE INDEX IF NOT EXISTS web_audit_time ON web_audit (time)
 """
 
 
@@ -187,7 +189,7 @@ class Auth:
         hashed = self.hasher.hash(password)
         with self._lock:
             try:
-                self._db.execute("INSERT INTO auth_users VALUES (?, ?, ?, ?)",
+                self._db.execute("INSERT INTO web_users VALUES (?, ?, ?, ?)",
                                  (name, int(role), hashed, now))
             except sqlite3.IntegrityError:
                 raise AuthError(f"user {name!r} exists already") from None
@@ -196,7 +198,7 @@ class Auth:
 
     def set_role(self, name: str, role: Role, *, by: str, address: str) -> None:
         with self._lock:
-            changed = self._db.execute("UPDATE auth_users SET role = ? WHERE name = ?",
+            changed = self._db.execute("UPDATE web_users SET role = ? WHERE name = ?",
                                        (int(role), name)).rowcount
         if not changed:
             raise AuthError(f"no user {name!r}")
@@ -207,17 +209,17 @@ class Auth:
             raise AuthError(f"a password has at least {MIN_PASSWORD} characters")
         hashed = self.hasher.hash(password)
         with self._lock:
-            changed = self._db.execute("UPDATE auth_users SET hash = ? WHERE name = ?",
+            changed = self._db.execute("UPDATE web_users SET hash = ? WHERE name = ?",
                                        (hashed, name)).rowcount
-            self._db.execute("DELETE FROM auth_sessions WHERE user = ?", (name,))
+            self._db.execute("DELETE FROM web_sessions WHERE user = ?", (name,))
         if not changed:
             raise AuthError(f"no user {name!r}")
         self.audit(by, "user.password", name, "ok", address, "")
 
     def remove_user(self, name: str, *, by: str, address: str) -> None:
         with self._lock:
-            self._db.execute("DELETE FROM auth_sessions WHERE user = ?", (name,))
-            removed = self._db.execute("DELETE FROM auth_users WHERE name = ?",
+            self._db.execute("DELETE FROM web_sessions WHERE user = ?", (name,))
+            removed = self._db.execute("DELETE FROM web_users WHERE name = ?",
                                        (name,)).rowcount
         if not removed:
             raise AuthError(f"no user {name!r}")
@@ -226,12 +228,12 @@ class Auth:
     def users(self) -> list[User]:
         with self._lock:
             rows = self._db.execute(
-                "SELECT name, role, created FROM auth_users ORDER BY name").fetchall()
+                "SELECT name, role, created FROM web_users ORDER BY name").fetchall()
         return [User(n, Role(r), c) for n, r, c in rows]
 
     def user(self, name: str) -> User | None:
         with self._lock:
-            row = self._db.execute("SELECT name, role, created FROM auth_users WHERE name = ?",
+            row = self._db.execute("SELECT name, role, created FROM web_users WHERE name = ?",
                                    (name,)).fetchone()
         return User(row[0], Role(row[1]), row[2]) if row else None
 
@@ -243,7 +245,7 @@ class Auth:
         wait = 0.0
         with self._lock:
             for key in (f"user:{name.lower()}", f"addr:{address}"):
-                row = self._db.execute("SELECT count, last FROM auth_failures WHERE key = ?",
+                row = self._db.execute("SELECT count, last FROM web_login_failures WHERE key = ?",
                                        (key,)).fetchone()
                 if row is None or now - row[1] > self.policy.failure_window:
                     continue
@@ -258,11 +260,11 @@ class Auth:
         now = self.clock()
         with self._lock:
             for key in (f"user:{name.lower()}", f"addr:{address}"):
-                row = self._db.execute("SELECT count, last FROM auth_failures WHERE key = ?",
+                row = self._db.execute("SELECT count, last FROM web_login_failures WHERE key = ?",
                                        (key,)).fetchone()
                 count = 1 if row is None or now - row[1] > self.policy.failure_window \
                     else row[0] + 1
-                self._db.execute("INSERT OR REPLACE INTO auth_failures VALUES (?, ?, ?)",
+                self._db.execute("INSERT OR REPLACE INTO web_login_failures VALUES (?, ?, ?)",
                                  (key, count, now))
 
     def log_in(self, name: str, password: str, address: str) -> LoginResult:
@@ -273,7 +275,7 @@ class Auth:
                        f"retry in {wait:.0f} s")
             return LoginResult(None, None, wait)
         with self._lock:
-            row = self._db.execute("SELECT hash, role, created FROM auth_users WHERE name = ?",
+            row = self._db.execute("SELECT hash, role, created FROM web_users WHERE name = ?",
                                    (name,)).fetchone()
         stored = row[0] if row else self._dummy_hash  # same work whether the user exists
         try:
@@ -286,17 +288,17 @@ class Auth:
             return LoginResult(None, None, 0.0)
         if self.hasher.check_needs_rehash(stored):
             with self._lock:
-                self._db.execute("UPDATE auth_users SET hash = ? WHERE name = ?",
+                self._db.execute("UPDATE web_users SET hash = ? WHERE name = ?",
                                  (self.hasher.hash(password), name))
         token = secrets.token_urlsafe(32)
         csrf = secrets.token_urlsafe(32)
         now = self.clock()
         with self._lock:
-            self._db.execute("INSERT INTO auth_sessions VALUES (?, ?, ?, ?, ?)",
+            self._db.execute("INSERT INTO web_sessions VALUES (?, ?, ?, ?, ?)",
                              (_digest(token), name, csrf, now, now))
-            self._db.execute("DELETE FROM auth_failures WHERE key IN (?, ?)",
+            self._db.execute("DELETE FROM web_login_failures WHERE key IN (?, ?)",
                              (f"user:{name.lower()}", f"addr:{address}"))
-            self._db.execute("DELETE FROM auth_sessions WHERE created < ?",
+            self._db.execute("DELETE FROM web_sessions WHERE created < ?",
                              (now - self.policy.max_age,))
         self.audit(name, "login", name, "ok", address, "")
         user = User(name, Role(row[1]), row[2])
@@ -314,16 +316,16 @@ class Auth:
         with self._lock:
             row = self._db.execute(
                 "SELECT s.csrf, s.created, s.last_seen, u.name, u.role, u.created "
-                "FROM auth_sessions s JOIN auth_users u ON u.name = s.user "
+                "FROM web_sessions s JOIN web_users u ON u.name = s.user "
                 "WHERE s.token_hash = ?", (digest,)).fetchone()
             if row is None:
                 return None
             csrf, created, last_seen, name, role, user_created = row
             if now >= self._expiry(created, last_seen):
-                self._db.execute("DELETE FROM auth_sessions WHERE token_hash = ?", (digest,))
+                self._db.execute("DELETE FROM web_sessions WHERE token_hash = ?", (digest,))
                 return None
             if touch:
-                self._db.execute("UPDATE auth_sessions SET last_seen = ? WHERE token_hash = ?",
+                self._db.execute("UPDATE web_sessions SET last_seen = ? WHERE token_hash = ?",
                                  (now, digest))
                 last_seen = now
         return Session(User(name, Role(role), user_created), csrf, created,
@@ -332,7 +334,7 @@ class Auth:
     def log_out(self, token: str, address: str) -> None:
         session = self.session(token, touch=False)
         with self._lock:
-            self._db.execute("DELETE FROM auth_sessions WHERE token_hash = ?", (_digest(token),))
+            self._db.execute("DELETE FROM web_sessions WHERE token_hash = ?", (_digest(token),))
         if session is not None:
             self.audit(session.user.name, "logout", session.user.name, "ok", address, "")
 
@@ -347,13 +349,13 @@ class Auth:
               detail: str = "") -> None:
         with self._lock:
             self._db.execute(
-                "INSERT INTO audit (time, user, action, target, outcome, address, detail) "
+                "INSERT INTO web_audit (time, user, action, target, outcome, address, detail) "
                 "VALUES (?, ?, ?, ?, ?, ?, ?)",
                 (self.clock(), user, action, target[:500], outcome, address, detail[:2000]))
 
     def audit_log(self, limit: int = 200, **match: Any) -> list[AuditEntry]:
         where = " AND ".join(f"{k} = ?" for k in match if k in ("user", "action", "outcome"))
-        sql = "SELECT * FROM audit" + (f" WHERE {where}" if where else "") + \
+        sql = "SELECT * FROM web_audit" + (f" WHERE {where}" if where else "") + \
             " ORDER BY id DESC LIMIT ?"
         with self._lock:
             rows = self._db.execute(sql, (*[v for k, v in match.items()
