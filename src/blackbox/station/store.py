@@ -532,7 +532,14 @@ class StationStore:
         self._last_failed_flush = -math.inf
         self._closed = False
         self._db = self._connect()
-        self._migrate()
+        try:
+            self._migrate()
+        except (StationStoreError, sqlite3.Error) as exc:
+            self._db.close()
+            if isinstance(exc, StationStoreError):
+                raise
+            raise StationStoreError(f"{self.path}: cannot use the station database: "
+                                    f"{exc}") from None
 
     @classmethod
     def open(cls, path: str | Path = "station.db", **kwargs: Any) -> StationStore:
@@ -549,15 +556,18 @@ class StationStore:
             db = sqlite3.connect(self.path, timeout=10.0, check_same_thread=False,
                                  isolation_level=None)
             db.execute("PRAGMA foreign_keys=ON")
-            if not self.memory:
-                mode = db.execute("PRAGMA journal_mode=WAL").fetchone()[0]
-                if str(mode).lower() != "wal":
-                    raise StationStoreError(f"{self.path}: cannot use WAL mode ({mode})")
-                db.execute("PRAGMA synchronous=NORMAL")
             return db
         except sqlite3.DatabaseError as exc:
             raise StationStoreError(f"{self.path}: cannot open the station database: "
                                     f"{exc}") from None
+
+    def _use_wal(self) -> None:
+        if self.memory:
+            return
+        mode = self._db.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+        if str(mode).lower() != "wal":
+            raise StationStoreError(f"{self.path}: cannot use WAL mode ({mode})")
+        self._db.execute("PRAGMA synchronous=NORMAL")
 
     def _reader(self) -> sqlite3.Connection:
         if self.memory:
@@ -590,6 +600,7 @@ class StationStore:
         except sqlite3.DatabaseError as exc:
             raise StationStoreError(f"{self.path}: not a station database ({exc})") from None
         if not tables:
+            self._use_wal()
             db.execute("BEGIN")
             for statement in _SCHEMA_V1.split(";"):
                 if statement.strip():
@@ -607,6 +618,7 @@ class StationStore:
         if version > SCHEMA_VERSION:
             raise StationStoreError(f"{self.path}: schema version {version} is newer than "
                                     f"this program's ({SCHEMA_VERSION})")
+        self._use_wal()
 
     def close(self) -> None:
         """Write what is queued (if the disk allows) and close every connection."""
