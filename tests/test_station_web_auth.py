@@ -30,7 +30,8 @@ def clock() -> Clock:
 def auth(tmp_path: Path, clock: Clock) -> Auth:
     fast = PasswordHasher(time_cost=1, memory_cost=8192, parallelism=1)
     return Auth(tmp_path / "station.db", AuthPolicy(idle_timeout=60, max_age=600,
-                                                    free_failures=3, base_backoff=2.0),
+                                                    free_failures=3, base_backoff=2.0,
+                                                    free_failures_per_address=6),
                 clock=clock, hasher=fast)
 
 
@@ -94,8 +95,9 @@ def test_repeated_failures_back_off_exponentially_then_a_right_password_works(
     clock.now += throttled.retry_after + 0.1
     assert auth.log_in("ana", "wrong password!", "10.0.0.2").retry_after == 0  # heard, refused
     assert 3.9 < auth.retry_after("ana", "10.0.0.2") <= 4.0  # doubled
-    # another address is throttled for this user name too
+    # another address is throttled for this user name too, another name from here is not
     assert auth.retry_after("ana", "10.9.9.9") > 0
+    assert auth.retry_after("bob", "10.0.0.2") == 0
     clock.now += 5
     assert auth.log_in("ana", PASSWORD, "10.0.0.2").session is not None
     assert auth.retry_after("ana", "10.0.0.2") == 0
@@ -122,3 +124,10 @@ def test_every_state_change_is_audited(auth: Auth) -> None:
     actions = [(e.action, e.outcome) for e in reversed(auth.audit_log())]
     assert actions == [("user.add", "ok"), ("login", "refused"), ("login", "ok"),
                        ("user.role", "ok"), ("logout", "ok")]
+
+
+def test_many_names_failing_from_one_address_throttle_the_address(auth: Auth) -> None:
+    for i in range(6):
+        auth.log_in(f"guess{i}", "wrong password!", "10.0.0.3")
+    assert auth.retry_after("someone-else", "10.0.0.3") > 0
+    assert auth.retry_after("someone-else", "10.0.0.4") == 0

@@ -11,7 +11,8 @@ built-in test, send their logs), so it is treated as a security boundary:
   :attr:`AuthPolicy.max_age` in any case;
 * every session carries a CSRF token that each state-changing request must echo;
 * failed log-ins are counted per user name and per client address; past
-  :attr:`AuthPolicy.free_failures` each further attempt must wait twice as long as the last
+  :attr:`AuthPolicy.free_failures` (per name; more per address) each further attempt must
+  wait twice as long as the last
   (capped at :attr:`AuthPolicy.max_backoff`), and answers "try again in N s";
 * every state-changing action, refused ones included, is a row of the ``web_audit`` table.
 
@@ -74,7 +75,10 @@ class AuthPolicy:
     max_age: float = 12 * 3600.0
     """Seconds after log-in after which a session ends whatever happens."""
     free_failures: int = 3
-    """Failed log-ins (per user name and per address) before back-off starts."""
+    """Failed log-ins of one user name before back-off starts."""
+    free_failures_per_address: int = 20
+    """Failed log-ins from one address (any names) before back-off starts; higher, since a
+    control room's consoles may share an address."""
     base_backoff: float = 2.0
     max_backoff: float = 15 * 60.0
     failure_window: float = 3600.0
@@ -244,12 +248,13 @@ class Auth:
         now = self.clock()
         wait = 0.0
         with self._lock:
-            for key in (f"user:{name.lower()}", f"addr:{address}"):
+            for key, free in ((f"user:{name.lower()}", self.policy.free_failures),
+                              (f"addr:{address}", self.policy.free_failures_per_address)):
                 row = self._db.execute("SELECT count, last FROM web_login_failures WHERE key = ?",
                                        (key,)).fetchone()
                 if row is None or now - row[1] > self.policy.failure_window:
                     continue
-                excess = row[0] - self.policy.free_failures
+                excess = row[0] - free
                 if excess >= 0:
                     backoff = min(self.policy.max_backoff,
                                   self.policy.base_backoff * 2.0 ** min(excess, 30))

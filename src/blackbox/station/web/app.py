@@ -61,7 +61,7 @@ class WebSettings:
 class Operations(Protocol):
     """What the station's DDS follower does for operators (``StationFollower``)."""
 
-    def request_logs(self, robot: str | int, entity: str | None = None,
+    def request_logs(self, robot: str | int, *, entity: str | None = None,
                      characteristic: str | None = None, since: float | None = None,
                      until: float | None = None, kinds: Sequence[str] = (),
                      requested_by: str = "") -> int: ...

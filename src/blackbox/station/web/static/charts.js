@@ -2,7 +2,7 @@
 // (vendored), extended in place by station.js as values arrive.
 "use strict";
 (function () {
-  const data = JSON.parse(document.getElementById("series").textContent || "{}");
+  const data = JSON.parse(document.getElementById("series").dataset.series || "{}");
   const charts = {};
   const windowSeconds = 300;
   document.querySelectorAll("figure.chart").forEach(function (fig) {
