@@ -184,6 +184,9 @@ def test_a_killed_node_turns_red_without_reload_and_green_after_recovery(
     usb_cam.and_(page.locator(".h-operational")).wait_for(timeout=20_000)
     usb_cam.and_(page.locator(".h-not-operational")).wait_for(timeout=deadline)
     assert page.locator("#diagnosis-components").inner_text() == "/usb_cam"
+    failure = page.locator("table.events tr.ev-failure").first  # the timeline is live too
+    failure.wait_for()
+    assert "/usb_cam" in failure.inner_text()
     assert page.evaluate("window.__sameDocument") is True  # updated in place
     page.screenshot(path=str(IMG / "station-robot.png"), full_page=True)
     fleet_page = new_page(browser, fleet, "otto")

@@ -472,7 +472,11 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
                 "last_heard": fmt_ago(summary.last_heard),
                 "diagnosis": ", ".join(diagnosis.components),
                 "explanation": diagnosis.explanation,
-                "entities": {str(e.instance_id): e.status for e in store.entities(r)}}
+                "entities": {str(e.instance_id): e.status for e in store.entities(r)},
+                "events": [{"id": ev.id, "time": fmt_time(ev.time), "robot": ev.robot_id,
+                            "entity": ev.entity, "kind": ev.kind, "origin": ev.origin,
+                            "text": ev.text, "acknowledged_by": ev.acknowledged_by}
+                           for ev in store.events(r, limit=20).events]}
 
     def entity_state(r: str, iid: int) -> dict[str, Any]:
         node = store.entity(r, iid)

@@ -13,6 +13,41 @@
   }
   function setText(el, text) { if (el) el.textContent = text == null ? "" : String(text); }
 
+  function cell(text) { const td = document.createElement("td"); td.textContent = text; return td; }
+  function ackForm(ev, back) {
+    const form = document.createElement("form");
+    form.method = "post"; form.action = "/ack"; form.className = "inline";
+    [["csrf_token", document.body.dataset.csrf], ["event", ev.id], ["robot", ev.robot],
+     ["back", back]].forEach(function (kv) {
+      const input = document.createElement("input");
+      input.type = "hidden"; input.name = kv[0]; input.value = String(kv[1]);
+      form.appendChild(input);
+    });
+    const button = document.createElement("button");
+    button.type = "submit"; button.className = "small"; button.textContent = "Acknowledge";
+    form.appendChild(button);
+    return form;
+  }
+  function renderEvents(table, events) {
+    if (!table) return;
+    const operator = ["operator", "admin"].indexOf(document.body.dataset.role) >= 0;
+    const body = table.tBodies[0];
+    if (!events.length) return;
+    body.replaceChildren.apply(body, events.map(function (ev) {
+      const tr = document.createElement("tr");
+      tr.className = "ev-" + ev.kind;
+      const kind = cell(ev.kind + (ev.origin !== "live" ? " (" + ev.origin + ")" : ""));
+      [cell(ev.time), cell(ev.robot), cell(ev.entity), kind, cell(ev.text)]
+        .forEach(function (td) { tr.appendChild(td); });
+      const ack = cell(ev.acknowledged_by || "");
+      if (!ev.acknowledged_by && operator && (ev.kind === "failure" || ev.kind === "exceedance")) {
+        ack.appendChild(ackForm(ev, table.dataset.back || "/events"));
+      }
+      tr.appendChild(ack);
+      return tr;
+    }));
+  }
+
   const views = {
     fleet: function (root, s) {
       Object.keys(s.robots || {}).forEach(function (ref) {
@@ -35,6 +70,7 @@
       setText(comp, s.diagnosis || "none");
       comp.className = s.diagnosis ? "bad" : "good";
       setText(document.getElementById("diagnosis-explanation"), s.explanation);
+      if (s.events) renderEvents(root.ownerDocument.querySelector("table.events"), s.events);
       Object.keys(s.entities || {}).forEach(function (id) {
         const li = document.querySelector('li[data-entity="' + CSS.escape(id) + '"]');
         if (!li) return;
