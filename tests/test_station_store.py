@@ -6,9 +6,7 @@ from __future__ import annotations
 import io
 import json
 import sqlite3
-import subprocess
 import threading
-import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -23,6 +21,7 @@ from blackbox.station.store import (
     StationStoreError,
     UnknownRobot,
 )
+from station_support import FULL_DISK_VARIANTS, FullDisk, full_disk_in
 
 T0 = 1_800_000_000.0
 
@@ -324,50 +323,10 @@ def test_log_rows_download_as_jsonl_csv_and_mcap(store: StationStore) -> None:
     assert [r.id for r in store.log_requests("alpha")] == [request]
 
 
-class FullDisk:
-    """``tmpfs``: a real 2 MiB tmpfs that the test fills with a file (needs root, as in CI).
-    ``page_limit``: where mounting is not allowed, SQLite's own ``max_page_count`` on the
-    store's write connection makes every write that needs a new page fail with
-    SQLITE_FULL, the same error a full disk gives; nothing is mocked."""
-
-    def __init__(self, variant: str, directory: Path) -> None:
-        self.variant = variant
-        self.directory = directory
-        self._filler = directory / "filler"
-
-    def fill(self, store: StationStore) -> None:
-        if self.variant == "tmpfs":
-            with self._filler.open("wb") as fh, pytest.raises(OSError):
-                while True:
-                    fh.write(b"\0" * 65536)
-                    fh.flush()
-        else:
-            pages = store._db.execute("PRAGMA page_count").fetchone()[0]
-            store._db.execute(f"PRAGMA max_page_count = {pages}")
-
-    def free(self, store: StationStore) -> None:
-        if self.variant == "tmpfs":
-            self._filler.unlink()
-        else:
-            store._db.execute("PRAGMA max_page_count = 1073741823")
-
-
-@pytest.fixture(params=["tmpfs", "page_limit"])
+@pytest.fixture(params=FULL_DISK_VARIANTS)
 def full_disk(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[FullDisk]:
-    if request.param == "page_limit":
-        yield FullDisk("page_limit", tmp_path)
-        return
-    mnt = tmp_path / "small"
-    mnt.mkdir()
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m",
-                           f"station-{uuid.uuid4().hex[:8]}", str(mnt)],
-                          capture_output=True, text=True)
-    if done.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here ({done.stderr.strip()}); page_limit covers it")
-    try:
-        yield FullDisk("tmpfs", mnt)
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
+    with full_disk_in(request.param, tmp_path) as disk:
+        yield disk
 
 
 def test_a_full_disk_is_reported_keeps_what_was_stored_and_writing_resumes(

@@ -35,6 +35,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+from cyclonedds.qos import Policy, Qos
+from cyclonedds.sub import DataReader
 from cyclonedds.util import duration
 
 from blackbox.health.extension import (
@@ -68,6 +70,7 @@ from blackbox.station.store import (
 )
 from blackbox.transport.logservice import LogAnswer, LogClient
 from blackbox.transport.participant import Bus, TransportSettings
+from blackbox.transport.qos import EVENT_TOPICS, qos_for
 
 log = logging.getLogger("blackbox.station")
 
@@ -84,6 +87,8 @@ MAX_LOG_ROWS = 200_000
 LOG_PAGE = 2000
 MAX_LOG_RANGE_DAYS = 3660
 EXT_WAIT = 1.0
+BACKFILL_REPEAT = 5.0
+STATE_DEPTH = 64
 _ON = T_Monitored_Entity_StateType.L_Monitored_Entity_StateType_ON
 _ORDER = {"BlackBox_Entity_Description": 0, "BlackBox_Event_Extension": 1,
           "C_Failure_Event": 2}
@@ -137,7 +142,8 @@ class _Robot:
     diagnosis: frozenset[str] = frozenset()
     seen: set[int] = field(default_factory=set)
     last_heard_before: float | None = None
-    backfilled: bool = False
+    backfill_since: float | None = None
+    backfill_due: list[float] = field(default_factory=list)
     held: list[tuple[float, Any]] = field(default_factory=list)
     first_held: float | None = None
 
@@ -180,7 +186,7 @@ class StationFollower:
         self.backfill = max(0.0, backfill)
         self.station_id = station_id
         self.log_timeout = log_timeout
-        self.log_page = max(10, log_page)
+        self.log_page = max(1, log_page)
         self.max_log_rows = max(1, max_log_rows)
         self.ibit_timeout = ibit_timeout
         self.clock = clock
@@ -205,12 +211,24 @@ class StationFollower:
             return
         self._load_known()
         self.bus = Bus.open(self.settings)
-        self._readers = {name: self.bus.reader(name) for name in FOLLOWED}
+        self._readers = {name: self._reader(name) for name in FOLLOWED}
         self._waitset = WaitSet(self.bus.participant)
         mask = SampleState.NotRead | ViewState.Any | InstanceState.Any
         for reader in self._readers.values():
             self._waitset.attach(ReadCondition(reader, mask))
         self._log_client = LogClient(self.bus, self.station_id)
+
+    def _reader(self, name: str) -> DataReader:
+        """A reader with the topic's QoS, but a deeper history for state topics: the
+        writers keep only the latest sample per instance, and a station that takes
+        samples every fraction of a second must still see a failure and its
+        rectification that came between two takes."""
+        assert self.bus is not None
+        qos = qos_for(name)
+        if name not in EVENT_TOPICS:
+            qos = Qos(Policy.Durability.TransientLocal, Policy.History.KeepLast(STATE_DEPTH),
+                      Policy.Reliability.Reliable(duration(seconds=1)))
+        return DataReader(self.bus.subscriber, self.bus.topic(name), qos)
 
     def start(self) -> None:
         """Open, then follow on a background thread until :meth:`stop`."""
@@ -557,20 +575,28 @@ class StationFollower:
     # ---- backfill and operations --------------------------------------------------------
 
     def _start_backfills(self) -> None:
+        """Queue the backfill of every newly named robot, twice: the robot's recorder
+        commits what it logged during the last ``commit_interval`` only after it answered
+        the first request (the repeat finds those rows; the store drops duplicates)."""
         if self.backfill <= 0:
             return
+        now = self.clock()
         for robot in self._robots.values():
-            if robot.backfilled or not robot.robot_id:
+            if not robot.robot_id:
                 continue
-            robot.backfilled = True
-            now = self.clock()
-            since = now - self.backfill
-            if robot.last_heard_before is not None:
-                since = max(since, robot.last_heard_before - 5.0)
-            try:
-                self._jobs.put_nowait(lambda r=robot, s=since: self._backfill(r, s))
-            except queue.Full:
-                robot.backfilled = False  # try again on a later poll
+            if robot.backfill_since is None:
+                since = now - self.backfill
+                if robot.last_heard_before is not None:
+                    since = max(since, robot.last_heard_before - 5.0)
+                robot.backfill_since = since
+                robot.backfill_due = [now, now + BACKFILL_REPEAT]
+            while robot.backfill_due and robot.backfill_due[0] <= now:
+                try:
+                    self._jobs.put_nowait(
+                        lambda r=robot, s=robot.backfill_since: self._backfill(r, s))
+                except queue.Full:
+                    break  # try again on a later poll
+                robot.backfill_due.pop(0)
 
     def _backfill(self, robot: _Robot, since: float) -> None:
         added = 0
@@ -580,7 +606,7 @@ class StationFollower:
             for entry in entries:
                 added += self._log_event(robot, entry)
 
-        status, _, _ = self._page_log(robot.robot_id, since=since, until=None, entity=None,
+        status, _, _, _ = self._page_log(robot.robot_id, since=since, until=None, entity=None,
                                       characteristic=None, kinds=BACKFILL_KINDS,
                                       max_rows=self.max_log_rows, on_page=take)
         self.stats.backfilled += added
@@ -649,10 +675,10 @@ class StationFollower:
                   entity: str | None, characteristic: str | None, kinds: Sequence[str],
                   max_rows: int, on_page: Callable[[Sequence[LogEntry]], None],
                   on_progress: Callable[[int, int, float], None] | None = None,
-                  ) -> tuple[str, int, str]:
+                  ) -> tuple[str, int, int, str]:
         """Fetch a robot's log in time order, ``log_page`` entries per log request
         (:meth:`_fetch_log`), each page starting at the time of the last entry received;
-        returns (status, rows, message). Bounded: at most ``max_rows`` rows."""
+        returns (status, rows, pages, message). Bounded: at most ``max_rows`` rows."""
         rows = pages = 0
         cursor: tuple[float, int] | None = None
         same = 0  # entries already taken at the cursor's instant: the next page repeats them
@@ -660,9 +686,9 @@ class StationFollower:
         span_end = until if until is not None else self.clock()
         while rows < max_rows:
             if self._stop.is_set():
-                return "error", rows, "station stopping"
+                return "error", rows, pages, "station stopping"
             if same > 10 * self.log_page:
-                return "error", rows, (f"more than {same} entries at one instant "
+                return "error", rows, pages, (f"more than {same} entries at one instant "
                                        f"({cursor[0] if cursor else since}); narrow the request")
             want = min(self.log_page, max_rows - rows)
             ask = want + same
@@ -672,7 +698,7 @@ class StationFollower:
             pages += 1
             if answer.status != "ok":
                 kind = "timeout" if answer.status.startswith("timeout") else "error"
-                return kind, rows, answer.status
+                return kind, rows, pages, answer.status
             entries: list[LogEntry] = []
             for item in answer.entries:
                 try:
@@ -703,10 +729,10 @@ class StationFollower:
                     covered = (cursor[0] - first) / (span_end - first)
                 on_progress(rows, pages, covered)
             if end:
-                return "done", rows, ""
+                return "done", rows, pages, ""
             if not entries:
-                return "error", rows, "the robot repeated entries it had sent already"
-        return "truncated", rows, f"stopped at {max_rows} rows; narrow the time range"
+                return "error", rows, pages, "the robot repeated entries it had sent already"
+        return "truncated", rows, pages, f"stopped at {max_rows} rows; narrow the time range"
 
     def _fetch_log(self, robot_id: str, *, entity: str | None, characteristic: str | None,
                    since: float | None, until: float | None, kinds: Iterable[str],
@@ -793,16 +819,15 @@ class StationFollower:
             self.store.flush(force=True)
 
         try:
-            status, rows, message = self._page_log(
+            status, rows, pages, message = self._page_log(
                 robot_id, since=since, until=until, entity=entity,
                 characteristic=characteristic, kinds=kinds, max_rows=max_rows,
                 on_page=page, on_progress=progress)
         except Exception as exc:  # a failed request is a result, not a crash
             log.exception("station: log request %d failed", request)
-            status, rows, message = "error", seq, str(exc)
+            status, rows, pages, message = "error", seq, 0, str(exc)
         info = self.store.log_request(request)
-        self.store.update_log_request(request, rid, status=status, rows=rows,
-                                      pages=info.pages if info else 0,
+        self.store.update_log_request(request, rid, status=status, rows=rows, pages=pages,
                                       progress=1.0 if status == "done" else
                                       (info.progress if info else 0.0),
                                       message=message, finished=self.clock())
