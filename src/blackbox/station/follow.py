@@ -98,6 +98,12 @@ class StationBusy(RuntimeError):
     """Too many log requests and built-in tests are waiting; try again later."""
 
 
+def _items(value: Any) -> list[Any]:
+    """The elements of an IDL sequence field (typed ``sequence``, which mypy cannot see
+    through)."""
+    return list(value)
+
+
 def _key(ident: T_IdentifierType) -> tuple[int, int]:
     return (int(ident.A_resourceId), int(ident.A_instanceId))
 
@@ -218,7 +224,7 @@ class StationFollower:
             self._waitset.attach(ReadCondition(reader, mask))
         self._log_client = LogClient(self.bus, self.station_id)
 
-    def _reader(self, name: str) -> DataReader:
+    def _reader(self, name: str) -> DataReader[Any]:
         """A reader with the topic's QoS, but a deeper history for state topics: the
         writers keep only the latest sample per instance, and a station that takes
         samples every fraction of a second must still see a failure and its
@@ -408,7 +414,7 @@ class StationFollower:
             self.store.put_characteristic(rid, iid,
                                           exceeded=bool(s.A_thresholdExceedenceEvents_sourceID))
         elif isinstance(s, C_Monitored_Characteristic_Specification):
-            for ident in s.A_specifiedCharacteristics_sourceID[:16]:
+            for ident in _items(s.A_specifiedCharacteristics_sourceID)[:16]:
                 if int(ident.A_resourceId) != rid:
                     continue
                 c = robot.chars.setdefault(int(ident.A_instanceId), _Char())
@@ -462,9 +468,10 @@ class StationFollower:
         raw = int(s.A_healthStatus.value)
         status = STATUSES[raw] if 0 <= raw < len(STATUSES) else "UNKNOWN"
         online = s.A_MonitoredEntityState == _ON
-        failures = len(s.A_failureEvents_sourceID)
+        failures = len(_items(s.A_failureEvents_sourceID))
         t = seconds_of(s.A_timeOfDataGeneration)
-        chars = [int(i.A_instanceId) for i in s.A_monitoredCharacteristics_sourceID[:MAX_IDS]
+        chars = [int(i.A_instanceId)
+                 for i in _items(s.A_monitoredCharacteristics_sourceID)[:MAX_IDS]
                  if int(i.A_resourceId) == rid]
         self.store.put_entity(rid, iid, status=status, online=online,
                               bit=bool(s.A_bitInProgress), failures=failures,
@@ -557,13 +564,13 @@ class StationFollower:
                                    "value": value if math.isfinite(value) else None}
         if ext is not None:
             details.update(code=int(ext.A_code), code_name=ext.A_codeName[:100],
-                           from_states=list(ext.A_fromStates[:16]),
-                           to_states=list(ext.A_toStates[:16]))
+                           from_states=_items(ext.A_fromStates)[:16],
+                           to_states=_items(ext.A_toStates)[:16])
             if ext.A_message:
                 text += f": {self._text(ext.A_message, 'event message', 500)}"
             if state_change:
-                text += f" (state {', '.join(ext.A_fromStates[:4])} -> " \
-                        f"{', '.join(ext.A_toStates[:4])})"
+                text += f" (state {', '.join(_items(ext.A_fromStates)[:4])} -> " \
+                        f"{', '.join(_items(ext.A_toStates)[:4])})"
         if c is not None and c.observer:
             dedup = f"{kind}|{_stamp(t)}|{c.observer}|{_primary(c.resource)}"
         else:
@@ -592,11 +599,13 @@ class StationFollower:
                 robot.backfill_due = [now, now + BACKFILL_REPEAT]
             while robot.backfill_due and robot.backfill_due[0] <= now:
                 try:
-                    self._jobs.put_nowait(
-                        lambda r=robot, s=robot.backfill_since: self._backfill(r, s))
+                    self._jobs.put_nowait(self._backfill_job(robot, robot.backfill_since))
                 except queue.Full:
                     break  # try again on a later poll
                 robot.backfill_due.pop(0)
+
+    def _backfill_job(self, robot: _Robot, since: float) -> Callable[[], None]:
+        return lambda: self._backfill(robot, since)
 
     def _backfill(self, robot: _Robot, since: float) -> None:
         added = 0
@@ -882,7 +891,7 @@ class StationFollower:
             self.store.finish_ibit_run(run, rid, status="done", health=health,
                                        observations=int(result.A_observations),
                                        failed=int(result.A_failed),
-                                       report=[str(r) for r in result.A_report[:1000]])
+                                       report=[str(r) for r in _items(result.A_report)[:1000]])
             text = (f"built-in test of {entity or robot_id}: {health}, "
                     f"{int(result.A_failed)} of {int(result.A_observations)} checks failed")
         self.store.add_event(rid, now, "ibit", dedup=f"ibit|{run}", entity=entity,

@@ -1292,7 +1292,8 @@ class StationStore:
     def count_events(self, robot: RobotRef | None = None,
                      kinds: Iterable[str] | None = None,
                      origin: str | None = None) -> int:
-        where, args = [], []  # type: ignore[var-annotated]
+        where: list[str] = []
+        args: list[Any] = []
         if robot is not None:
             where.append("resource_id = ?")
             args.append(robot_resource(robot))
@@ -1314,7 +1315,7 @@ class StationStore:
 
     def log_requests(self, robot: RobotRef | None = None, limit: int = 50) -> list[LogRequest]:
         """Log requests newest first."""
-        sql, args = _LOG_SELECT, []  # type: ignore[var-annotated]
+        sql, args = _LOG_SELECT, list[Any]()
         if robot is not None:
             sql += " WHERE resource_id = ?"
             args.append(robot_resource(robot))
@@ -1367,7 +1368,7 @@ class StationStore:
         return None if row is None else _ibit(row)
 
     def ibit_runs(self, robot: RobotRef | None = None, limit: int = 50) -> list[IbitRun]:
-        sql, args = _IBIT_SELECT, []  # type: ignore[var-annotated]
+        sql, args = _IBIT_SELECT, list[Any]()
         if robot is not None:
             sql += " WHERE resource_id = ?"
             args.append(robot_resource(robot))
