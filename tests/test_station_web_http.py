@@ -206,3 +206,80 @@ def test_unknown_robot_and_bad_filters_are_clear_errors(station) -> None:
     assert client.get("/events?since=yesterday").status_code == 400
     assert client.get("/events?kind=bogus").status_code == 400
     assert client.get("/").status_code == 200  # the station keeps serving
+
+
+def test_a_robot_that_stops_talking_turns_grey_unknown(tmp_path: Path) -> None:
+    now = [time.time()]
+    path = tmp_path / "station.db"
+    store = StationStore.open(path, stale_after=10.0, clock=lambda: now[0])
+    auth = Auth(path, hasher=PasswordHasher(time_cost=1, memory_cost=8192, parallelism=1))
+    auth.add_user("vera", PASSWORD, Role.VIEWER)
+    rid = robot_resource_id("quiet-bot")
+    store.heard(rid, now[0])
+    store.put_robot_id(rid, "quiet-bot")
+    store.put_entity(rid, 1, name="quiet-bot", kind="robot", status="OPERATIONAL")
+    store.put_entity(rid, 2, name="/node", kind="node", parent=1, status="OPERATIONAL")
+    assert store.flush(force=True)
+    try:
+        with TestClient(create_app(auth, store, Unreachable()),
+                        base_url="http://127.0.0.1") as client:
+            assert log_in(client, "vera") == 303
+            row = client.get("/").text
+            assert 'h-operational" data-field="status">OPERATIONAL' in row
+            now[0] += 11.0
+            fleet = client.get("/").text
+            assert 'h-unknown" data-field="status">UNKNOWN' in fleet and "silent" in fleet
+            robot = client.get("/robot?r=quiet-bot").text
+            assert 'data-name="/node"' in robot
+            assert re.search(r'kind-node h-unknown" data-entity="2"', robot)
+    finally:
+        auth.close()
+        store.close()
+
+
+@pytest.mark.skipif(not Path("/usr/bin/openssl").exists(), reason="needs openssl")
+def test_over_tls_cookies_are_secure(tmp_path: Path) -> None:
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    import httpx
+
+    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
+    subprocess.run(["/usr/bin/openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes",
+                    "-keyout", str(key), "-out", str(cert), "-days", "1", "-subj",
+                    "/CN=127.0.0.1"], check=True, capture_output=True, timeout=60)
+    db, ready = tmp_path / "station.db", tmp_path / "url"
+    env = {k: v for k, v in os.environ.items() if k != "CYCLONEDDS_URI"}
+    add = subprocess.run([sys.executable, "-m", "blackbox", "station", "user", "add", "ana",
+                          "--role", "viewer", "--db", str(db)], input=PASSWORD + "\n",
+                         capture_output=True, text=True, timeout=60, env=env)
+    assert add.returncode == 0, add.stderr
+    station = subprocess.Popen([sys.executable, "-m", "blackbox", "station", "--db", str(db),
+                                "--bind", "127.0.0.1:0", "--domain", str(180 + os.getpid() % 20),
+                                "--tls-cert", str(cert), "--tls-key", str(key),
+                                "--ready-file", str(ready), "--duration", "60"], env=env,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 60
+        while not ready.exists() and time.monotonic() < deadline and station.poll() is None:
+            time.sleep(0.1)
+        url = ready.read_text().strip()
+        assert url.startswith("https://127.0.0.1:")
+        with httpx.Client(base_url=url, verify=False) as client:
+            form = client.get("/login")
+            assert "Secure" in form.headers["set-cookie"]
+            token = re.search(r'name="login_token" value="([^"]+)"', form.text).group(1)
+            reply = client.post("/login", data={"username": "ana", "password": PASSWORD,
+                                                "login_token": token})
+            cookie = next(h for h in reply.headers.get_list("set-cookie")
+                          if h.startswith("bb_session="))
+            assert "Secure" in cookie and "HttpOnly" in cookie
+    finally:
+        station.send_signal(signal.SIGINT)
+        try:
+            station.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            station.kill()
+    assert station.returncode == 0, station.stderr.read().decode() if station.stderr else ""

@@ -27,7 +27,7 @@ from blackbox.app import RunOptions, build, graceful_interrupts
 DEMO_CONFIG = Path(__file__).resolve().parent.parent / "configs" / "thesis-extended.yaml"
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("demo", help="simulated thesis robot with injected faults, watched live",
                        description="Run the black box on the simulated thesis robot while a "
                        "seeded random fault campaign breaks it, and the web station follows it "
@@ -92,7 +92,7 @@ def fast_demo(args: argparse.Namespace, out: Path) -> int:
     return 0
 
 
-def start_ros1_robot(args: argparse.Namespace, out: Path) -> tuple[subprocess.Popen, int]:
+def start_ros1_robot(args: argparse.Namespace, out: Path) -> tuple[subprocess.Popen[bytes], int]:
     """roscore, the three thesis nodes and the fault injector, on a free loopback port."""
     if not ROS1_ROBOT.exists() or not Path("/usr/bin/roscore").exists():
         raise SystemExit("demo --source ros1 needs a source checkout (scripts/ros1_robot) and "
@@ -118,7 +118,7 @@ def start_ros1_robot(args: argparse.Namespace, out: Path) -> tuple[subprocess.Po
 def two_process_demo(args: argparse.Namespace, out: Path) -> int:
     domain = args.domain if args.domain is not None else 100 + os.getpid() % 100
     blackbox = [sys.executable, "-m", "blackbox"]
-    processes: list[subprocess.Popen] = []
+    processes: list[subprocess.Popen[bytes]] = []
     port = None
     if args.source == "ros1":
         ros1, port = start_ros1_robot(args, out)
@@ -190,7 +190,7 @@ def demo_account(db: Path) -> tuple[str, str]:
     return DEMO_USER, password
 
 
-def stop_all(processes: list[subprocess.Popen], grace: float = 10.0) -> None:
+def stop_all(processes: list[subprocess.Popen[bytes]], grace: float = 10.0) -> None:
     """Ask every process still running to stop (SIGINT), then kill what outlives ``grace``."""
     for proc in processes:
         if proc.poll() is None:

@@ -21,7 +21,7 @@ from blackbox.station.auth import Auth, AuthError, Role
 EXIT_USAGE = 2
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("station", help="the remote station: follow a fleet, serve its web GUI",
                        description="Follow every black box on a DDS domain, keep what they say "
                        "in a database and serve the station's web pages.")
@@ -80,7 +80,7 @@ def read_password(name: str) -> str:
 
 
 def _db(args: argparse.Namespace) -> Path:
-    return args.user_db or args.db
+    return Path(args.user_db or args.db)
 
 
 def user_add_command(args: argparse.Namespace) -> int:
@@ -212,6 +212,8 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
     server.handle_exit = on_signal  # type: ignore[method-assign]
     try:
         server.run(sockets=[sock])
+    except KeyboardInterrupt:  # uvicorn re-raises the Ctrl-C it handled; a clean stop
+        pass
     finally:
         stop.set()
         if timer is not None:
