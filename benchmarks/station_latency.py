@@ -11,7 +11,12 @@ Reported, p50/p99/max over every transition:
 * **fault -> red**: injection of the kill (the simulator's ground truth) to the entity
   turning red in the browser: detection + diagnosis + DDS + station + SSE + paint;
 * **detected -> red** / **rectified -> green**: the black box's own record of the
-  failure / rectification (its health log) to the colour change: the station's share.
+  failure / rectification (its health log) to the colour change;
+* **detected -> DDS**: the black box's record to its UCMS ``C_Monitored_Entity`` sample
+  with the new status arriving at a DDS reader in this process (the black box's share);
+* **DDS -> SSE**: that sample to the station's Server-Sent Events stream, read by a second
+  client in this process, sending the new status (the station's share);
+* **SSE -> red**: the stream's message to the browser painting it.
 
     .venv/bin/python benchmarks/station_latency.py --seconds 120
 """
@@ -27,6 +32,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -62,6 +68,55 @@ def summary(name: str, values: list[float]) -> str:
 def first_after(times: list[float], t: float, limit: float = 30.0) -> float | None:
     later = [x for x in times if t <= x <= t + limit]
     return min(later) if later else None
+
+
+def follow_stream(url: str, entity_id: str, out: list[tuple[float, str]],
+                  stop: threading.Event) -> None:
+    """Log in as a second client and stamp every status of the entity the stream sends."""
+    import re
+
+    import httpx
+
+    with httpx.Client(base_url=url, timeout=10) as client:
+        form = client.get("/login").text
+        token = re.search(r'name="login_token" value="([^"]+)"', form)
+        assert token
+        client.post("/login", data={"username": "bench", "password": "benchmark password",
+                                    "login_token": token.group(1)})
+        last = None
+        with client.stream("GET", "/api/stream?view=robot&r=thesis-robot",
+                           timeout=None) as reply:
+            for line in reply.iter_lines():
+                if stop.is_set():
+                    return
+                if line.startswith("data:"):
+                    status = json.loads(line[5:]).get("entities", {}).get(entity_id)
+                    if status and status != last:
+                        out.append((time.time(), status))
+                        last = status
+
+
+def follow_dds(domain: int, instance: int, out: list[tuple[float, int]],
+               stop: threading.Event) -> None:
+    """Stamp every health status of one entity as its UCMS samples arrive over DDS."""
+    from blackbox.health.types import C_Monitored_Entity
+    from blackbox.transport.participant import Bus, TransportSettings
+
+    bus = Bus.open(TransportSettings(domain))
+    reader = bus.reader("C_Monitored_Entity")
+    last = None
+    try:
+        while not stop.is_set():
+            for sample in reader.take(N=64):
+                if (isinstance(sample, C_Monitored_Entity)
+                        and sample.A_sourceID.A_instanceId == instance):
+                    status = int(sample.A_healthStatus.value)
+                    if status != last:
+                        out.append((time.time(), status))
+                        last = status
+            time.sleep(0.005)
+    finally:
+        bus.close()
 
 
 def main() -> int:
@@ -101,6 +156,9 @@ def main() -> int:
                                 "--ready-file", str(tmp / "url")], env=env,
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     changes: list[list[object]] = []
+    streamed: list[tuple[float, str]] = []
+    sampled: list[tuple[float, int]] = []
+    stop_stream = threading.Event()
     observing = float("inf")
     try:
         deadline = time.monotonic() + 60
@@ -122,6 +180,13 @@ def main() -> int:
                 page.wait_for_timeout(500)
                 page.goto("/robot?r=thesis-robot")
             page.locator("body[data-live=open]").wait_for()
+            entity_id = page.locator(f"li.entity[data-name='{ENTITY}']").get_attribute(
+                "data-entity")
+            assert entity_id
+            for target, arguments in ((follow_stream, (url, entity_id, streamed, stop_stream)),
+                                      (follow_dds, (domain, int(entity_id), sampled,
+                                                    stop_stream))):
+                threading.Thread(target=target, args=arguments, daemon=True).start()
             page.evaluate(OBSERVE)
             observing = time.time()
             box.wait(timeout=args.seconds + 60)
@@ -129,6 +194,7 @@ def main() -> int:
             changes = page.evaluate("window.__changes")
             browser.close()
     finally:
+        stop_stream.set()
         for proc in (station, box):
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
@@ -153,10 +219,10 @@ def main() -> int:
              else detected).append(entry.time)
     robot.close()
 
-    def lat(starts: list[float], ends: list[float]) -> list[float]:
+    def lat(starts: list[float], ends: list[float], limit: float = 30.0) -> list[float]:
         out = []
         for s in starts:
-            e = first_after(ends, s)
+            e = first_after(ends, s, limit)
             if e is not None:
                 out.append(e - s)
         return out
@@ -169,6 +235,13 @@ def main() -> int:
     print(summary("fault -> red", lat(injected, red)))
     print(summary("detected -> red", lat(detected, red)))
     print(summary("rectified -> green", lat(rectified, green)))
+    sse_red = [t for t, c in streamed if c == "NOT_OPERATIONAL" and t > observing]
+    sse_green = [t for t, c in streamed if c == "OPERATIONAL" and t > observing]
+    dds_red = [t for t, c in sampled if c == 2 and t > observing]
+    print(summary("detected -> DDS red", lat(detected, dds_red, 5.0)))
+    print(summary("DDS red -> SSE red", lat(dds_red, sse_red, 5.0)))
+    print(summary("SSE red -> red", lat(sse_red, red, 5.0)))
+    print(summary("SSE green -> green", lat(sse_green, green, 5.0)))
     missed = len(injected) - len(lat(injected, red))
     if missed:
         print(f"{missed} injected kill(s) never turned the entity red within 30 s")

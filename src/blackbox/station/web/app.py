@@ -14,6 +14,7 @@ they are allowed or not.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hmac
 import io
 import json
@@ -111,6 +112,45 @@ def parse_time(text: str | None) -> float | None:
     if dt.tzinfo is None:
         dt = dt.replace(tzinfo=UTC)
     return dt.timestamp()
+
+
+class ChangeSignal:
+    """Wakes every open live stream when the store commits a change.
+
+    The store calls back on its writing thread; the callback only schedules setting one
+    :class:`asyncio.Event` per stream on the event loop, so streams wait without holding a
+    worker thread each (a control room may keep many pages open).
+    """
+
+    def __init__(self, store: StationStore) -> None:
+        self._store = store
+        self._events: set[asyncio.Event] = set()
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._remove: Callable[[], None] | None = None
+
+    def register(self) -> asyncio.Event:
+        if self._loop is None:
+            self._loop = asyncio.get_running_loop()
+            self._remove = self._store.add_listener(self._changed)
+        event = asyncio.Event()
+        self._events.add(event)
+        return event
+
+    def unregister(self, event: asyncio.Event) -> None:
+        self._events.discard(event)
+
+    def _changed(self, change: object) -> None:
+        loop = self._loop
+        if loop is not None and not loop.is_closed():
+            loop.call_soon_threadsafe(self._wake)
+
+    def _wake(self) -> None:
+        for event in list(self._events):
+            event.set()
+
+    def close(self) -> None:
+        if self._remove is not None:
+            self._remove()
 
 
 def robot_ref(robot_id: str, resource_id: int) -> str:
@@ -459,6 +499,8 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
 
     # ---- live updates ---------------------------------------------------------------------
 
+    changes = ChangeSignal(store)
+
     def fleet_state() -> dict[str, Any]:
         return {"robots": {robot_ref(s.robot_id, s.resource_id): {
             "status": s.status, "stale": s.stale, "last_heard": fmt_ago(s.last_heard),
@@ -509,6 +551,14 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         snapshot = snapshots[view]
 
         async def events() -> AsyncIterator[str]:
+            wake = changes.register()
+            try:
+                async for chunk in stream_events(wake):
+                    yield chunk
+            finally:
+                changes.unregister(wake)
+
+        async def stream_events(wake: asyncio.Event) -> AsyncIterator[str]:
             seq = -1
             last_sent = ""
             last_beat = last_look = time.monotonic()
@@ -532,7 +582,10 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
                 if time.monotonic() - last_beat > settings.sse_heartbeat:
                     last_beat = time.monotonic()
                     yield ": beat\n\n"
-                await asyncio.to_thread(store.wait_for_change, seq, 0.5)
+                wake.clear()
+                if store.sequence == seq:
+                    with contextlib.suppress(TimeoutError):
+                        await asyncio.wait_for(wake.wait(), 0.5)
             yield "event: end\ndata: {}\n\n"
 
         return StreamingResponse(events(), media_type="text/event-stream",
