@@ -2,7 +2,9 @@
 ``blackbox station`` process following a real ``blackbox run --dds`` of the simulated
 thesis robot (Cyclone DDS on loopback), with a fault schedule that kills ``/usb_cam``.
 
-The screenshots in README.md and docs/station.md are taken here (docs/img/station-*.png).
+The screenshots in README.md and docs/station.md are taken here: with
+``STATION_SCREENSHOTS=1`` they are written to docs/img/station-*.png, otherwise to the
+test's temporary directory (so a test run leaves the work tree as it was).
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ pytestmark = [
 ]
 
 BLACKBOX = [sys.executable, "-m", "blackbox"]
-IMG = ROOT / "docs" / "img"
+IMG = ROOT / "docs" / "img" if os.environ.get("STATION_SCREENSHOTS") == "1" else None
 FAULT_START, FAULT_END, RUN_FOR = 30.0, 45.0, 110.0
 PASSWORDS = {"ada": "admin password 1", "otto": "operator password 1",
              "vera": "viewer password 1"}
@@ -44,6 +46,12 @@ class Fleet:
     record: Path
     started: float
     tmp: Path
+
+    def shot(self, page: object, name: str, full_page: bool = False) -> None:
+        folder = IMG if IMG is not None else self.tmp
+        folder.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(folder / f"station-{name}.png"),  # type: ignore[attr-defined]
+                        full_page=full_page)
 
 
 def _stop(proc: subprocess.Popen[bytes]) -> None:
@@ -128,8 +136,7 @@ def test_unauthenticated_pages_redirect_to_log_in(browser: object, fleet: Fleet)
     page.goto("/robot?r=thesis-robot")
     assert "/login?next=" in page.url
     assert page.locator("h1").inner_text() == "Log in"
-    IMG.mkdir(parents=True, exist_ok=True)
-    page.screenshot(path=str(IMG / "station-login.png"))
+    fleet.shot(page, "login")
     log_in(page, "vera", PASSWORDS["vera"], here=True)  # then back where it was going
     assert page.url.endswith("/robot?r=thesis-robot")
     page.context.close()
@@ -188,9 +195,9 @@ def test_a_killed_node_turns_red_without_reload_and_green_after_recovery(
     failure.wait_for()
     assert "/usb_cam" in failure.inner_text()
     assert page.evaluate("window.__sameDocument") is True  # updated in place
-    page.screenshot(path=str(IMG / "station-robot.png"), full_page=True)
+    fleet.shot(page, "robot", full_page=True)
     fleet_page = new_page(browser, fleet, "otto")
-    fleet_page.screenshot(path=str(IMG / "station-fleet.png"))
+    fleet.shot(fleet_page, "fleet")
     fleet_page.context.close()
 
     usb_cam.and_(page.locator(".h-operational")).wait_for(
@@ -212,7 +219,7 @@ def test_a_log_downloaded_from_the_page_equals_the_robots_own_health_log(
     page.click("#log-form button[type=submit]")
     page.locator("#log-downloads:not(.hidden)").wait_for(timeout=60_000)
     assert page.locator("#log-status").inner_text() == "done"
-    page.screenshot(path=str(IMG / "station-logs.png"))
+    fleet.shot(page, "logs")
     with page.expect_download() as download:
         page.click("#dl-jsonl")
     downloaded = [json.loads(line) for line in
@@ -229,7 +236,7 @@ def test_a_log_downloaded_from_the_page_equals_the_robots_own_health_log(
     page.context.close()
 
 
-def test_entity_and_events_pages(browser: object, fleet: Fleet) -> None:
+def test_entity_ibit_and_events_pages(browser: object, fleet: Fleet) -> None:
     page = new_page(browser, fleet, "otto")
     page.goto("/robot?r=thesis-robot")
     page.click("li.entity[data-name='/usb_cam/image_raw'] a.name")
@@ -237,8 +244,13 @@ def test_entity_and_events_pages(browser: object, fleet: Fleet) -> None:
     assert page.locator("h1").inner_text().startswith("/usb_cam/image_raw")
     page.locator("figure.chart .uplot").first.wait_for()
     page.wait_for_timeout(1500)  # a few live points
-    page.screenshot(path=str(IMG / "station-entity.png"), full_page=True)
+    fleet.shot(page, "entity", full_page=True)
+    page.click("#ibit-entity")  # an operator runs the built-in test of this entity
+    page.locator("#ibit-status", has_text="done").wait_for(timeout=30_000)
+    assert page.locator("#ibit-report li").count() >= 1
+    assert "/usb_cam/image_raw" in page.locator("#ibit-report").inner_text()
+    fleet.shot(page, "ibit")
     page.goto("/events?robot=thesis-robot&kind=failure")
     assert "/usb_cam" in page.locator("table.events").inner_text()
-    page.screenshot(path=str(IMG / "station-events.png"))
+    fleet.shot(page, "events")
     page.context.close()
