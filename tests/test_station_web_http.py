@@ -283,3 +283,25 @@ def test_over_tls_cookies_are_secure(tmp_path: Path) -> None:
         except subprocess.TimeoutExpired:
             station.kill()
     assert station.returncode == 0, station.stderr.read().decode() if station.stderr else ""
+
+
+def test_user_add_reads_the_password_from_stdin_and_refuses_bad_input(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    db = tmp_path / "station.db"
+
+    def add(name: str, password: str, role: str = "operator") -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "blackbox", "station", "user", "add", name,
+                               "--role", role, "--db", str(db)], input=password + "\n",
+                              capture_output=True, text=True, timeout=60)
+
+    assert add("otto", PASSWORD).returncode == 0
+    for result, message in ((add("otto", PASSWORD), "exists already"),
+                            (add("eve", "short"), "at least 10 characters"),
+                            (add("<b>", PASSWORD), "a user name is")):
+        assert result.returncode == 2
+        assert message in result.stderr and "Traceback" not in result.stderr
+    listed = subprocess.run([sys.executable, "-m", "blackbox", "station", "user", "list",
+                             "--db", str(db)], capture_output=True, text=True, timeout=60)
+    assert listed.stdout.split() == ["otto", "operator"]
