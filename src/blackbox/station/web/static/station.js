@@ -48,12 +48,18 @@
     }));
   }
 
+  let reloading = false;
+  function reloadOnce() {
+    // The page's structure changed (a new robot or entity, a finished log): render it anew.
+    if (!reloading) { reloading = true; window.location.reload(); }
+  }
+
   const views = {
     fleet: function (root, s) {
       Object.keys(s.robots || {}).forEach(function (ref) {
         const row = Array.from(root.querySelectorAll("tr[data-robot]"))
           .find(function (r) { return r.dataset.robot === ref; });
-        if (!row) { window.location.reload(); return; }  // a new robot: the list changed
+        if (!row) { reloadOnce(); return; }  // a new robot: the list changed
         const r = s.robots[ref];
         const badge = row.querySelector('[data-field="status"]');
         setText(badge, r.status); paint(badge, r.status);
@@ -73,7 +79,7 @@
       if (s.events) renderEvents(root.ownerDocument.querySelector("table.events"), s.events);
       Object.keys(s.entities || {}).forEach(function (id) {
         const li = document.querySelector('li[data-entity="' + CSS.escape(id) + '"]');
-        if (!li) return;
+        if (!li) { reloadOnce(); return; }  // the robot described a new entity
         paint(li, s.entities[id]);
         setText(li.querySelector('[data-field="status"]'), s.entities[id]);
       });
@@ -108,7 +114,10 @@
       setText(document.getElementById("log-message"), s.message);
       document.getElementById("log-progress").value = s.progress || 0;
       const done = s.status !== "pending" && s.status !== "running";
-      document.getElementById("log-downloads").classList.toggle("hidden", !done);
+      const downloads = document.getElementById("log-downloads");
+      if (done && downloads.classList.contains("hidden") && s.rows > 0 &&
+          !document.getElementById("log-preview")) reloadOnce();  // show the first rows
+      downloads.classList.toggle("hidden", !done);
     },
   };
 
