@@ -107,10 +107,24 @@ def browser() -> Iterator[object]:
         chromium.close()
 
 
+SCRIPT_ERRORS: list[str] = []
+
+
+@pytest.fixture(autouse=True)
+def no_script_errors() -> Iterator[None]:
+    """Every page of every test runs its JavaScript without an error (CSP included)."""
+    SCRIPT_ERRORS.clear()
+    yield
+    assert SCRIPT_ERRORS == []
+
+
 def new_page(browser: object, fleet: Fleet, user: str | None = None) -> object:
     context = browser.new_context(viewport={"width": 1280, "height": 860},  # type: ignore
                                   base_url=fleet.url, accept_downloads=True)
     page = context.new_page()
+    page.on("pageerror", lambda error: SCRIPT_ERRORS.append(str(error)))
+    page.on("console", lambda m: SCRIPT_ERRORS.append(m.text) if m.type == "error" and not
+            m.text.startswith("Failed to load resource") else None)  # refusals are tested
     page.set_default_timeout(20_000)
     if user is not None:
         log_in(page, user, PASSWORDS[user])
@@ -197,6 +211,9 @@ def test_a_killed_node_turns_red_without_reload_and_green_after_recovery(
     assert page.evaluate("window.__sameDocument") is True  # updated in place
     fleet.shot(page, "robot", full_page=True)
     fleet_page = new_page(browser, fleet, "otto")
+    fleet_page.locator("body[data-live=open]").wait_for()
+    row = fleet_page.locator("tr[data-robot='thesis-robot']")
+    row.locator("[data-field=diagnosis]", has_text="/usb_cam").wait_for()
     fleet.shot(fleet_page, "fleet")
     fleet_page.context.close()
 

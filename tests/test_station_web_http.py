@@ -228,7 +228,8 @@ def test_a_robot_that_stops_talking_turns_grey_unknown(tmp_path: Path) -> None:
             assert 'h-operational" data-field="status">OPERATIONAL' in row
             now[0] += 11.0
             fleet = client.get("/").text
-            assert 'h-unknown" data-field="status">UNKNOWN' in fleet and "silent" in fleet
+            assert 'h-unknown" data-field="status">UNKNOWN' in fleet
+            assert 'data-field="silent">silent<' in fleet
             robot = client.get("/robot?r=quiet-bot").text
             assert 'data-name="/node"' in robot
             assert re.search(r'kind-node h-unknown" data-entity="2"', robot)

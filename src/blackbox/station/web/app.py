@@ -504,7 +504,9 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
     def fleet_state() -> dict[str, Any]:
         return {"robots": {robot_ref(s.robot_id, s.resource_id): {
             "status": s.status, "stale": s.stale, "last_heard": fmt_ago(s.last_heard),
-            "failing": s.failing, "entities": s.entities, "unacknowledged": s.unacknowledged}
+            "failing": s.failing, "entities": s.entities, "unacknowledged": s.unacknowledged,
+            "silent": "silent" if s.stale else ("stopped" if not s.online else ""),
+            "diagnosis": ", ".join(s.diagnosis)}
             for s in store.fleet()}}
 
     def robot_state(r: str) -> dict[str, Any]:

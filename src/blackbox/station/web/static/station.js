@@ -63,7 +63,7 @@
         const r = s.robots[ref];
         const badge = row.querySelector('[data-field="status"]');
         setText(badge, r.status); paint(badge, r.status);
-        ["entities", "failing", "unacknowledged", "last_heard"].forEach(function (f) {
+        ["entities", "failing", "unacknowledged", "last_heard", "silent", "diagnosis"].forEach(function (f) {
           setText(row.querySelector('[data-field="' + f + '"]'), r[f]);
         });
       });
