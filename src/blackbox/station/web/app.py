@@ -50,7 +50,7 @@ CSP = ("default-src 'self'; script-src 'self'; style-src 'self'; "
        "form-action 'self'; base-uri 'none'")
 
 
-@dataclass
+@dataclass(frozen=True, slots=True)
 class WebSettings:
     secure_cookies: bool = False
     """Set when served over TLS: cookies then carry ``Secure``."""
