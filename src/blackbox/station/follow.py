@@ -208,6 +208,7 @@ class StationFollower:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._bus_lock = threading.Lock()
+        self._log_lock = threading.Lock()
 
     # ---- life cycle -------------------------------------------------------------------------
 
@@ -326,6 +327,7 @@ class StationFollower:
             self.store.heard(rid, now)
         self._resolve_exceedances(now)
         self._expire_held(now)
+        self._drop_foreign_replies()
         self.store.flush()
         self._start_backfills()
         return len(taken)
@@ -363,13 +365,13 @@ class StationFollower:
         return True
 
     def _expire_held(self, now: float) -> None:
-        for robot in self._robots.values():
+        for robot in list(self._robots.values()):
             if robot.robot_id or robot.first_held is None:
                 continue
             if now - robot.first_held >= self.identify_within:
                 n = len(robot.held)
                 self.stats.dropped_unknown += n
-                robot.held, robot.first_held = [], None
+                del self._robots[robot.resource_id]  # a flood of ids must not grow memory
                 self.store.report_problem(
                     "unknown robot", f"resource id {robot.resource_id}: {n} samples ignored: "
                     "no robot named itself with this id (no BlackBox_Entity_Description)")
@@ -673,7 +675,7 @@ class StationFollower:
         return 0
 
     def _owner_of(self, robot: _Robot, observer: str, entity: str) -> str:
-        for c in robot.chars.values():
+        for c in list(robot.chars.values()):  # the reading thread may add to it
             if c.observer == observer and _primary(c.resource) == entity and c.entity:
                 owner = robot.entities.get(c.entity)
                 if owner is not None:
@@ -750,9 +752,23 @@ class StationFollower:
         client = self._log_client
         if client is None:
             return LogAnswer("error: station not connected", [], 0, False)
-        return client.request(robot_id, entity=entity, characteristic=characteristic,
-                              since=since, until=until, kinds=kinds, max_entries=max_entries,
-                              timeout=self.log_timeout)
+        with self._log_lock:
+            return client.request(robot_id, entity=entity, characteristic=characteristic,
+                                  since=since, until=until, kinds=kinds,
+                                  max_entries=max_entries, timeout=self.log_timeout)
+
+    def _drop_foreign_replies(self) -> None:
+        """Log replies keep all history: between our own requests, replies to other
+        stations would pile up in the reader, so they are taken and dropped."""
+        client = self._log_client
+        if client is None or not self._log_lock.acquire(blocking=False):
+            return
+        try:
+            client.reader.take(N=256)
+        except Exception as exc:
+            self.store.report_problem("dds BlackBox_Log_Reply", f"cannot read: {exc}")
+        finally:
+            self._log_lock.release()
 
     def request_logs(self, robot: RobotRef, *, entity: str | None = None,
                      characteristic: str | None = None, since: float | None = None,
