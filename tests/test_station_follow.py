@@ -7,6 +7,7 @@ from __future__ import annotations
 import itertools
 import json
 import os
+import signal
 import socket
 import sqlite3
 import subprocess
@@ -329,3 +330,50 @@ def test_a_full_station_disk_is_reported_and_nothing_heard_meanwhile_is_lost(
     finally:
         follower.stop()
         store.close()
+
+
+def test_the_simulated_robot_run_by_blackbox_run_feeds_the_station(tmp_path: Path) -> None:
+    domain = fresh_domain()
+    faults = tmp_path / "faults.yaml"
+    faults.write_text("faults:\n  - {kind: kill, component: /usb_cam, start: 3, end: 8}\n")
+    record = tmp_path / "bb.db"
+    box = subprocess.Popen([sys.executable, "-m", "blackbox", "run", "--dds", "--domain",
+                            str(domain), "--quiet", "--faults", str(faults), "--record",
+                            str(record), "--duration", "40"], env=dds_env(),
+                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    store = StationStore.open(tmp_path / "station.db")
+    follower = follower_for(store, domain, backfill=0)
+    try:
+        wait(lambda: ("failure", "live") in kinds(store, "thesis-robot"), timeout=30)
+        failure = store.events("thesis-robot", kinds=["failure"]).events[-1]
+        assert failure.entity == "/usb_cam"
+        wait(lambda: ("rectification", "live") in kinds(store, "thesis-robot"), timeout=30)
+        tree = {e.name: e for e in store.entities("thesis-robot")}
+        assert {"/usb_cam", "/audio_capture", "/Signal_generator"} <= set(tree)
+        assert store.characteristics("thesis-robot", tree["/usb_cam"].instance_id)
+
+        def recorded(until: float | None = None) -> list[dict[str, Any]]:
+            own = Store.open(str(record), readonly=True, check=False)
+            try:
+                return [e.to_dict() for e in own.query(kinds=["failure"], end=until)]
+            finally:
+                own.close()
+        # The robot's recorder commits every second: wait until it holds the rectification.
+        wait(lambda: len(recorded()) >= 2, timeout=10)
+        until = time.time()
+        request = follower.request_logs("thesis-robot", kinds=["failure"], until=until)
+        info = wait(lambda: (r := store.log_request(request)) and r.status not in
+                    ("pending", "running") and r, timeout=30)
+        assert info.status == "done", info.message
+        fetched = [e.to_dict() for e in store.iter_log_entries(request)]
+        assert fetched == recorded(until)
+        assert [e["payload"]["category"] for e in fetched][:2] == ["detection",
+                                                                   "rectification"]
+    finally:
+        follower.stop()
+        store.close()
+        box.send_signal(signal.SIGINT)
+        try:
+            box.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            box.kill()
