@@ -9,6 +9,7 @@ test's temporary directory (so a test run leaves the work tree as it was).
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import signal
@@ -250,6 +251,14 @@ def test_a_log_downloaded_from_the_page_equals_the_robots_own_health_log(
         robot.close()
     assert len(expected) > 10
     assert downloaded == expected
+    with page.expect_download() as download:
+        page.click("#dl-csv")
+    rows = list(csv.reader(Path(download.value.path()).read_text().splitlines()))
+    assert rows[0][:3] == ["id", "time", "kind"]
+    assert [int(r[0]) for r in rows[1:]] == [e["id"] for e in expected]
+    with page.expect_download() as download:
+        page.click("#dl-mcap")
+    assert Path(download.value.path()).read_bytes()[:5] == b"\x89MCAP"
     page.context.close()
 
 
