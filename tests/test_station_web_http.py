@@ -176,6 +176,10 @@ def test_operator_acknowledges_an_alarm_and_admin_manages_users(station) -> None
     assert reply.status_code == 303
     assert auth.user("nina").role is Role.OPERATOR
     assert "nina" in client.get("/users").text
+    reply = client.post("/users", data={"csrf_token": csrf, "op": "password", "name": "nina",
+                                        "password": "another long pw"}, follow_redirects=False)
+    assert reply.status_code == 303
+    assert auth.log_in("nina", "another long pw", "test").session is not None
     actions = [a.action for a in auth.audit_log()]
     assert "alarm.ack" in actions and "user.add" in actions
 
@@ -306,3 +310,14 @@ def test_user_add_reads_the_password_from_stdin_and_refuses_bad_input(tmp_path: 
     listed = subprocess.run([sys.executable, "-m", "blackbox", "station", "user", "list",
                              "--db", str(db)], capture_output=True, text=True, timeout=60)
     assert listed.stdout.split() == ["otto", "operator"]
+    passwd = subprocess.run([sys.executable, "-m", "blackbox", "station", "user", "passwd",
+                             "otto", "--db", str(db)], input="a new password\n",
+                            capture_output=True, text=True, timeout=60)
+    assert passwd.returncode == 0, passwd.stderr
+    store = StationStore.open(db)
+    auth = Auth(db)
+    try:
+        assert auth.log_in("otto", "a new password", "test").session is not None
+    finally:
+        auth.close()
+        store.close()

@@ -51,6 +51,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add.add_argument("--db", dest="user_db", type=Path, default=None,
                      help="the station database (default: the station's --db)")
     add.set_defaults(func=user_add_command)
+    passwd = actions.add_parser("passwd", help="set a new password (ends the user's sessions)")
+    passwd.add_argument("name")
+    passwd.add_argument("--db", dest="user_db", type=Path, default=None)
+    passwd.set_defaults(func=user_passwd_command)
     listing = actions.add_parser("list", help="list the accounts")
     listing.add_argument("--db", dest="user_db", type=Path, default=None)
     listing.set_defaults(func=user_list_command)
@@ -103,6 +107,19 @@ def user_add_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def user_passwd_command(args: argparse.Namespace) -> int:
+    store, auth = open_databases(_db(args))
+    try:
+        auth.set_password(args.name, read_password(args.name), by="cli", address="local")
+    except AuthError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    finally:
+        auth.close()
+        store.close()
+    return 0
+
+
 def user_list_command(args: argparse.Namespace) -> int:
     store, auth = open_databases(_db(args))
     try:
@@ -139,7 +156,7 @@ def serve_command(args: argparse.Namespace) -> int:
 
     if getattr(args, "station_command", None) == "user" and not getattr(args, "user_command",
                                                                           None):
-        print("usage: blackbox station user {add,list,remove} ...", file=sys.stderr)
+        print("usage: blackbox station user {add,passwd,list,remove} ...", file=sys.stderr)
         return EXIT_USAGE
     if (args.tls_cert is None) != (args.tls_key is None):
         print("error: --tls-cert and --tls-key go together", file=sys.stderr)

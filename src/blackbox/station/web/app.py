@@ -485,6 +485,9 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
                                         address=where)
             elif op == "role":
                 auth.set_role(name, Role.parse(form.get("role", "")), by=by, address=where)
+            elif op == "password":
+                await asyncio.to_thread(auth.set_password, name, form.get("password", ""),
+                                        by=by, address=where)
             elif op == "remove":
                 if name == by:
                     raise AuthError("you cannot remove yourself")
