@@ -377,3 +377,28 @@ def test_the_simulated_robot_run_by_blackbox_run_feeds_the_station(tmp_path: Pat
             box.communicate(timeout=20)
         except subprocess.TimeoutExpired:
             box.kill()
+
+
+def test_an_operators_log_request_does_not_wait_behind_a_stuck_backfill(
+        tmp_path: Path, boxes: list[ScriptedBlackBox]) -> None:
+    domain = fresh_domain()
+    mute = ScriptedBlackBox("mute", domain)  # no recorder: its log requests go unanswered
+    boxes.append(mute)
+    mute.send("ok")
+    store = StationStore.open(tmp_path / "station.db")
+    follower = follower_for(store, domain, backfill=600)
+    try:
+        wait(lambda: follower._backfills.lock.locked())  # the mute robot's backfill waits
+        box = ScriptedBlackBox("thesis", domain, store=tmp_path / "health.db")
+        boxes.append(box)
+        box.send("fault")
+        wait(lambda: health(store, "thesis"))
+        request = follower.request_logs("thesis", kinds=["failure"])
+        info = wait(lambda: (r := store.log_request(request)) and r.status == "done" and r)
+        assert info.rows == 1
+        assert not any("mute" in p.message for p in store.problems(200))  # still waiting
+        wait(lambda: any("mute: missed events not fetched" in p.message
+                         for p in store.problems(200)), timeout=30)
+    finally:
+        follower.stop()
+        store.close()

@@ -159,6 +159,19 @@ class _Robot:
 
 
 @dataclass(slots=True)
+class _Lane:
+    """A worker thread with its own job queue and log client: operators' requests and the
+    automatic backfill run in separate lanes, so an unreachable robot's backfill never
+    makes an operator's log request wait."""
+
+    name: str
+    jobs: queue.Queue[Callable[[], None] | None] = field(
+        default_factory=lambda: queue.Queue(maxsize=64))
+    client: LogClient | None = None
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+
+@dataclass(slots=True)
 class FollowerStats:
     received: int = 0
     rejected: int = 0
@@ -203,12 +216,11 @@ class StationFollower:
         self._robots: dict[int, _Robot] = {}
         self._ext: dict[tuple[int, int], C_Event_Extension] = {}
         self._exceedances: list[tuple[float, C_Threshold_Exceedence_Event]] = []
-        self._jobs: queue.Queue[Callable[[], None] | None] = queue.Queue(maxsize=64)
-        self._log_client: LogClient | None = None
+        self._requests = _Lane("requests")
+        self._backfills = _Lane("backfill")
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._bus_lock = threading.Lock()
-        self._log_lock = threading.Lock()
 
     # ---- life cycle -------------------------------------------------------------------------
 
@@ -223,7 +235,8 @@ class StationFollower:
         mask = SampleState.NotRead | ViewState.Any | InstanceState.Any
         for reader in self._readers.values():
             self._waitset.attach(ReadCondition(reader, mask))
-        self._log_client = LogClient(self.bus, self.station_id)
+        for lane in (self._requests, self._backfills):
+            lane.client = LogClient(self.bus, self.station_id)
 
     def _reader(self, name: str) -> DataReader[Any]:
         """A reader with the topic's QoS, but a deeper history for state topics: the
@@ -243,15 +256,17 @@ class StationFollower:
         self._stop.clear()
         self._threads = [threading.Thread(target=self._follow, name="station-follow",
                                           daemon=True),
-                         threading.Thread(target=self._work, name="station-requests",
-                                          daemon=True)]
+                         *(threading.Thread(target=self._work, args=(lane,),
+                                            name=f"station-{lane.name}", daemon=True)
+                           for lane in (self._requests, self._backfills))]
         for t in self._threads:
             t.start()
 
     def stop(self, timeout: float = 10.0) -> None:
         self._stop.set()
-        with contextlib.suppress(queue.Full):
-            self._jobs.put_nowait(None)
+        for lane in (self._requests, self._backfills):
+            with contextlib.suppress(queue.Full):
+                lane.jobs.put_nowait(None)
         for t in self._threads:
             t.join(timeout=timeout)
         self._threads = []
@@ -601,7 +616,8 @@ class StationFollower:
                 robot.backfill_due = [now, now + BACKFILL_REPEAT]
             while robot.backfill_due and robot.backfill_due[0] <= now:
                 try:
-                    self._jobs.put_nowait(self._backfill_job(robot, robot.backfill_since))
+                    self._backfills.jobs.put_nowait(
+                        self._backfill_job(robot, robot.backfill_since))
                 except queue.Full:
                     break  # try again on a later poll
                 robot.backfill_due.pop(0)
@@ -617,9 +633,10 @@ class StationFollower:
             for entry in entries:
                 added += self._log_event(robot, entry)
 
-        status, _, _, _ = self._page_log(robot.robot_id, since=since, until=None, entity=None,
-                                      characteristic=None, kinds=BACKFILL_KINDS,
-                                      max_rows=self.max_log_rows, on_page=take)
+        status, _, _, _ = self._page_log(self._backfills, robot.robot_id, since=since,
+                                         until=None, entity=None, characteristic=None,
+                                         kinds=BACKFILL_KINDS, max_rows=self.max_log_rows,
+                                         on_page=take)
         self.stats.backfilled += added
         if status not in ("done", "truncated"):
             self.store.report_problem("backfill", f"{robot.name}: missed events not fetched: "
@@ -682,7 +699,7 @@ class StationFollower:
                     return owner.name
         return ""
 
-    def _page_log(self, robot_id: str, *, since: float | None, until: float | None,
+    def _page_log(self, lane: _Lane, robot_id: str, *, since: float | None, until: float | None,
                   entity: str | None, characteristic: str | None, kinds: Sequence[str],
                   max_rows: int, on_page: Callable[[Sequence[LogEntry]], None],
                   on_progress: Callable[[int, int, float], None] | None = None,
@@ -703,7 +720,7 @@ class StationFollower:
                                        f"({cursor[0] if cursor else since}); narrow the request")
             want = min(self.log_page, max_rows - rows)
             ask = want + same
-            answer = self._fetch_log(robot_id, entity=entity, characteristic=characteristic,
+            answer = self._fetch_log(lane, robot_id, entity=entity, characteristic=characteristic,
                                      since=cursor[0] if cursor else since, until=until,
                                      kinds=kinds, max_entries=ask)
             pages += 1
@@ -745,14 +762,14 @@ class StationFollower:
                 return "error", rows, pages, "the robot repeated entries it had sent already"
         return "truncated", rows, pages, f"stopped at {max_rows} rows; narrow the time range"
 
-    def _fetch_log(self, robot_id: str, *, entity: str | None, characteristic: str | None,
-                   since: float | None, until: float | None, kinds: Iterable[str],
-                   max_entries: int) -> LogAnswer:
+    def _fetch_log(self, lane: _Lane, robot_id: str, *, entity: str | None,
+                   characteristic: str | None, since: float | None, until: float | None,
+                   kinds: Iterable[str], max_entries: int) -> LogAnswer:
         """The one place this station sends a log request (signing is added here)."""
-        client = self._log_client
+        client = lane.client
         if client is None:
             return LogAnswer("error: station not connected", [], 0, False)
-        with self._log_lock:
+        with lane.lock:
             return client.request(robot_id, entity=entity, characteristic=characteristic,
                                   since=since, until=until, kinds=kinds,
                                   max_entries=max_entries, timeout=self.log_timeout)
@@ -760,15 +777,16 @@ class StationFollower:
     def _drop_foreign_replies(self) -> None:
         """Log replies keep all history: between our own requests, replies to other
         stations would pile up in the reader, so they are taken and dropped."""
-        client = self._log_client
-        if client is None or not self._log_lock.acquire(blocking=False):
-            return
-        try:
-            client.reader.take(N=256)
-        except Exception as exc:
-            self.store.report_problem("dds BlackBox_Log_Reply", f"cannot read: {exc}")
-        finally:
-            self._log_lock.release()
+        for lane in (self._requests, self._backfills):
+            client = lane.client
+            if client is None or not lane.lock.acquire(blocking=False):
+                continue
+            try:
+                client.reader.take(N=256)
+            except Exception as exc:
+                self.store.report_problem("dds BlackBox_Log_Reply", f"cannot read: {exc}")
+            finally:
+                lane.lock.release()
 
     def request_logs(self, robot: RobotRef, *, entity: str | None = None,
                      characteristic: str | None = None, since: float | None = None,
@@ -798,7 +816,7 @@ class StationFollower:
         if since is not None and (until or self.clock()) - since > MAX_LOG_RANGE_DAYS * 86400:
             raise ValueError(f"range longer than {MAX_LOG_RANGE_DAYS} days")
         limit = min(max_rows or self.max_log_rows, self.max_log_rows)
-        if self._jobs.full():
+        if self._requests.jobs.full():
             raise StationBusy("too many log requests and tests waiting; try again shortly")
         request = self.store.create_log_request(
             rid, robot_id, entity=entity or None, characteristic=characteristic or None,
@@ -814,7 +832,7 @@ class StationFollower:
             self._run_log_request(request, rid, robot_id, entity or None,
                                   characteristic or None, since, until, chosen, limit)
         try:
-            self._jobs.put_nowait(job)
+            self._requests.jobs.put_nowait(job)
         except queue.Full:
             self.store.update_log_request(request, rid, status="error", rows=0, pages=0,
                                           progress=0, message="station busy",
@@ -844,7 +862,7 @@ class StationFollower:
             self.store.flush(force=True)
 
         try:
-            status, rows, pages, message = self._page_log(
+            status, rows, pages, message = self._page_log(self._requests,
                 robot_id, since=since, until=until, entity=entity,
                 characteristic=characteristic, kinds=kinds, max_rows=max_rows,
                 on_page=page, on_progress=progress)
@@ -870,14 +888,14 @@ class StationFollower:
             raise UnknownRobot(f"robot {robot!r} has not named itself; cannot address it")
         if entity and self.store.entity_by_name(rid, entity) is None:
             raise UnknownRobot(f"robot {robot_id} has no entity {entity!r}")
-        if self._jobs.full():
+        if self._requests.jobs.full():
             raise StationBusy("too many log requests and tests waiting; try again shortly")
         run = self.store.create_ibit_run(rid, robot_id, entity, requested_by)
 
         def job() -> None:
             self._run_ibit(run, rid, robot_id, entity, requested_by)
         try:
-            self._jobs.put_nowait(job)
+            self._requests.jobs.put_nowait(job)
         except queue.Full:
             self.store.finish_ibit_run(run, rid, status="error", health=None, observations=0,
                                        failed=0, report=["station busy"])
@@ -915,9 +933,9 @@ class StationFollower:
                              details={"run": run, "requested_by": user, "health": health})
         self.store.flush(force=True)
 
-    def _work(self) -> None:
+    def _work(self, lane: _Lane) -> None:
         while not self._stop.is_set():
-            job = self._jobs.get()
+            job = lane.jobs.get()
             if job is None:
                 return
             try:
