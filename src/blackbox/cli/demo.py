@@ -115,32 +115,43 @@ def start_ros1_robot(args: argparse.Namespace, out: Path) -> tuple[subprocess.Po
     return robot, port
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def two_process_demo(args: argparse.Namespace, out: Path) -> int:
+    # Ctrl-C and SIGTERM both stop the demo and everything it started, also when a script
+    # started it in the background (which leaves SIGINT ignored).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, _interrupt)
     domain = args.domain if args.domain is not None else 100 + os.getpid() % 100
     blackbox = [sys.executable, "-m", "blackbox"]
     processes: list[subprocess.Popen[bytes]] = []
-    port = None
-    if args.source == "ros1":
-        ros1, port = start_ros1_robot(args, out)
-        processes.append(ros1)
-        time.sleep(2.0)  # let the nodes register before the black box looks
-    log = (out / "blackbox.log").open("w")
-    box = subprocess.Popen(
-        [*blackbox, "run", *run_arguments(args, out, args.duration, port), "--dds",
-         "--domain", str(domain), "--quiet"], stdout=log, stderr=subprocess.STDOUT)
-    what = "the simulated thesis robot" if port is None else f"the ROS 1 thesis robot (:{port})"
     db = out / "station.db"
     user, password = demo_account(db)
     ready = out / "station.url"
     ready.unlink(missing_ok=True)
+    log = (out / "blackbox.log").open("w")
     station_log = (out / "station.log").open("w")
-    station = subprocess.Popen(
-        [*blackbox, "station", "--db", str(db), "--domain", str(domain), "--bind", args.bind,
-         "--ready-file", str(ready),
-         *(["--duration", str(args.duration + 2.0)] if args.duration is not None else [])],
-        stdout=station_log, stderr=subprocess.STDOUT)
-    processes += [station, box]
+    box: subprocess.Popen[bytes] | None = None
     try:
+        port = None
+        if args.source == "ros1":
+            ros1, port = start_ros1_robot(args, out)
+            processes.append(ros1)
+            time.sleep(2.0)  # let the nodes register before the black box looks
+        box = subprocess.Popen(
+            [*blackbox, "run", *run_arguments(args, out, args.duration, port), "--dds",
+             "--domain", str(domain), "--quiet"], stdout=log, stderr=subprocess.STDOUT)
+        processes.append(box)
+        what = ("the simulated thesis robot" if port is None
+                else f"the ROS 1 thesis robot (:{port})")
+        station = subprocess.Popen(
+            [*blackbox, "station", "--db", str(db), "--domain", str(domain), "--bind",
+             args.bind, "--ready-file", str(ready),
+             *(["--duration", str(args.duration + 2.0)] if args.duration is not None else [])],
+            stdout=station_log, stderr=subprocess.STDOUT)
+        processes.insert(0, station)
         deadline = time.monotonic() + 60
         while not ready.exists() and station.poll() is None and time.monotonic() < deadline:
             time.sleep(0.1)
@@ -161,9 +172,13 @@ def two_process_demo(args: argparse.Namespace, out: Path) -> int:
     except (KeyboardInterrupt, subprocess.TimeoutExpired):
         pass
     finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut cleanup
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
         stop_all(processes)
         log.close()
         station_log.close()
+    if box is None:
+        return 1
     print(f"demo: black box exited with {box.returncode}; health log {out}/blackbox.db "
           f"(try: blackbox log query --db {out}/blackbox.db --kind failure), "
           f"black box output in {out}/blackbox.log, station's database {db}", file=sys.stderr)
