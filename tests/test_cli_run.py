@@ -137,6 +137,35 @@ def test_demo_runs_black_box_and_station_as_two_processes_over_dds(tmp_path: Pat
     assert "8.0 s observed" in (tmp_path / "blackbox.log").read_text()
 
 
+def test_demo_runs_until_interrupted_and_stops_everything_it_started(tmp_path: Path) -> None:
+    import socket
+
+    demo = subprocess.Popen([*BLACKBOX, "demo", "--out", str(tmp_path), "--bind",
+                             "127.0.0.1:0"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        assert demo.stderr is not None
+        lines = []
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            line = demo.stderr.readline()
+            lines.append(line)
+            if "station: http" in line or not line:
+                break
+        found = re.search(r"http://127\.0\.0\.1:(\d+)/", "".join(lines))
+        assert found, "".join(lines)
+        time.sleep(3)
+        assert demo.poll() is None  # no duration: still running
+        demo.send_signal(signal.SIGINT)
+        assert demo.wait(timeout=40) == 0, demo.stderr.read()
+        with socket.socket() as probe:  # the station went with it
+            assert probe.connect_ex(("127.0.0.1", int(found.group(1)))) != 0
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+            demo.wait()
+
+
 def test_log_import_reaches_a_running_black_box_without_restart(tmp_path: Path) -> None:
     db, out = tmp_path / "bb.db", tmp_path / "obs.jsonl"
     proc = subprocess.Popen([*BLACKBOX, "run", "--quiet", "--record", str(db),
