@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -114,12 +115,55 @@ def test_run_keeps_a_health_log_with_failures_and_their_snapshots(tmp_path: Path
 
 
 def test_demo_runs_black_box_and_station_as_two_processes_over_dds(tmp_path: Path) -> None:
-    result = blackbox("demo", "--duration", "8", "--out", str(tmp_path), timeout=90)
+    from blackbox.station.auth import Auth
+    from blackbox.station.store import StationStore
+
+    result = blackbox("demo", "--duration", "8", "--out", str(tmp_path), "--bind",
+                      "127.0.0.1:0", timeout=90)
     assert result.returncode == 0, result.stderr
-    assert "robot thesis-robot" in result.stdout  # the station saw the robot over DDS
-    assert "/usb_cam" in result.stdout
+    assert re.search(r"station: http://127\.0\.0\.1:\d+/", result.stderr)
+    credential = re.search(r"log in as (\S+) with password (\S+)", result.stderr)
+    assert credential, result.stderr
+    store = StationStore.open(tmp_path / "station.db")  # the station saw the robot over DDS
+    auth = Auth(tmp_path / "station.db")
+    try:
+        entities = {e.name for e in store.entities("thesis-robot")}
+        assert "/usb_cam" in entities
+        assert auth.log_in(credential.group(1), credential.group(2), "test").session
+    finally:
+        auth.close()
+        store.close()
     assert (tmp_path / "blackbox.db").exists()
     assert "8.0 s observed" in (tmp_path / "blackbox.log").read_text()
+
+
+def test_demo_runs_until_interrupted_and_stops_everything_it_started(tmp_path: Path) -> None:
+    import socket
+
+    demo = subprocess.Popen([*BLACKBOX, "demo", "--out", str(tmp_path), "--bind",
+                             "127.0.0.1:0"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        assert demo.stderr is not None
+        lines = []
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            line = demo.stderr.readline()
+            lines.append(line)
+            if "station: http" in line or not line:
+                break
+        found = re.search(r"http://127\.0\.0\.1:(\d+)/", "".join(lines))
+        assert found, "".join(lines)
+        time.sleep(3)
+        assert demo.poll() is None  # no duration: still running
+        demo.send_signal(signal.SIGINT)
+        assert demo.wait(timeout=40) == 0, demo.stderr.read()
+        with socket.socket() as probe:  # the station went with it
+            assert probe.connect_ex(("127.0.0.1", int(found.group(1)))) != 0
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+            demo.wait()
 
 
 def test_log_import_reaches_a_running_black_box_without_restart(tmp_path: Path) -> None:

@@ -184,7 +184,7 @@ def test_restarted_listener_gets_state_again_and_missed_events_from_the_log(clea
                             and any(e["origin"] == "log" and e["kind"] == "failure"
                                     for e in events(s, "thesis")))
     from_log = [e for e in events(state, "thesis") if e["origin"] == "log"]
-    assert {e["kind"] for e in from_log} == {"exceedance", "failure"}
+    assert {e["kind"] for e in from_log} == {"diagnosis", "exceedance", "failure"}
     failure = next(e for e in from_log if e["kind"] == "failure")
     assert failure["entity"] == "/usb_cam"
     assert "camera publishes too slowly" in failure["text"]
@@ -202,7 +202,7 @@ def test_live_events_reach_a_connected_listener(cleanup):
     state = listener.wait_for(lambda s: any(e["kind"] == "failure"
                                             for e in events(s, "thesis")))
     kinds = sorted(e["kind"] for e in events(state, "thesis"))
-    assert kinds == ["exceedence", "failure"]
+    assert kinds == ["diagnosis", "exceedance", "failure"]
     assert all(e["origin"] == "live" for e in events(state, "thesis"))
 
 
@@ -272,9 +272,11 @@ def test_foreign_and_garbage_samples_do_not_crash_the_listener(cleanup):
                               == "NOT_OPERATIONAL")
     assert listener.proc.poll() is None
     assert entities(state, "thesis")["/audio_capture"] == "OPERATIONAL"
-    # The intruder's well-formed but meaningless samples stay under their own resource id.
-    assert "#12345" in state["robots"]
-    assert set(state["robots"]) == {"thesis", "#12345"}
+    # The intruder's well-formed but meaningless samples name no robot: they are reported
+    # as a problem and not shown as a robot.
+    state = listener.wait_for(lambda s: any("resource id 12345" in p for p in s["problems"]),
+                              timeout=15.0)
+    assert set(state["robots"]) == {"thesis"}
 
 
 def test_run_ibit_evaluates_and_answers_with_the_reference_number(cleanup, monkeypatch,

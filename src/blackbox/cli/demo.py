@@ -1,15 +1,20 @@
-"""``blackbox demo``: the simulated thesis robot with random faults, watched live.
+"""``blackbox demo``: the simulated thesis robot with random faults, watched from the station.
 
 By default the black box and the station run as two processes that talk only over DDS
 (loopback): the black box watches the simulated robot, records its health and publishes
-UCMS health messages; ``blackbox listen`` shows what a remote station sees. ``--fast``
-instead runs five simulated minutes in-process in a few seconds, printing state changes.
+UCMS health messages; ``blackbox station`` follows it and serves the web station on
+http://127.0.0.1:8080. The demo makes a demo-only admin account with a fresh random
+password for every run and prints it with the URL; it runs until Ctrl-C (``--duration``
+for scripts). ``--fast`` instead runs five simulated minutes in-process in a few seconds,
+printing state changes.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import secrets
 import signal
 import socket
 import subprocess
@@ -18,6 +23,7 @@ import time
 from pathlib import Path
 
 from blackbox.app import RunOptions, build, graceful_interrupts
+from blackbox.transport.auth import station_trusted_by
 
 DEMO_CONFIG = Path(__file__).resolve().parent.parent / "configs" / "thesis-extended.yaml"
 
@@ -25,9 +31,11 @@ DEMO_CONFIG = Path(__file__).resolve().parent.parent / "configs" / "thesis-exten
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("demo", help="simulated thesis robot with injected faults, watched live",
                        description="Run the black box on the simulated thesis robot while a "
-                       "seeded random fault campaign breaks it, and a station listens over DDS.")
-    p.add_argument("--duration", type=float, default=60.0, metavar="S",
-                   help="seconds to run (default 60; 300 simulated seconds with --fast)")
+                       "seeded random fault campaign breaks it, and the web station follows it "
+                       "over DDS.")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="seconds to run (default: until Ctrl-C; 300 simulated seconds with "
+                   "--fast)")
     p.add_argument("--fast", action="store_true",
                    help="simulated clock, in one process: five robot minutes in a few seconds")
     p.add_argument("--seed", type=int, default=7)
@@ -38,7 +46,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--domain", type=int, default=None,
                    help="DDS domain of the demo (default: derived from the process id)")
     p.add_argument("--out", type=Path, default=Path("out/demo"),
-                   help="directory for the health log, JSON lines and ground truth")
+                   help="directory for the health log, JSON lines, ground truth and the "
+                   "station's database")
+    p.add_argument("--bind", default="127.0.0.1:8080", metavar="HOST:PORT",
+                   help="address of the web station (default 127.0.0.1:8080)")
     p.set_defaults(func=demo_command)
 
 
@@ -54,21 +65,22 @@ ROS1_ROBOT = Path(__file__).resolve().parents[3] / "scripts" / "ros1_robot" / "i
 ROS1_CONFIG = Path(__file__).resolve().parent.parent / "configs" / "thesis.yaml"
 
 
-def run_arguments(args: argparse.Namespace, out: Path, duration: float,
-                  port: int | None = None) -> list[str]:
+def run_arguments(args: argparse.Namespace, out: Path, duration: float | None,
+                  port: int | None = None, config: Path | None = None) -> list[str]:
     if port is None:
-        robot = ["--config", str(DEMO_CONFIG), "--source", "sim:thesis", "--faults", "random",
-                 "--seed", str(args.seed), "--ground-truth", str(out / "ground_truth.jsonl")]
+        robot = ["--config", str(config or DEMO_CONFIG), "--source", "sim:thesis", "--faults",
+                 "random", "--seed", str(args.seed), "--ground-truth",
+                 str(out / "ground_truth.jsonl")]
     else:
-        robot = ["--config", str(ROS1_CONFIG), "--source", f"ros1://127.0.0.1:{port}"]
-    return [*robot, "--duration", str(duration),
+        robot = ["--config", str(config or ROS1_CONFIG), "--source", f"ros1://127.0.0.1:{port}"]
+    return [*robot, *(["--duration", str(duration)] if duration is not None else []),
             "--observations", str(out / "observations.jsonl"),
             "--diagnoses", str(out / "diagnoses.jsonl"), "--events", str(out / "events.jsonl"),
             "--record", str(out / "blackbox.db")]
 
 
 def fast_demo(args: argparse.Namespace, out: Path) -> int:
-    duration = 300.0 if args.duration == 60.0 else args.duration
+    duration = 300.0 if args.duration is None else args.duration
     options = RunOptions(
         config=DEMO_CONFIG, source="sim:thesis", duration=duration, simulated_clock=True,
         faults="random", seed=args.seed, ground_truth=out / "ground_truth.jsonl",
@@ -91,7 +103,8 @@ def start_ros1_robot(args: argparse.Namespace, out: Path) -> tuple[subprocess.Po
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     robot = subprocess.Popen(
-        [sys.executable, str(ROS1_ROBOT), "--port", str(port), "--duration", str(args.duration),
+        [sys.executable, str(ROS1_ROBOT), "--port", str(port), "--duration",
+         str(args.duration if args.duration is not None else 24 * 3600.0),
          "--seed", str(args.seed), "--truth", str(out / "ground_truth.jsonl"),
          "--log-dir", str(out / "ros1-logs")],
         stdout=(out / "robot.log").open("w"), stderr=subprocess.STDOUT)
@@ -104,37 +117,97 @@ def start_ros1_robot(args: argparse.Namespace, out: Path) -> tuple[subprocess.Po
     return robot, port
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def two_process_demo(args: argparse.Namespace, out: Path) -> int:
+    # Ctrl-C and SIGTERM both stop the demo and everything it started, also when a script
+    # started it in the background (which leaves SIGINT ignored).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, _interrupt)
     domain = args.domain if args.domain is not None else 100 + os.getpid() % 100
     blackbox = [sys.executable, "-m", "blackbox"]
     processes: list[subprocess.Popen[bytes]] = []
-    port = None
-    if args.source == "ros1":
-        ros1, port = start_ros1_robot(args, out)
-        processes.append(ros1)
-        time.sleep(2.0)  # let the nodes register before the black box looks
+    db = out / "station.db"
+    user, password = demo_account(db)
+    key, config = station_trusted_by(ROS1_CONFIG if args.source == "ros1" else DEMO_CONFIG,
+                                     out, "demo-station")
+    ready = out / "station.url"
+    ready.unlink(missing_ok=True)
     log = (out / "blackbox.log").open("w")
-    box = subprocess.Popen(
-        [*blackbox, "run", *run_arguments(args, out, args.duration, port), "--dds",
-         "--domain", str(domain), "--quiet"], stdout=log, stderr=subprocess.STDOUT)
-    what = "the simulated thesis robot" if port is None else f"the ROS 1 thesis robot (:{port})"
-    print(f"demo: black box (pid {box.pid}) watching {what}, publishing on DDS domain "
-          f"{domain}; station below. Ctrl-C to stop.", file=sys.stderr)
-    station = subprocess.Popen([*blackbox, "listen", "--domain", str(domain),
-                                "--duration", str(args.duration + 2.0)])
-    processes += [station, box]
+    station_log = (out / "station.log").open("w")
+    box: subprocess.Popen[bytes] | None = None
     try:
+        port = None
+        if args.source == "ros1":
+            ros1, port = start_ros1_robot(args, out)
+            processes.append(ros1)
+            time.sleep(2.0)  # let the nodes register before the black box looks
+        box = subprocess.Popen(
+            [*blackbox, "run", *run_arguments(args, out, args.duration, port, config), "--dds",
+             "--domain", str(domain), "--quiet"], stdout=log, stderr=subprocess.STDOUT)
+        processes.append(box)
+        what = ("the simulated thesis robot" if port is None
+                else f"the ROS 1 thesis robot (:{port})")
+        station = subprocess.Popen(
+            [*blackbox, "station", "--db", str(db), "--key", str(key), "--domain", str(domain),
+             "--bind",
+             args.bind, "--ready-file", str(ready),
+             *(["--duration", str(args.duration + 2.0)] if args.duration is not None else [])],
+            stdout=station_log, stderr=subprocess.STDOUT)
+        processes.insert(0, station)
+        deadline = time.monotonic() + 60
+        while not ready.exists() and station.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        if not ready.exists():
+            print(f"demo: the station did not start; see {out}/station.log", file=sys.stderr)
+            return 1
+        url = ready.read_text().strip()
+        print(f"demo: black box (pid {box.pid}) watching {what}, publishing on DDS domain "
+              f"{domain}.\n"
+              f"demo: station: {url}\n"
+              f"demo:   log in as {user} with password {password}\n"
+              f"demo:   (a demo-only admin account, made anew with a random password for "
+              f"this run)\n"
+              f"demo: {'Ctrl-C to stop' if args.duration is None else f'{args.duration:g} s'}."
+              , file=sys.stderr, flush=True)
         station.wait()
         box.wait(timeout=10)
     except (KeyboardInterrupt, subprocess.TimeoutExpired):
         pass
     finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut cleanup
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
         stop_all(processes)
         log.close()
+        station_log.close()
+    if box is None:
+        return 1
     print(f"demo: black box exited with {box.returncode}; health log {out}/blackbox.db "
           f"(try: blackbox log query --db {out}/blackbox.db --kind failure), "
-          f"black box output in {out}/blackbox.log", file=sys.stderr)
-    return 0 if box.returncode == 0 else 1
+          f"black box output in {out}/blackbox.log, station's database {db}", file=sys.stderr)
+    return 0 if box.returncode in (0, -signal.SIGINT) else 1
+
+
+DEMO_USER = "demo-admin"
+
+
+def demo_account(db: Path) -> tuple[str, str]:
+    """The demo's admin account with a new random password (replacing the last run's)."""
+    from blackbox.cli.station import open_databases
+    from blackbox.station.auth import AuthError, Role
+
+    store, auth = open_databases(db)
+    try:
+        password = secrets.token_urlsafe(12)
+        with contextlib.suppress(AuthError):
+            auth.remove_user(DEMO_USER, by="demo", address="local")
+        auth.add_user(DEMO_USER, password, Role.ADMIN, by="demo")
+    finally:
+        auth.close()
+        store.close()
+    return DEMO_USER, password
 
 
 def stop_all(processes: list[subprocess.Popen[bytes]], grace: float = 10.0) -> None:

@@ -1,16 +1,21 @@
-"""``blackbox listen``: the live UCMS state of every robot on a DDS domain."""
+"""``blackbox listen``: the live UCMS state of every robot on a DDS domain, as a table.
+
+Fed by the station's follower (``blackbox.station.follow``) into a throw-away in-memory
+station store; on a terminal the table is redrawn in place (rich ``Live``), otherwise it is
+printed whenever it changes. ``--json`` prints the whole state as one JSON line per change.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from typing import Any
 
-_COLOUR = {"OPERATIONAL": "\x1b[32m", "DEGRADED": "\x1b[33m", "NOT_OPERATIONAL": "\x1b[31m",
-           "UNKNOWN": "\x1b[90m"}
-_RESET = "\x1b[0m"
+STYLE = {"OPERATIONAL": "green", "DEGRADED": "yellow", "NOT_OPERATIONAL": "red",
+         "UNKNOWN": "bright_black"}
 
 
 def register(sub: Any) -> None:
@@ -20,6 +25,8 @@ def register(sub: Any) -> None:
     p.add_argument("--backfill", type=float, default=600.0, metavar="SECONDS",
                    help="on first sight of a robot, fetch its recorded events of the last "
                         "SECONDS through a log request (0 = off; default 600)")
+    p.add_argument("--stale-after", type=float, default=10.0, metavar="SECONDS",
+                   help="show a robot UNKNOWN after SECONDS of silence (default 10)")
     p.add_argument("--duration", type=float, default=None, metavar="SECONDS",
                    help="stop after SECONDS (default: until interrupted)")
     p.add_argument("--json", action="store_true",
@@ -34,62 +41,119 @@ def add_bus_arguments(p: argparse.ArgumentParser) -> None:
                    help="Cyclone DDS configuration (default: CYCLONEDDS_URI, else loopback)")
 
 
-def open_bus(args: argparse.Namespace) -> Any:
-    from blackbox.transport.participant import Bus, TransportSettings
+def transport_settings(args: argparse.Namespace) -> Any:
+    """The bus settings of the common arguments, or ``None`` after printing the error."""
+    from blackbox.transport.participant import TransportSettings
 
     try:
-        settings = TransportSettings(args.domain, args.partition, args.cyclone_config)
+        return TransportSettings(args.domain, args.partition, args.cyclone_config)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return None
-    return Bus.open(settings)
 
 
-def render(state: dict[str, Any], colour: bool) -> str:
-    lines = [time.strftime("%H:%M:%S") + f"  robots: {len(state['robots'])}"]
+def open_bus(args: argparse.Namespace) -> Any:
+    from blackbox.transport.participant import Bus
+
+    settings = transport_settings(args)
+    return None if settings is None else Bus.open(settings)
+
+
+def render(state: dict[str, Any], colour: bool = True) -> Any:
+    """The state (``StationFollower.snapshot()``) as a rich renderable: one table per
+    robot with its entities in status colours and its latest events."""
+    from rich.console import Group
+    from rich.table import Table
+    from rich.text import Text
+
+    parts: list[Any] = [Text(time.strftime("%H:%M:%S") + f"  robots: {len(state['robots'])}"
+                             f"  samples: {state.get('received', 0)}"
+                             f"  rejected: {state.get('rejected', 0)}")]
     for name, robot in state["robots"].items():
-        lines.append("")
-        lines.append(f"robot {name}")
-        for ename, entity in sorted(robot["entities"].items()):
+        status = robot.get("status", "UNKNOWN")
+        title = Text(f"robot {name}  ")
+        title.append(status + (" (silent)" if robot.get("stale") else "")
+                     + ("" if robot.get("online", True) else " (stopped)"),
+                     style=STYLE.get(status, "") if colour else "")
+        table = Table(title=title, title_justify="left", expand=False)
+        table.add_column("entity", no_wrap=True)
+        table.add_column("kind")
+        table.add_column("health")
+        table.add_column("failures", justify="right")
+        for ename, entity in sorted(robot["entities"].items(),
+                                    key=lambda kv: (kv[1]["kind"] != "robot", kv[0])):
             health = entity["health"] if entity["online"] else "UNKNOWN"
             word = health if entity["online"] else f"{health} (offline)"
             if entity["bit"]:
                 word += " [BIT]"
-            if colour:
-                word = _COLOUR.get(health, "") + word + _RESET
             label = "(robot)" if entity["kind"] == "robot" else ename
-            lines.append(f"  {label:40} {word}")
+            table.add_row(Text(label), entity["kind"],
+                          Text(word, style=STYLE.get(health, "") if colour else ""),
+                          str(entity["failures"] or ""))
+        parts.append(table)
+        events = Table(show_header=False, box=None, padding=(0, 1))
         for event in list(robot["events"])[-8:]:
             stamp = time.strftime("%H:%M:%S", time.localtime(event["time"]))
             origin = " [log]" if event["origin"] == "log" else ""
-            lines.append(f"  {stamp} {event['kind']:11} {event['entity']}: "
-                         f"{event['text']}{origin}")
-    return "\n".join(lines)
+            events.add_row(stamp, event["kind"], Text(f"{event['entity']}: {event['text']}"
+                                                      f"{origin}"))
+        if events.row_count:
+            parts.append(events)
+    for problem in state.get("problems", [])[:5]:
+        parts.append(Text("problem: " + problem, style="red" if colour else ""))
+    return Group(*parts)
+
+
+def _stable(state: dict[str, Any]) -> str:
+    """The state without what changes on every sample, to print only real changes."""
+    return json.dumps({**state, "received": None}, sort_keys=True, default=str)
 
 
 def run(args: argparse.Namespace) -> int:
-    from blackbox.transport.listener import HealthListener
+    from rich.console import Console
+    from rich.live import Live
 
-    bus = open_bus(args)
-    if bus is None:
+    from blackbox.station.follow import StationFollower
+    from blackbox.station.store import StationStore
+
+    settings = transport_settings(args)
+    if settings is None:
         return 2
-    listener = HealthListener(bus, backfill=max(0.0, args.backfill))
+    if args.stale_after <= 0:
+        print("error: --stale-after must be positive", file=sys.stderr)
+        return 2
+    store = StationStore(":memory:", stale_after=args.stale_after)
+    follower = StationFollower(store, settings, backfill=max(0.0, args.backfill),
+                               station_id=f"listen-{os.getpid()}")
     tty = sys.stdout.isatty() and not args.json
     end = None if args.duration is None else time.monotonic() + args.duration
+    console = Console(force_terminal=tty, no_color=not tty, width=None if tty else 120)
     last = ""
+    follower.start()
     try:
-        while end is None or time.monotonic() < end:
-            listener.poll(0.2)
-            state = listener.to_dict()
-            text = json.dumps(state, sort_keys=True)
-            if text == last:
-                continue
-            last = text
-            if args.json:
-                print(text, flush=True)
-            else:
-                out = render(state, tty)
-                print(("\x1b[2J\x1b[H" + out) if tty else out + "\n", flush=True)
+        if tty:
+            with Live(render(follower.snapshot()), console=console, auto_refresh=False,
+                      transient=False) as live:
+                while end is None or time.monotonic() < end:
+                    store.wait_for_change(store.sequence, 0.5)
+                    live.update(render(follower.snapshot()), refresh=True)
+        else:
+            while end is None or time.monotonic() < end:
+                store.wait_for_change(store.sequence, 0.2)
+                state = follower.snapshot()
+                text = _stable(state)
+                if text == last:
+                    continue
+                last = text
+                if args.json:
+                    print(json.dumps(state, sort_keys=True, default=str), flush=True)
+                else:
+                    console.print(render(state, colour=False))
+                    console.print()
+                    sys.stdout.flush()
+    except KeyboardInterrupt:
+        pass
     finally:
-        bus.close()
+        follower.stop()
+        store.close()
     return 0

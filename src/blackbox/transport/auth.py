@@ -138,6 +138,25 @@ def generate_key_pair(private_path: Path, name: str) -> Path:
     return public_path
 
 
+def station_trusted_by(base_config: Path, directory: Path, name: str) -> tuple[Path, Path]:
+    """A new station key ``directory/<name>.key`` and a copy of ``base_config`` that trusts
+    it for log requests and IBIT, ``directory/<name>-robot.yaml``; returns (key, config).
+
+    For demos and tests that start their own robot and station; an old key of the same
+    name in ``directory`` is replaced. ``base_config`` must not have a ``transport`` section.
+    """
+    key = directory / f"{name}.key"
+    for old in (key, key.with_name(key.name + ".pub")):
+        old.unlink(missing_ok=True)
+    public = generate_key_pair(key, name)
+    config = directory / f"{name}-robot.yaml"
+    config.write_text(base_config.read_text() + f"\n# trusts the station key {public.name}\n"
+                      "transport:\n  access:\n    stations:\n"
+                      f"      - {{name: {name}, public_key_file: {public.name}, "
+                      "may: [logs, ibit]}\n")
+    return key, config
+
+
 def load_private_key(path: Path) -> Ed25519PrivateKey:
     try:
         data = Path(path).read_bytes()

@@ -1,0 +1,349 @@
+"""Station fleet benchmark: N simulated black boxes on one DDS domain feeding one station.
+
+Each simulated black box is a real ``DdsHealthSink`` publishing the thesis robot's health
+stream (3 nodes, 10 observers, 11 characteristics at 1 Hz) with a camera fault of
+``--fault-length`` s every ``--fault-every`` s (phase shifted per robot), each with a
+diagnosis naming ``/usb_cam`` and, when it ends, a rectification. The robots run in
+``--processes`` processes; every robot counts what it wrote. One station process follows
+them all into its own database:
+
+* ``--station web`` (default when ``blackbox station`` exists): the real ``blackbox station``
+  (follower + store + web application), and the fleet page is fetched over HTTP while the
+  fleet runs (log-in as a viewer created for the run; plain GET timing);
+* ``--station core``: the follower and the store alone (``StationFollower`` +
+  ``StationStore``) in a child process.
+
+Reported side by side: station CPU (% of one core) and RSS, DDS samples and stored rows
+per second, and per robot what it published against what the station stored
+(characteristic values, exceedances, failures, rectifications); "dropped" must be 0.
+
+    .venv/bin/python benchmarks/station_fleet.py                      # 20 robots, 600 s
+    .venv/bin/python benchmarks/station_fleet.py --duration 60        # a short run
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import signal
+import sqlite3
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve()
+
+
+# ---- simulated black boxes (child) ----------------------------------------------------------
+
+
+def robots_child(args: argparse.Namespace) -> int:
+    from blackbox.health.types import (
+        C_Failure_Event,
+        C_Monitored_Characteristic,
+        C_Threshold_Exceedence_Event,
+    )
+    from blackbox.model import Code, Diagnosis, Observation, Resource, State
+    from blackbox.transport.publisher import DdsHealthSink
+
+    counted = {C_Monitored_Characteristic: "values", C_Threshold_Exceedence_Event: "exceedances",
+               C_Failure_Event: "failures"}
+
+    class CountingSink(DdsHealthSink):
+        def __init__(self, *a: Any, **kw: Any) -> None:
+            self.counts = {"values": 0, "exceedances": 0, "failures": 0, "rectifications": 0}
+            super().__init__(*a, **kw)
+
+        def _write(self, samples: Any) -> None:
+            for sample in samples:
+                before = self.written
+                super()._write([sample])
+                name = counted.get(type(sample))
+                if name and self.written > before:
+                    self.counts[name] += 1
+
+    ok = (State(1, "ok"),)
+    cam = Resource(topic="/usb_cam/image_raw", publishers=("/usb_cam",))
+    audio = Resource(topic="/audio", publishers=("/audio_capture",))
+    sig = Resource(topic="/signal", publishers=("/signal_generator",))
+
+    def observations(t: float, faulty: bool) -> list[Observation]:
+        camera = (Observation(t, "hz", cam, Code.NO_STATE_FITS, (), {"period": 0.5},
+                              "period 0.5 s fits no state") if faulty else
+                  Observation(t, "hz", cam, Code.GENERAL_OK, ok, {"period": 0.0667}))
+        return [camera,
+                Observation(t, "timeout", cam, Code.GENERAL_OK),
+                Observation(t, "hz", audio, Code.GENERAL_OK, ok, {"period": 0.0333}),
+                Observation(t, "timeout", audio, Code.GENERAL_OK),
+                Observation(t, "hz", sig, Code.GENERAL_OK, ok, {"period": 0.0667}),
+                Observation(t, "scores", sig, Code.GENERAL_OK, ok, {"score": 15.0}),
+                *(Observation(t, "activated", Resource(node=n), Code.GENERAL_OK)
+                  for n in ("/usb_cam", "/audio_capture", "/signal_generator")),
+                Observation(t, "resources", Resource(node="/usb_cam"), Code.GENERAL_OK, ok,
+                            {"cpu": 3.0, "memory": 2.1e7})]
+
+    ids = args.ids.split(",")
+    sinks = [CountingSink(r, domain_id=args.domain) for r in ids]
+    print("ready", flush=True)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    start = time.time()
+    faulty = [False] * len(sinks)
+    tick = 0
+    while not stop.is_set() and time.time() - start < args.duration:
+        t = time.time()
+        for i, sink in enumerate(sinks):
+            phase = (t - start + args.index * 7 + i * 3) % args.fault_every
+            now_faulty = phase < args.fault_length
+            obs = observations(t, now_faulty)
+            sink.on_observations(t, obs)
+            if now_faulty and not faulty[i]:
+                sink.on_diagnosis(Diagnosis(t, (frozenset({"/usb_cam"}),), (obs[0],),
+                                            "camera publishes too slowly"))
+            elif faulty[i] and not now_faulty:
+                sink.on_diagnosis(Diagnosis(t, ()))
+                sink.counts["rectifications"] += 1
+            faulty[i] = now_faulty
+        tick += 1
+        stop.wait(max(0.0, start + tick * args.interval - time.time()))
+    time.sleep(1.0)  # let the last samples leave before the writers go
+    out = {}
+    for sink in sinks:
+        out[sink.robot_id] = {**sink.counts, "written": sink.written,
+                              "write_errors": sink.write_errors}
+        sink.close()
+    print(json.dumps(out), flush=True)
+    return 0
+
+
+# ---- station alone (child) ------------------------------------------------------------------
+
+
+def station_child(args: argparse.Namespace) -> int:
+    from blackbox.station.follow import StationFollower
+    from blackbox.station.store import StationStore
+    from blackbox.transport.participant import TransportSettings
+
+    store = StationStore.open(args.db, series_retention=args.duration + 3600)
+    follower = StationFollower(store, TransportSettings(args.domain), backfill=0)
+    follower.start()
+    print("ready", flush=True)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    stop.wait(args.duration + 600)
+    follower.stop()
+    store.close()
+    print(json.dumps({"received": follower.stats.received,
+                      "rejected": follower.stats.rejected}), flush=True)
+    return 0
+
+
+# ---- the run (parent) -----------------------------------------------------------------------
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env.pop("CYCLONEDDS_URI", None)
+    return env
+
+
+def _has_web_station() -> bool:
+    try:
+        import blackbox.cli.station
+        import blackbox.station.web.app  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+class WebClient:
+    """Logs in to ``blackbox station`` as a viewer and times GETs of a page."""
+
+    def __init__(self, url: str, user: str, password: str) -> None:
+        import httpx
+
+        self.http = httpx.Client(base_url=url, timeout=30.0, follow_redirects=False)
+        form = self.http.get("/login")
+        token = re.search(r'name="login_token"\s+value="([^"]+)"', form.text)
+        data = {"username": user, "password": password, "next": "/"}
+        if token:
+            data["login_token"] = token.group(1)
+        answer = self.http.post("/login", data=data)
+        if answer.status_code not in (302, 303):
+            raise RuntimeError(f"log-in refused: {answer.status_code} {answer.text[:300]}")
+
+    def time_get(self, path: str) -> tuple[float, int, int]:
+        t0 = time.perf_counter()
+        answer = self.http.get(path)
+        return time.perf_counter() - t0, answer.status_code, len(answer.content)
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--robots", type=int, default=20)
+    p.add_argument("--duration", type=float, default=600.0, help="seconds (default 600)")
+    p.add_argument("--processes", type=int, default=4, help="processes the robots run in")
+    p.add_argument("--interval", type=float, default=1.0, help="observation interval (s)")
+    p.add_argument("--fault-every", type=float, default=30.0)
+    p.add_argument("--fault-length", type=float, default=6.0)
+    p.add_argument("--station", choices=["auto", "web", "core"], default="auto")
+    p.add_argument("--domain", type=int, default=60 + os.getpid() % 40)
+    p.add_argument("--keep", action="store_true", help="keep the station database")
+    p.add_argument("--robots-child", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--station-child", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--ids", default="", help=argparse.SUPPRESS)
+    p.add_argument("--index", type=int, default=0, help=argparse.SUPPRESS)
+    p.add_argument("--db", default="", help=argparse.SUPPRESS)
+    args = p.parse_args()
+    if args.robots_child:
+        return robots_child(args)
+    if args.station_child:
+        return station_child(args)
+
+    import psutil
+
+    mode = args.station
+    if mode == "auto":
+        mode = "web" if _has_web_station() else "core"
+    work = Path(tempfile.mkdtemp(prefix="station-fleet-"))
+    db = work / "station.db"
+    py = sys.executable
+    web: WebClient | None = None
+    password = "bench-" + os.urandom(8).hex()
+    if mode == "web":
+        subprocess.run([py, "-m", "blackbox", "station", "user", "add", "bench", "--role",
+                        "viewer", "--db", str(db)], input=password + "\n", text=True,
+                       check=True, capture_output=True, env=_env())
+        ready = work / "url"
+        station = subprocess.Popen(
+            [py, "-m", "blackbox", "station", "--db", str(db), "--bind", "127.0.0.1:0",
+             "--domain", str(args.domain), "--ready-file", str(ready)],
+            env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 60
+        while not ready.exists() and time.monotonic() < deadline and station.poll() is None:
+            time.sleep(0.1)
+        if not ready.exists():
+            print("station did not start:", station.stderr.read() if station.stderr else "",
+                  file=sys.stderr)
+            return 1
+        url = ready.read_text().strip()
+        web = WebClient(url, "bench", password)
+    else:
+        station = subprocess.Popen([py, str(HERE), "--station-child", "--db", str(db),
+                                    "--domain", str(args.domain), "--duration",
+                                    str(args.duration)],
+                                   env=_env(), stdout=subprocess.PIPE, text=True)
+        assert station.stdout is not None
+        if station.stdout.readline().strip() != "ready":
+            return 1
+    proc = psutil.Process(station.pid)
+    time.sleep(2.0)  # the station's readers exist before the first robot writes
+
+    ids = [f"fleet-{i:02d}" for i in range(args.robots)]
+    groups = [ids[i::args.processes] for i in range(args.processes) if ids[i::args.processes]]
+    robots = []
+    for index, group in enumerate(groups):
+        child = subprocess.Popen([py, str(HERE), "--robots-child", "--ids", ",".join(group),
+                                  "--domain", str(args.domain), "--duration",
+                                  str(args.duration), "--interval", str(args.interval),
+                                  "--fault-every", str(args.fault_every), "--fault-length",
+                                  str(args.fault_length), "--index", str(index)],
+                                 env=_env(), stdout=subprocess.PIPE, text=True)
+        robots.append(child)
+    for child in robots:
+        assert child.stdout is not None
+        if child.stdout.readline().strip() != "ready":
+            return 1
+
+    cpu0 = proc.cpu_times()
+    t0 = time.monotonic()
+    rss: list[int] = []
+    page_times: list[float] = []
+    page_sizes: list[int] = []
+    page_errors = 0
+    next_page = t0 + 10.0
+    while any(c.poll() is None for c in robots):
+        time.sleep(1.0)
+        rss.append(proc.memory_info().rss)
+        if web is not None and time.monotonic() >= next_page:
+            next_page += 10.0
+            seconds, status, size = web.time_get("/")
+            if status == 200:
+                page_times.append(seconds)
+                page_sizes.append(size)
+            else:
+                page_errors += 1
+    elapsed = time.monotonic() - t0
+    cpu1 = proc.cpu_times()
+    published: dict[str, dict[str, int]] = {}
+    for child in robots:
+        out, _ = child.communicate(timeout=60)
+        published.update(json.loads(out.strip().splitlines()[-1]))
+    time.sleep(3.0)  # the last samples reach the station and are committed
+    if web is not None:
+        fleet_page = web.time_get("/")
+        robot_count = len(set(re.findall(r"fleet-\d\d", web.http.get("/").text)))
+    station.send_signal(signal.SIGINT)
+    try:
+        station.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        station.kill()
+
+    con = sqlite3.connect(db)
+    from blackbox.health.ids import robot_resource_id
+
+    stored: dict[str, dict[str, int]] = {}
+    for rid in ids:
+        res = robot_resource_id(rid)
+        ev = dict(con.execute("SELECT kind, count(*) FROM events WHERE resource_id = ? AND "
+                              "origin = 'live' GROUP BY kind", (res,)).fetchall())
+        stored[rid] = {
+            "values": con.execute("SELECT count(*) FROM samples WHERE resource_id = ?",
+                                  (res,)).fetchone()[0],
+            "exceedances": ev.get("exceedance", 0) + ev.get("state_change", 0),
+            "failures": ev.get("failure", 0), "rectifications": ev.get("rectification", 0)}
+    con.close()
+
+    cpu = (cpu1.user + cpu1.system - cpu0.user - cpu0.system) / elapsed * 100
+    print(f"machine: {os.cpu_count()} cores, {psutil.virtual_memory().total / 2**30:.1f} GiB; "
+          f"station: {mode}; robots: {args.robots} in {len(groups)} processes; "
+          f"measured {elapsed:.0f} s")
+    print(f"station CPU {cpu:.1f} % of one core; RSS max {max(rss) / 2**20:.0f} MiB, "
+          f"last {rss[-1] / 2**20:.0f} MiB")
+    kinds = ("values", "exceedances", "failures", "rectifications")
+    total_pub = {k: sum(p[k] for p in published.values()) for k in kinds}
+    total_sto = {k: sum(s[k] for s in stored.values()) for k in kinds}
+    rows = sum(total_sto.values())
+    print(f"ingested: {rows / elapsed:.0f} stored rows/s (values + events); all robots wrote "
+          f"{sum(p['written'] for p in published.values()) / elapsed:.0f} DDS samples/s")
+    print(f"{'':16}{'published':>12}{'stored':>12}{'dropped':>10}")
+    for k in kinds:
+        print(f"{k:16}{total_pub[k]:>12}{total_sto[k]:>12}{total_pub[k] - total_sto[k]:>10}")
+    short = [r for r in ids if any(stored[r][k] < published[r][k] for k in kinds)]
+    print("robots with anything missing:", ", ".join(short) or "none")
+    extra = [r for r in ids if any(stored[r][k] > published[r][k] for k in kinds)]
+    if extra:
+        print("robots with more stored than published (duplicates):", ", ".join(extra))
+    if web is not None:
+        if page_times:
+            print(f"fleet page ({args.robots} robots) while running: n={len(page_times)}, "
+                  f"median {statistics.median(page_times) * 1000:.1f} ms, max "
+                  f"{max(page_times) * 1000:.1f} ms, {statistics.mean(page_sizes) / 1024:.0f}"
+                  f" KiB; errors {page_errors}")
+        print(f"fleet page after the run: {fleet_page[0] * 1000:.1f} ms, status "
+              f"{fleet_page[1]}, robots named on it: {robot_count}")
+    if args.keep:
+        print("station database:", db)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

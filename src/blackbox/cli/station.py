@@ -1,0 +1,255 @@
+"""``blackbox station``: the remote station, a web application for a fleet of black boxes.
+
+``blackbox station`` joins the DDS domain, follows every robot on it into its own database
+and serves the web pages (http://127.0.0.1:8080 unless ``--bind`` says otherwise; HTTPS with
+``--tls-cert``/``--tls-key``). ``blackbox station user add NAME --role ROLE`` makes an
+account; there is none until then.
+"""
+
+from __future__ import annotations
+
+import argparse
+import getpass
+import socket
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+from blackbox.station.auth import Auth, AuthError, Role
+
+EXIT_USAGE = 2
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser("station", help="the remote station: follow a fleet, serve its web GUI",
+                       description="Follow every black box on a DDS domain, keep what they say "
+                       "in a database and serve the station's web pages.")
+    p.add_argument("--db", type=Path, default=Path("station.db"),
+                   help="the station's SQLite database (default station.db)")
+    p.add_argument("--bind", default="127.0.0.1:8080", metavar="HOST:PORT",
+                   help="address of the web server (default 127.0.0.1:8080; port 0 = any free)")
+    p.add_argument("--domain", type=int, default=0, help="DDS domain id (default 0)")
+    p.add_argument("--partition", default="blackbox", help="DDS partition (default blackbox)")
+    p.add_argument("--stale-after", type=float, default=10.0, metavar="S",
+                   help="a robot silent this long is shown UNKNOWN (default 10 s)")
+    p.add_argument("--tls-cert", type=Path, default=None, help="serve HTTPS with this certificate")
+    p.add_argument("--tls-key", type=Path, default=None, help="... and this private key")
+    p.add_argument("--key", type=Path, default=None, metavar="FILE",
+                   help="this station's private key (blackbox keygen) signing log requests "
+                        "and IBIT commands; default $BLACKBOX_STATION_KEY. Robots answer only "
+                        "stations their configuration lists (docs/health.md)")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop after S seconds (default: until Ctrl-C)")
+    p.add_argument("--ready-file", type=Path, default=None, metavar="FILE",
+                   help="write the URL here once serving (for scripts and tests)")
+    p.set_defaults(func=serve_command)
+
+    users = p.add_subparsers(dest="station_command", metavar="COMMAND")
+    user = users.add_parser("user", help="manage the station's accounts")
+    actions = user.add_subparsers(dest="user_command", metavar="ACTION")
+    add = actions.add_parser("add", help="add an account (password read without echo, or "
+                             "from stdin when it is not a terminal)")
+    add.add_argument("name")
+    add.add_argument("--role", required=True, choices=["viewer", "operator", "admin"])
+    add.add_argument("--db", dest="user_db", type=Path, default=None,
+                     help="the station database (default: the station's --db)")
+    add.set_defaults(func=user_add_command)
+    passwd = actions.add_parser("passwd", help="set a new password (ends the user's sessions)")
+    passwd.add_argument("name")
+    passwd.add_argument("--db", dest="user_db", type=Path, default=None)
+    passwd.set_defaults(func=user_passwd_command)
+    listing = actions.add_parser("list", help="list the accounts")
+    listing.add_argument("--db", dest="user_db", type=Path, default=None)
+    listing.set_defaults(func=user_list_command)
+    remove = actions.add_parser("remove", help="remove an account")
+    remove.add_argument("name")
+    remove.add_argument("--db", dest="user_db", type=Path, default=None)
+    remove.set_defaults(func=user_remove_command)
+
+
+def open_databases(path: Path, stale_after: float = 10.0) -> tuple[Any, Auth]:
+    """The station store, then the accounts in the same file (the store must create the
+    file: it refuses one that already has other tables)."""
+    from blackbox.station.store import StationStore
+
+    store = StationStore.open(path, stale_after=stale_after)
+    return store, Auth(path)
+
+
+def read_password(name: str) -> str:
+    if sys.stdin.isatty():
+        first = getpass.getpass(f"password for {name}: ")
+        second = getpass.getpass("again: ")
+        if first != second:
+            raise AuthError("the two passwords differ")
+        return first
+    return sys.stdin.readline().rstrip("\r\n")
+
+
+def _db(args: argparse.Namespace) -> Path:
+    return Path(args.user_db or args.db)
+
+
+def user_add_command(args: argparse.Namespace) -> int:
+    from blackbox.station.store import StationStoreError
+
+    try:
+        store, auth = open_databases(_db(args))
+    except StationStoreError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        auth.add_user(args.name, read_password(args.name), Role.parse(args.role))
+    except AuthError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    finally:
+        auth.close()
+        store.close()
+    print(f"station: user {args.name} ({args.role}) added to {_db(args)}", file=sys.stderr)
+    return 0
+
+
+def user_passwd_command(args: argparse.Namespace) -> int:
+    store, auth = open_databases(_db(args))
+    try:
+        auth.set_password(args.name, read_password(args.name), by="cli", address="local")
+    except AuthError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    finally:
+        auth.close()
+        store.close()
+    return 0
+
+
+def user_list_command(args: argparse.Namespace) -> int:
+    store, auth = open_databases(_db(args))
+    try:
+        for user in auth.users():
+            print(f"{user.name}\t{user.role.label}")
+    finally:
+        auth.close()
+        store.close()
+    return 0
+
+
+def user_remove_command(args: argparse.Namespace) -> int:
+    store, auth = open_databases(_db(args))
+    try:
+        auth.remove_user(args.name, by="cli", address="local")
+    except AuthError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    finally:
+        auth.close()
+        store.close()
+    return 0
+
+
+def parse_bind(text: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit() or int(port) > 65535:
+        raise ValueError(f"--bind wants HOST:PORT, got {text!r}")
+    return host.strip("[]") or "127.0.0.1", int(port)
+
+
+def serve_command(args: argparse.Namespace) -> int:
+    from blackbox.station.store import StationStoreError
+
+    if getattr(args, "station_command", None) == "user" and not getattr(args, "user_command",
+                                                                          None):
+        print("usage: blackbox station user {add,passwd,list,remove} ...", file=sys.stderr)
+        return EXIT_USAGE
+    if (args.tls_cert is None) != (args.tls_key is None):
+        print("error: --tls-cert and --tls-key go together", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        host, port = parse_bind(args.bind)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        store, auth = open_databases(args.db, args.stale_after)
+    except StationStoreError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        return serve(args, store, auth, host, port)
+    finally:
+        auth.close()
+        store.close()
+
+
+def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int) -> int:
+    import uvicorn
+
+    from blackbox.station.follow import StationFollower
+    from blackbox.station.web.app import WebSettings, create_app
+    from blackbox.transport.participant import TransportSettings
+
+    if not auth.users():
+        print(f"station: no account yet; add one with: blackbox station user add NAME "
+              f"--role admin --db {args.db}", file=sys.stderr)
+    from blackbox.transport.auth import AuthError, RequestSigner
+
+    try:
+        signer = (RequestSigner.from_file(args.key) if args.key is not None
+                  else RequestSigner.from_environment())
+    except (AuthError, OSError) as exc:
+        print(f"error: --key: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    if signer is None:
+        print("station: no station key (--key or $BLACKBOX_STATION_KEY): robots will refuse "
+              "its log requests and IBIT commands", file=sys.stderr)
+    follower = StationFollower(store, TransportSettings(args.domain, args.partition),
+                               signer=signer)
+    follower.start()
+    stop = threading.Event()
+    tls = args.tls_cert is not None
+    app = create_app(auth, store, follower, WebSettings(secure_cookies=tls), stop=stop)
+    sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        follower.stop()
+        print(f"error: cannot listen on {host}:{port}: {exc.strerror}", file=sys.stderr)
+        return EXIT_USAGE
+    config = uvicorn.Config(app, log_level="warning", access_log=False,
+                            ssl_certfile=str(args.tls_cert) if tls else None,
+                            ssl_keyfile=str(args.tls_key) if tls else None,
+                            timeout_graceful_shutdown=3)
+    server = uvicorn.Server(config)
+    bound = sock.getsockname()
+    url = f"{'https' if tls else 'http'}://{host if ':' not in host else f'[{host}]'}:{bound[1]}/"
+    print(f"station: serving {url} (DDS domain {args.domain}, database {args.db})",
+          file=sys.stderr)
+    if args.ready_file is not None:
+        args.ready_file.write_text(url + "\n")
+    timer = None
+    if args.duration is not None:
+        def finish() -> None:
+            stop.set()
+            server.should_exit = True
+        timer = threading.Timer(args.duration, finish)
+        timer.daemon = True
+        timer.start()
+    original = server.handle_exit
+
+    def on_signal(sig: int, frame: Any) -> None:
+        stop.set()  # ends the live streams, else uvicorn waits for them
+        original(sig, frame)
+
+    server.handle_exit = on_signal  # type: ignore[method-assign]
+    try:
+        server.run(sockets=[sock])
+    except KeyboardInterrupt:  # uvicorn re-raises the Ctrl-C it handled; a clean stop
+        pass
+    finally:
+        stop.set()
+        if timer is not None:
+            timer.cancel()
+        follower.stop()
+    return 0

@@ -1,0 +1,985 @@
+"""The station side of DDS: follows every robot on a domain and keeps it in the station store.
+
+One :class:`StationFollower` joins the domain (one participant, loopback unless configured),
+reads every UCMS and extension topic, and writes what it hears into a
+:class:`~blackbox.station.store.StationStore`. It trusts nothing it receives: each sample is
+handled on its own, strings and sequences are clipped, non-finite values are skipped, and a
+sample that cannot be interpreted is counted and listed in the store's problems.
+
+Samples from a resource id that no ``BlackBox_Entity_Description`` has named (an unknown
+robot id) are held back for :attr:`StationFollower.identify_within` seconds and stored as
+soon as the robot names itself; otherwise they are dropped and reported. A description that
+names a robot whose id does not hash to the sample's resource id is refused.
+
+Nothing is lost across a station restart: durable state (entities, characteristics,
+thresholds) comes back from the robots' transient-local writers, and on first sight of
+each robot a log request (:meth:`_fetch_log`) fetches the exceedances and failures
+recorded since the station last heard it (at most ``backfill`` seconds back). An event
+fetched from the log and the same event heard live have the same key in the store, so
+neither path duplicates the other.
+
+Operations for the web (``request_logs``, ``run_ibit``) return at once with a record id and
+run on a worker thread; their progress and results are in the store.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import queue
+import threading
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+from cyclonedds.qos import Policy, Qos
+from cyclonedds.sub import DataReader
+from cyclonedds.util import duration
+
+from blackbox.health.extension import (
+    C_Characteristic_Extension,
+    C_Entity_Description,
+    C_Event_Extension,
+    T_EventKind,
+)
+from blackbox.health.ids import robot_resource_id
+from blackbox.health.types import (
+    C_Failure_Event,
+    C_Monitored_Characteristic,
+    C_Monitored_Characteristic_Specification,
+    C_Monitored_Entity,
+    C_Threshold,
+    C_Threshold_Exceedence_Event,
+    T_IdentifierType,
+    T_Monitored_Entity_StateType,
+    T_ThresholdType,
+    seconds_of,
+)
+from blackbox.record.store import KINDS, LogEntry
+from blackbox.station.store import (
+    STATUSES,
+    RobotRef,
+    StationStore,
+    StationStoreError,
+    UnknownRobot,
+    explain,
+    robot_resource,
+)
+from blackbox.transport.auth import RequestSigner
+from blackbox.transport.logservice import LogAnswer, LogClient
+from blackbox.transport.participant import Bus, TransportSettings
+from blackbox.transport.qos import EVENT_TOPICS, qos_for
+
+log = logging.getLogger("blackbox.station")
+
+FOLLOWED = ("C_Monitored_Entity", "C_Monitored_Characteristic",
+            "C_Monitored_Characteristic_Specification", "C_Threshold",
+            "C_Threshold_Exceedence_Event", "C_Failure_Event", "BlackBox_Entity_Description",
+            "BlackBox_Characteristic_Extension", "BlackBox_Event_Extension")
+"""Topics the station reads (all published UCMS topics plus the extension topics)."""
+
+BACKFILL_KINDS = ("exceedance", "failure")
+MAX_STRING = 2000
+MAX_IDS = 1000
+MAX_LOG_ROWS = 200_000
+LOG_PAGE = 2000
+MAX_LOG_RANGE_DAYS = 3660
+EXT_WAIT = 1.0
+BACKFILL_REPEAT = 5.0
+STATE_DEPTH = 64
+_ON = T_Monitored_Entity_StateType.L_Monitored_Entity_StateType_ON
+_ORDER = {"BlackBox_Entity_Description": 0, "BlackBox_Event_Extension": 1,
+          "C_Failure_Event": 2}
+
+
+class StationBusy(RuntimeError):
+    """Too many log requests and built-in tests are waiting; try again later."""
+
+
+def _items(value: Any) -> list[Any]:
+    """The elements of an IDL sequence field (typed ``sequence``, which mypy cannot see
+    through)."""
+    return list(value)
+
+
+def _key(ident: T_IdentifierType) -> tuple[int, int]:
+    return (int(ident.A_resourceId), int(ident.A_instanceId))
+
+
+def _stamp(t: float) -> str:
+    """Event times in dedup keys: milliseconds, so the float that went through UCMS's
+    seconds + nanoseconds and the one the recorder stored give the same key."""
+    return f"{t:.3f}"
+
+
+def _primary(resource_label: str) -> str:
+    """The recorder's entity of a resource label (``Resource.label()``): node, topic or
+    interface, as ``blackbox.record.policy.entity_of`` names it."""
+    parts = resource_label.split(" ")
+    if parts[0] == "iface" and len(parts) > 1:
+        return parts[1]
+    return parts[0]
+
+
+@dataclass(slots=True)
+class _Entity:
+    name: str = ""
+    kind: str = ""
+    failures: int = 0
+    cause: str = ""
+
+
+@dataclass(slots=True)
+class _Char:
+    name: str = ""
+    observer: str = ""
+    resource: str = ""
+    entity: int | None = None
+
+
+@dataclass(slots=True)
+class _Robot:
+    resource_id: int
+    robot_id: str = ""
+    entities: dict[int, _Entity] = field(default_factory=dict)
+    chars: dict[int, _Char] = field(default_factory=dict)
+    diagnosis: frozenset[str] = frozenset()
+    seen: set[int] = field(default_factory=set)
+    last_heard_before: float | None = None
+    backfill_since: float | None = None
+    backfill_due: list[float] = field(default_factory=list)
+    held: list[tuple[float, Any]] = field(default_factory=list)
+    first_held: float | None = None
+
+    @property
+    def name(self) -> str:
+        return self.robot_id or f"#{self.resource_id}"
+
+
+@dataclass(slots=True)
+class _Lane:
+    """A worker thread with its own job queue and log client: operators' requests and the
+    automatic backfill run in separate lanes, so an unreachable robot's backfill never
+    makes an operator's log request wait."""
+
+    name: str
+    jobs: queue.Queue[Callable[[], None] | None] = field(
+        default_factory=lambda: queue.Queue(maxsize=64))
+    client: LogClient | None = None
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+
+@dataclass(slots=True)
+class FollowerStats:
+    received: int = 0
+    rejected: int = 0
+    held: int = 0
+    dropped_unknown: int = 0
+    backfilled: int = 0
+    by_topic: dict[str, int] = field(default_factory=dict)
+
+
+class StationFollower:
+    """Follows every robot on one DDS domain/partition into ``store``.
+
+    ``backfill``: on first sight of a robot, fetch its recorded exceedances and failures
+    since the station last heard it, at most this many seconds back (0 = never).
+    ``station_id``: names this station in log requests.
+    ``start()`` opens the participant and starts the reading and the worker threads;
+    ``stop()`` ends both and closes the participant (the store stays open: close it
+    yourself). For a single-threaded caller, ``open()`` then ``poll()`` in a loop works too.
+    """
+
+    identify_within = 10.0
+    """Seconds samples of a not yet named resource id are held before they are dropped."""
+
+    def __init__(self, store: StationStore, settings: TransportSettings | None = None, *,
+                 backfill: float = 3600.0, station_id: str = "station",
+                 log_timeout: float = 10.0, log_page: int = LOG_PAGE,
+                 max_log_rows: int = MAX_LOG_ROWS, ibit_timeout: float = 15.0,
+                 signer: RequestSigner | None = None,
+                 clock: Callable[[], float] = time.time) -> None:
+        self.store = store
+        self.settings = settings or TransportSettings()
+        self.backfill = max(0.0, backfill)
+        self.station_id = station_id
+        self.log_timeout = log_timeout
+        self.log_page = max(1, log_page)
+        self.max_log_rows = max(1, max_log_rows)
+        self.ibit_timeout = ibit_timeout
+        self.signer = signer
+        """Signs log requests and IBIT commands (robots answer only stations they list);
+        ``None``: the key named by ``$BLACKBOX_STATION_KEY``, if set, else unsigned."""
+        self.clock = clock
+        self.stats = FollowerStats()
+        self.bus: Bus | None = None
+        self._readers: dict[str, Any] = {}
+        self._waitset: WaitSet | None = None
+        self._robots: dict[int, _Robot] = {}
+        self._ext: dict[tuple[int, int], C_Event_Extension] = {}
+        self._exceedances: list[tuple[float, C_Threshold_Exceedence_Event]] = []
+        self._requests = _Lane("requests")
+        self._backfills = _Lane("backfill")
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._bus_lock = threading.Lock()
+
+    # ---- life cycle -------------------------------------------------------------------------
+
+    def open(self) -> None:
+        """Join the domain and create the readers (``start`` does this itself)."""
+        if self.bus is not None:
+            return
+        self._load_known()
+        self.bus = Bus.open(self.settings)
+        self._readers = {name: self._reader(name) for name in FOLLOWED}
+        self._waitset = WaitSet(self.bus.participant)
+        mask = SampleState.NotRead | ViewState.Any | InstanceState.Any
+        for reader in self._readers.values():
+            self._waitset.attach(ReadCondition(reader, mask))
+        for lane in (self._requests, self._backfills):
+            lane.client = LogClient(self.bus, self.station_id, signer=self.signer)
+
+    def _reader(self, name: str) -> DataReader[Any]:
+        """A reader with the topic's QoS, but a deeper history for state topics: the
+        writers keep only the latest sample per instance, and a station that takes
+        samples every fraction of a second must still see a failure and its
+        rectification that came between two takes."""
+        assert self.bus is not None
+        qos = qos_for(name)
+        if name not in EVENT_TOPICS:
+            qos = Qos(Policy.Durability.TransientLocal, Policy.History.KeepLast(STATE_DEPTH),
+                      Policy.Reliability.Reliable(duration(seconds=1)))
+        return DataReader(self.bus.subscriber, self.bus.topic(name), qos)
+
+    def start(self) -> None:
+        """Open, then follow on a background thread until :meth:`stop`."""
+        self.open()
+        self._stop.clear()
+        self._threads = [threading.Thread(target=self._follow, name="station-follow",
+                                          daemon=True),
+                         *(threading.Thread(target=self._work, args=(lane,),
+                                            name=f"station-{lane.name}", daemon=True)
+                           for lane in (self._requests, self._backfills))]
+        for t in self._threads:
+            t.start()
+
+    def stop(self, timeout: float = 10.0) -> None:
+        self._stop.set()
+        for lane in (self._requests, self._backfills):
+            with contextlib.suppress(queue.Full):
+                lane.jobs.put_nowait(None)
+        for t in self._threads:
+            t.join(timeout=timeout)
+        self._threads = []
+        self.store.flush(force=True)
+        with self._bus_lock:
+            if self.bus is not None:
+                self.bus.close()
+                self.bus = None
+
+    def __enter__(self) -> StationFollower:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _load_known(self) -> None:
+        """What the store knew before this run: names, failures, when each robot was heard."""
+        for summary in self.store.fleet():
+            robot = self._robot(summary.resource_id)
+            robot.robot_id = summary.robot_id
+            robot.last_heard_before = summary.last_heard
+            robot.diagnosis = frozenset(summary.diagnosis)
+            with contextlib.suppress(UnknownRobot):
+                for e in self.store.entities(summary.resource_id):
+                    robot.entities[e.instance_id] = _Entity(e.name, e.kind, e.failures)
+                for c in self.store.characteristics(summary.resource_id):
+                    robot.chars[c.instance_id] = _Char(c.name, c.observer, c.resource,
+                                                       c.entity)
+
+    def _follow(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self.poll(0.2)
+            except Exception as exc:  # keep following whatever one cycle did
+                log.exception("station: follow cycle failed")
+                self.store.report_problem("dds", f"follow cycle failed: {exc}")
+                time.sleep(0.2)
+
+    # ---- reading ---------------------------------------------------------------------------
+
+    def poll(self, timeout: float = 0.2) -> int:
+        """Wait up to ``timeout`` s for samples, handle all, flush the store; returns the
+        number of samples taken."""
+        assert self._waitset is not None, "open() first"
+        self._waitset.wait(duration(seconds=timeout))
+        now = self.clock()
+        taken: list[tuple[str, Any]] = []
+        for name, reader in self._readers.items():
+            try:
+                samples = reader.take(N=512)
+            except Exception as exc:
+                self._reject(name, f"cannot read: {exc}")
+                continue
+            taken.extend((name, s) for s in samples)
+        # Names and event extensions first: the samples they describe may come in the
+        # same batch.
+        taken.sort(key=lambda item: _ORDER.get(item[0], 3))
+        heard: set[int] = set()
+        for name, sample in taken:
+            info = getattr(sample, "sample_info", None)
+            if info is not None and not info.valid_data:
+                continue
+            self.stats.by_topic[name] = self.stats.by_topic.get(name, 0) + 1
+            try:
+                rid = int(sample.A_sourceID.A_resourceId)
+                if self._accept(rid, sample, now):
+                    heard.add(rid)
+                self.stats.received += 1
+            except Exception as exc:
+                self._reject(name, f"sample not understood: {type(exc).__name__}: {exc}")
+        for rid in heard:
+            self.store.heard(rid, now)
+        self._resolve_exceedances(now)
+        self._expire_held(now)
+        self._drop_foreign_replies()
+        self.store.flush()
+        self._start_backfills()
+        return len(taken)
+
+    def _reject(self, topic: str, message: str) -> None:
+        self.stats.rejected += 1
+        log.warning("station: %s: %s", topic, message)
+        self.store.report_problem(f"dds {topic}", message)
+
+    def _robot(self, rid: int) -> _Robot:
+        robot = self._robots.get(rid)
+        if robot is None:
+            robot = self._robots[rid] = _Robot(rid)
+        return robot
+
+    def _accept(self, rid: int, sample: Any, now: float) -> bool:
+        """Handle ``sample`` now if its robot is named, else hold it; ``True`` if handled."""
+        robot = self._robot(rid)
+        if isinstance(sample, C_Entity_Description):
+            self._description(robot, sample)
+        if not robot.robot_id:
+            if len(robot.held) < 10_000:
+                robot.held.append((now, sample))
+                self.stats.held += 1
+            else:
+                self.stats.dropped_unknown += 1
+            if robot.first_held is None:
+                robot.first_held = now
+            return False
+        if robot.held:
+            held, robot.held, robot.first_held = robot.held, [], None
+            for _, s in held:
+                self._handle(robot, s, now)
+        self._handle(robot, sample, now)
+        return True
+
+    def _expire_held(self, now: float) -> None:
+        for robot in list(self._robots.values()):
+            if robot.robot_id or robot.first_held is None:
+                continue
+            if now - robot.first_held >= self.identify_within:
+                n = len(robot.held)
+                self.stats.dropped_unknown += n
+                del self._robots[robot.resource_id]  # a flood of ids must not grow memory
+                self.store.report_problem(
+                    "unknown robot", f"resource id {robot.resource_id}: {n} samples ignored: "
+                    "no robot named itself with this id (no BlackBox_Entity_Description)")
+
+    def _description(self, robot: _Robot, s: C_Entity_Description) -> None:
+        claimed = s.A_robotId
+        if s.A_kind == "robot" or (claimed and not robot.robot_id):
+            if not claimed or len(claimed) > 200 or robot_resource_id(claimed) != \
+                    robot.resource_id:
+                self.store.report_problem(
+                    "unknown robot", f"resource id {robot.resource_id}: a description claims "
+                    f"robot id {claimed[:80]!r}, which does not belong to this resource id; "
+                    "ignored")
+                return
+            if claimed != robot.robot_id:
+                robot.robot_id = claimed
+                self.store.put_robot_id(robot.resource_id, claimed)
+
+    def _handle(self, robot: _Robot, s: Any, now: float) -> None:
+        rid = robot.resource_id
+        if isinstance(s, C_Entity_Description):
+            iid = int(s.A_sourceID.A_instanceId)
+            e = robot.entities.setdefault(iid, _Entity())
+            e.name = self._text(s.A_name, "entity name", 200)
+            e.kind = self._text(s.A_kind, "entity kind", 20)
+            parent = s.A_parent_sourceID
+            self.store.put_entity(rid, iid, name=e.name, kind=e.kind,
+                                  parent=int(parent.A_instanceId)
+                                  if int(parent.A_resourceId) == rid else None,
+                                  updated=seconds_of(s.A_timeOfDataGeneration))
+        elif isinstance(s, C_Monitored_Entity):
+            self._entity(robot, s)
+        elif isinstance(s, C_Monitored_Characteristic):
+            iid = int(s.A_sourceID.A_instanceId)
+            c = robot.chars.setdefault(iid, _Char())
+            ent = s.A_monitoredEntity_sourceID
+            if int(ent.A_resourceId) == rid:
+                c.entity = int(ent.A_instanceId)
+            value = float(s.A_value)
+            self.store.put_value(rid, iid, seconds_of(s.A_timeOfDataGeneration), value,
+                                 c.entity)
+            self.store.put_characteristic(rid, iid,
+                                          exceeded=bool(s.A_thresholdExceedenceEvents_sourceID))
+        elif isinstance(s, C_Monitored_Characteristic_Specification):
+            for ident in _items(s.A_specifiedCharacteristics_sourceID)[:16]:
+                if int(ident.A_resourceId) != rid:
+                    continue
+                c = robot.chars.setdefault(int(ident.A_instanceId), _Char())
+                if not c.name:
+                    c.name = self._text(s.A_descriptor, "descriptor", 200)
+                self.store.put_characteristic(rid, int(ident.A_instanceId),
+                                              unit=self._text(s.A_unit, "unit", 20),
+                                              name=c.name)
+        elif isinstance(s, C_Characteristic_Extension):
+            iid = int(s.A_sourceID.A_instanceId)
+            c = robot.chars.setdefault(iid, _Char())
+            c.name = self._text(s.A_name, "characteristic name", 200)
+            c.observer = self._text(s.A_observer, "observer", 60)
+            c.resource = self._text(s.A_resource, "resource", 200)
+            noise = float(s.A_expectedNoise)
+            self.store.put_characteristic(rid, iid, name=c.name, observer=c.observer,
+                                          resource=c.resource,
+                                          quantity=self._text(s.A_quantity, "quantity", 60),
+                                          expected_noise=noise if math.isfinite(noise)
+                                          else None)
+        elif isinstance(s, C_Threshold):
+            concerned = s.A_concernedCharacteristic_sourceID
+            if int(concerned.A_resourceId) == rid:
+                self.store.put_threshold(
+                    rid, int(s.A_sourceID.A_instanceId), int(concerned.A_instanceId),
+                    self._text(s.A_name, "threshold name", 60),
+                    "min" if s.A_type == T_ThresholdType.L_ThresholdType_MIN else "max",
+                    float(s.A_value))
+        elif isinstance(s, C_Event_Extension):
+            self._ext[_key(s.A_sourceID)] = s
+            while len(self._ext) > 10_000:
+                self._ext.pop(next(iter(self._ext)))
+        elif isinstance(s, C_Threshold_Exceedence_Event):
+            self._exceedances.append((now, s))
+        elif isinstance(s, C_Failure_Event):
+            self._failure(robot, s)
+        else:
+            raise TypeError(f"unexpected sample {type(s).__name__}")
+
+    def _text(self, value: str, what: str, limit: int = MAX_STRING) -> str:
+        if len(value) > limit:
+            self.store.report_problem("oversized sample", f"{what} of {len(value)} characters "
+                                                          f"clipped to {limit}")
+            return value[:limit]
+        return value
+
+    def _entity(self, robot: _Robot, s: C_Monitored_Entity) -> None:
+        rid = robot.resource_id
+        iid = int(s.A_sourceID.A_instanceId)
+        e = robot.entities.setdefault(iid, _Entity())
+        raw = int(s.A_healthStatus.value)
+        status = STATUSES[raw] if 0 <= raw < len(STATUSES) else "UNKNOWN"
+        online = s.A_MonitoredEntityState == _ON
+        failures = len(_items(s.A_failureEvents_sourceID))
+        t = seconds_of(s.A_timeOfDataGeneration)
+        chars = [int(i.A_instanceId)
+                 for i in _items(s.A_monitoredCharacteristics_sourceID)[:MAX_IDS]
+                 if int(i.A_resourceId) == rid]
+        self.store.put_entity(rid, iid, status=status, online=online,
+                              bit=bool(s.A_bitInProgress), failures=failures,
+                              characteristics=chars, updated=t)
+        if e.kind == "robot":
+            self.store.put_robot_online(rid, online)
+        # The first sample of an entity in this run may be durable state from before: it
+        # updates the state, while what happened meanwhile comes from the backfill.
+        first = iid not in robot.seen
+        robot.seen.add(iid)
+        component = e.kind not in ("robot", "") and bool(e.name)
+        if component and not first and e.failures > 0 and failures == 0 and online:
+            self.store.add_event(rid, t, "rectification",
+                                 dedup=f"rectification|{_stamp(t)}|{e.name}", entity=e.name,
+                                 text=f"{e.name} is no longer diagnosed faulty")
+        e.failures = failures
+        if component and online:
+            self._set_diagnosis(robot, frozenset(x.name for x in robot.entities.values()
+                                                 if x.kind not in ("robot", "")
+                                                 and x.failures > 0 and x.name), t,
+                                "live", event=not first)
+
+    def _set_diagnosis(self, robot: _Robot, components: frozenset[str], t: float,
+                       origin: str, explanation: str = "", event: bool = True) -> None:
+        if components == robot.diagnosis:
+            return
+        robot.diagnosis = components
+        rid = robot.resource_id
+        self.store.put_diagnosis(rid, sorted(components), t if components else None)
+        if not event:
+            return
+        causes = {e.name: e.cause for e in robot.entities.values()
+                  if e.name in components and e.cause}
+        text = explain(robot.name, sorted(components), causes, {})
+        if explanation:
+            text += f" Explanation: {explanation}"
+        self.store.add_event(rid, t, "diagnosis", dedup=f"diagnosis|{_stamp(t)}",
+                             text=text, origin=origin,
+                             details={"components": sorted(components)})
+
+    def _failure(self, robot: _Robot, s: C_Failure_Event) -> None:
+        rid = robot.resource_id
+        ent = s.A_monitoredEntity_sourceID
+        e = robot.entities.get(int(ent.A_instanceId)) if int(ent.A_resourceId) == rid else None
+        name = e.name if e is not None else f"#{int(ent.A_instanceId)}"
+        t = seconds_of(s.A_eventOccurrenceDate)
+        description = self._text(s.A_failureDescription, "failure description")
+        cause = self._text(s.A_causeDescription, "cause description")
+        action = self._text(s.A_operatorActionDescription, "operator action")
+        if e is not None:
+            e.cause = cause
+            self.store.put_entity(rid, int(ent.A_instanceId), cause=cause, actions=action)
+        self.store.add_event(
+            rid, t, "failure", dedup=f"failure|{_stamp(t)}|{name}", entity=name,
+            text=description + (f": {cause}" if cause else ""),
+            details={"standard_fault_code": float(s.A_standardFaultCode)
+                     if math.isfinite(s.A_standardFaultCode) else None,
+                     "proprietary_fault_code": s.A_proprietaryFaultCode[:200],
+                     "consequence": s.A_operationalConsequenceDescription[:500],
+                     "operator_action": action[:500],
+                     "maintenance_action": s.A_maintenanceActionDescription[:500],
+                     "complementary": s.A_complementaryInformation[:MAX_STRING],
+                     "documentation_uri": s.A_eventDocumentationURI[:500]})
+
+    def _resolve_exceedances(self, now: float) -> None:
+        waiting: list[tuple[float, C_Threshold_Exceedence_Event]] = []
+        for arrived, s in self._exceedances:
+            ext = self._ext.pop(_key(s.A_sourceID), None)
+            if ext is None and now - arrived < EXT_WAIT:
+                waiting.append((arrived, s))
+                continue
+            robot = self._robot(int(s.A_sourceID.A_resourceId))
+            self._exceedance(robot, s, ext)
+        self._exceedances = waiting
+
+    def _exceedance(self, robot: _Robot, s: C_Threshold_Exceedence_Event,
+                    ext: C_Event_Extension | None) -> None:
+        rid = robot.resource_id
+        concerned = s.A_concernedCharacteristic_sourceID
+        cid = int(concerned.A_instanceId)
+        c = robot.chars.get(cid) if int(concerned.A_resourceId) == rid else None
+        owner = robot.entities.get(c.entity) if c is not None and c.entity is not None else None
+        t = seconds_of(s.A_eventOccurrenceDate)
+        state_change = ext is not None and ext.A_kind == T_EventKind.L_EventKind_STATE_CHANGE
+        kind = "state_change" if state_change else "exceedance"
+        value = float(s.A_measuredValue)
+        cname = c.name if c is not None and c.name else f"#{cid}"
+        text = f"{cname} = " + (f"{value:.4g}" if math.isfinite(value) else "n/a")
+        details: dict[str, Any] = {"characteristic_id": cid,
+                                   "value": value if math.isfinite(value) else None}
+        if ext is not None:
+            details.update(code=int(ext.A_code), code_name=ext.A_codeName[:100],
+                           from_states=_items(ext.A_fromStates)[:16],
+                           to_states=_items(ext.A_toStates)[:16])
+            if ext.A_message:
+                text += f": {self._text(ext.A_message, 'event message', 500)}"
+            if state_change:
+                text += f" (state {', '.join(_items(ext.A_fromStates)[:4])} -> " \
+                        f"{', '.join(_items(ext.A_toStates)[:4])})"
+        if c is not None and c.observer:
+            dedup = f"{kind}|{_stamp(t)}|{c.observer}|{_primary(c.resource)}"
+        else:
+            dedup = f"{kind}|{_stamp(t)}|#{cid}"
+        self.store.add_event(rid, t, kind, dedup=dedup,
+                             entity=owner.name if owner is not None else "",
+                             characteristic=cname, text=text, details=details)
+
+    # ---- backfill and operations --------------------------------------------------------
+
+    def _start_backfills(self) -> None:
+        """Queue the backfill of every newly named robot, twice: the robot's recorder
+        commits what it logged during the last ``commit_interval`` only after it answered
+        the first request (the repeat finds those rows; the store drops duplicates)."""
+        if self.backfill <= 0:
+            return
+        now = self.clock()
+        for robot in self._robots.values():
+            if not robot.robot_id:
+                continue
+            if robot.backfill_since is None:
+                since = now - self.backfill
+                if robot.last_heard_before is not None:
+                    since = max(since, robot.last_heard_before - 5.0)
+                robot.backfill_since = since
+                robot.backfill_due = [now, now + BACKFILL_REPEAT]
+            while robot.backfill_due and robot.backfill_due[0] <= now:
+                try:
+                    self._backfills.jobs.put_nowait(
+                        self._backfill_job(robot, robot.backfill_since))
+                except queue.Full:
+                    break  # try again on a later poll
+                robot.backfill_due.pop(0)
+
+    def _backfill_job(self, robot: _Robot, since: float) -> Callable[[], None]:
+        return lambda: self._backfill(robot, since)
+
+    def _backfill(self, robot: _Robot, since: float) -> None:
+        added = 0
+
+        def take(entries: Sequence[LogEntry]) -> None:
+            nonlocal added
+            for entry in entries:
+                added += self._log_event(robot, entry)
+
+        status, _, _, _ = self._page_log(self._backfills, robot.robot_id, since=since,
+                                         until=None, entity=None, characteristic=None,
+                                         kinds=BACKFILL_KINDS, max_rows=self.max_log_rows,
+                                         on_page=take)
+        self.stats.backfilled += added
+        if status not in ("done", "truncated"):
+            self.store.report_problem("backfill", f"{robot.name}: missed events not fetched: "
+                                                  f"{status}")
+        self.store.flush(force=True)
+
+    def _log_event(self, robot: _Robot, entry: LogEntry) -> int:
+        """Store one backfilled log entry as an event; returns how many events were queued."""
+        rid = robot.resource_id
+        payload = entry.payload if isinstance(entry.payload, dict) else {}
+        t = float(entry.time)
+        if entry.kind == "exceedance":
+            entity = str(entry.entity or "")
+            observer = str(entry.characteristic or "")
+            message = str(payload.get("message") or payload.get("code_name") or "")
+            owner = self._owner_of(robot, observer, entity)
+            self.store.add_event(rid, t, "exceedance",
+                                 dedup=f"exceedance|{_stamp(t)}|{observer}|{entity}",
+                                 entity=owner or entity, characteristic=f"{observer} {entity}",
+                                 text=f"{observer} {entity}: {message}".strip(), origin="log",
+                                 details={"log_id": entry.id, "code": entry.code,
+                                          "values": payload.get("values")})
+            return 1
+        if entry.kind == "failure":
+            components = [str(c)[:200] for c in payload.get("components") or []][:100]
+            category = payload.get("category")
+            explanation = str(payload.get("explanation") or "")[:MAX_STRING]
+            n = 0
+            for comp in components:
+                if category == "rectification":
+                    self.store.add_event(rid, t, "rectification",
+                                         dedup=f"rectification|{_stamp(t)}|{comp}",
+                                         entity=comp, origin="log",
+                                         text=f"{comp} is no longer diagnosed faulty",
+                                         details={"log_id": entry.id})
+                else:
+                    self.store.add_event(rid, t, "failure", dedup=f"failure|{_stamp(t)}|{comp}",
+                                         entity=comp, origin="log",
+                                         text=f"{comp} diagnosed faulty"
+                                              + (f": {explanation}" if explanation else ""),
+                                         details={"log_id": entry.id,
+                                                  "snapshot": payload.get("snapshot")})
+                n += 1
+            now_components = frozenset() if category == "rectification" else frozenset(
+                components)
+            text = explain(robot.name, sorted(now_components), {}, {})
+            if explanation and now_components:
+                text += f" Explanation: {explanation}"
+            self.store.add_event(rid, t, "diagnosis", dedup=f"diagnosis|{_stamp(t)}",
+                                 text=text, origin="log",
+                                 details={"components": sorted(now_components)})
+            return n + 1
+        return 0
+
+    def _owner_of(self, robot: _Robot, observer: str, entity: str) -> str:
+        for c in list(robot.chars.values()):  # the reading thread may add to it
+            if c.observer == observer and _primary(c.resource) == entity and c.entity:
+                owner = robot.entities.get(c.entity)
+                if owner is not None:
+                    return owner.name
+        return ""
+
+    def _page_log(self, lane: _Lane, robot_id: str, *, since: float | None, until: float | None,
+                  entity: str | None, characteristic: str | None, kinds: Sequence[str],
+                  max_rows: int, on_page: Callable[[Sequence[LogEntry]], None],
+                  on_progress: Callable[[int, int, float], None] | None = None,
+                  ) -> tuple[str, int, int, str]:
+        """Fetch a robot's log in time order, ``log_page`` entries per log request
+        (:meth:`_fetch_log`), each page starting at the time of the last entry received;
+        returns (status, rows, pages, message). Bounded: at most ``max_rows`` rows."""
+        rows = pages = 0
+        cursor: tuple[float, int] | None = None
+        same = 0  # entries already taken at the cursor's instant: the next page repeats them
+        first: float | None = since
+        span_end = until if until is not None else self.clock()
+        while rows < max_rows:
+            if self._stop.is_set():
+                return "error", rows, pages, "station stopping"
+            if same > 10 * self.log_page:
+                return "error", rows, pages, (f"more than {same} entries at one instant "
+                                       f"({cursor[0] if cursor else since}); narrow the request")
+            want = min(self.log_page, max_rows - rows)
+            ask = want + same
+            answer = self._fetch_log(lane, robot_id, entity=entity, characteristic=characteristic,
+                                     since=cursor[0] if cursor else since, until=until,
+                                     kinds=kinds, max_entries=ask)
+            pages += 1
+            if answer.status != "ok":
+                kind = "timeout" if answer.status.startswith("timeout") else "error"
+                return kind, rows, pages, answer.status
+            entries: list[LogEntry] = []
+            for item in answer.entries:
+                try:
+                    entry = LogEntry(int(item["id"]), float(item["time"]), str(item["kind"]),
+                                     item.get("entity"), item.get("characteristic"),
+                                     item.get("code"), item.get("payload") or {})
+                except (KeyError, TypeError, ValueError):
+                    self.store.report_problem("log reply", f"{robot_id}: malformed entry "
+                                                           "ignored")
+                    continue
+                if cursor is not None and (entry.time, entry.id) <= cursor:
+                    continue
+                entries.append(entry)
+            entries = entries[: max_rows - rows]
+            if entries:
+                on_page(entries)
+                rows += len(entries)
+                if first is None:
+                    first = entries[0].time
+                last = entries[-1]
+                same = (same if cursor is not None and last.time == cursor[0] else 0) + sum(
+                    1 for e in entries if e.time == last.time)
+                cursor = (last.time, last.id)
+            end = len(answer.entries) < ask
+            if on_progress is not None:
+                covered = 1.0
+                if not end and first is not None and cursor is not None and span_end > first:
+                    covered = (cursor[0] - first) / (span_end - first)
+                on_progress(rows, pages, covered)
+            if end:
+                return "done", rows, pages, ""
+            if not entries:
+                return "error", rows, pages, "the robot repeated entries it had sent already"
+        return "truncated", rows, pages, f"stopped at {max_rows} rows; narrow the time range"
+
+    def _fetch_log(self, lane: _Lane, robot_id: str, *, entity: str | None,
+                   characteristic: str | None, since: float | None, until: float | None,
+                   kinds: Iterable[str], max_entries: int) -> LogAnswer:
+        """The one place this station sends a log request (signing is added here)."""
+        client = lane.client
+        if client is None:
+            return LogAnswer("error: station not connected", [], 0, False)
+        with lane.lock:
+            return client.request(robot_id, entity=entity, characteristic=characteristic,
+                                  since=since, until=until, kinds=kinds,
+                                  max_entries=max_entries, timeout=self.log_timeout)
+
+    def _drop_foreign_replies(self) -> None:
+        """Log replies keep all history: between our own requests, replies to other
+        stations would pile up in the reader, so they are taken and dropped."""
+        for lane in (self._requests, self._backfills):
+            client = lane.client
+            if client is None or not lane.lock.acquire(blocking=False):
+                continue
+            try:
+                client.reader.take(N=256)
+            except Exception as exc:
+                self.store.report_problem("dds BlackBox_Log_Reply", f"cannot read: {exc}")
+            finally:
+                lane.lock.release()
+
+    def request_logs(self, robot: RobotRef, *, entity: str | None = None,
+                     characteristic: str | None = None, since: float | None = None,
+                     until: float | None = None, kinds: Iterable[str] = (),
+                     requested_by: str = "", max_rows: int | None = None) -> int:
+        """Ask ``robot`` for its recorded log (of one entity, or all with ``entity=None``)
+        between ``since`` and ``until``; returns the request id at once. Progress, status
+        and rows: ``store.log_request(id)``, ``store.log_entries(id, ...)``,
+        ``store.export_log(id, fmt, out)``. At most ``max_rows`` (default and cap 200,000)
+        rows are kept (status ``truncated`` beyond).
+
+        Raises :class:`UnknownRobot`, ``ValueError`` (bad range or kinds),
+        :class:`StationBusy` (request queue full) or ``StationStoreError`` (disk full)."""
+        rid = self.store.resource_of(robot)
+        robot_id = self.store.robot_id_of(rid)
+        if robot_id.startswith("#"):
+            raise UnknownRobot(f"robot {robot!r} has not named itself; cannot address it")
+        chosen = [str(k) for k in kinds]
+        bad = [k for k in chosen if k not in KINDS]
+        if bad:
+            raise ValueError(f"unknown log kind(s) {', '.join(bad)}; known: {', '.join(KINDS)}")
+        for label, value in (("since", since), ("until", until)):
+            if value is not None and (not math.isfinite(value) or value < 0):
+                raise ValueError(f"{label} must be a time in seconds since the epoch")
+        if since is not None and until is not None and until < since:
+            raise ValueError("until is before since")
+        if since is not None and (until or self.clock()) - since > MAX_LOG_RANGE_DAYS * 86400:
+            raise ValueError(f"range longer than {MAX_LOG_RANGE_DAYS} days")
+        limit = min(max_rows or self.max_log_rows, self.max_log_rows)
+        if self._requests.jobs.full():
+            raise StationBusy("too many log requests and tests waiting; try again shortly")
+        request = self.store.create_log_request(
+            rid, robot_id, entity=entity or None, characteristic=characteristic or None,
+            since=since, until=until, kinds=chosen, requested_by=requested_by)
+        self.store.add_event(rid, self.clock(), "log_request", dedup=f"log_request|{request}",
+                             entity=entity or "", origin="station",
+                             text=f"{requested_by or 'someone'} requested the log of "
+                                  f"{entity or 'every entity'}",
+                             details={"request": request, "since": since, "until": until,
+                                      "kinds": chosen})
+
+        def job() -> None:
+            self._run_log_request(request, rid, robot_id, entity or None,
+                                  characteristic or None, since, until, chosen, limit)
+        try:
+            self._requests.jobs.put_nowait(job)
+        except queue.Full:
+            self.store.update_log_request(request, rid, status="error", rows=0, pages=0,
+                                          progress=0, message="station busy",
+                                          finished=self.clock())
+            self.store.flush(force=True)
+            raise StationBusy("too many log requests and tests waiting; try again "
+                              "shortly") from None
+        self.store.flush(force=True)
+        return request
+
+    def _run_log_request(self, request: int, rid: int, robot_id: str, entity: str | None,
+                         characteristic: str | None, since: float | None, until: float | None,
+                         kinds: Sequence[str], max_rows: int) -> None:
+        self.store.update_log_request(request, rid, status="running", rows=0, pages=0,
+                                      progress=0.0)
+        self.store.flush(force=True)
+        seq = 0
+
+        def page(entries: Sequence[LogEntry]) -> None:
+            nonlocal seq
+            self.store.add_log_rows(request, seq, entries)
+            seq += len(entries)
+
+        def progress(rows: int, pages: int, covered: float) -> None:
+            self.store.update_log_request(request, rid, status="running", rows=rows,
+                                          pages=pages, progress=covered)
+            self.store.flush(force=True)
+
+        try:
+            status, rows, pages, message = self._page_log(self._requests,
+                robot_id, since=since, until=until, entity=entity,
+                characteristic=characteristic, kinds=kinds, max_rows=max_rows,
+                on_page=page, on_progress=progress)
+        except Exception as exc:  # a failed request is a result, not a crash
+            log.exception("station: log request %d failed", request)
+            status, rows, pages, message = "error", seq, 0, str(exc)
+        info = self.store.log_request(request)
+        self.store.update_log_request(request, rid, status=status, rows=rows, pages=pages,
+                                      progress=1.0 if status == "done" else
+                                      (info.progress if info else 0.0),
+                                      message=message, finished=self.clock())
+        if not self.store.flush(force=True):
+            self.store.report_problem("logs", f"log request {request}: rows are kept in "
+                                              "memory until the database can be written")
+
+    def run_ibit(self, robot: RobotRef, entity: str = "", requested_by: str = "") -> int:
+        """Ask ``robot`` to run its built-in test on ``entity`` ("" = the whole robot);
+        returns the run id at once; the result is ``store.ibit_run(id)`` and an ``ibit``
+        event. Raises :class:`UnknownRobot`, :class:`StationBusy`, ``StationStoreError``."""
+        rid = self.store.resource_of(robot)
+        robot_id = self.store.robot_id_of(rid)
+        if robot_id.startswith("#"):
+            raise UnknownRobot(f"robot {robot!r} has not named itself; cannot address it")
+        if entity and self.store.entity_by_name(rid, entity) is None:
+            raise UnknownRobot(f"robot {robot_id} has no entity {entity!r}")
+        if self._requests.jobs.full():
+            raise StationBusy("too many log requests and tests waiting; try again shortly")
+        run = self.store.create_ibit_run(rid, robot_id, entity, requested_by)
+
+        def job() -> None:
+            self._run_ibit(run, rid, robot_id, entity, requested_by)
+        try:
+            self._requests.jobs.put_nowait(job)
+        except queue.Full:
+            self.store.finish_ibit_run(run, rid, status="error", health=None, observations=0,
+                                       failed=0, report=["station busy"])
+            self.store.flush(force=True)
+            raise StationBusy("too many requests waiting; try again shortly") from None
+        return run
+
+    def _run_ibit(self, run: int, rid: int, robot_id: str, entity: str, user: str) -> None:
+        from blackbox.transport.ibit import request_ibit
+
+        bus = self.bus
+        result = None
+        if bus is not None:
+            try:
+                result = request_ibit(bus, robot_id, entity=entity, timeout=self.ibit_timeout,
+                                      signer=self.signer)
+            except Exception as exc:
+                self.store.report_problem("ibit", f"{robot_id}: {exc}")
+        now = self.clock()
+        if result is None:
+            self.store.finish_ibit_run(run, rid, status="timeout", health=None, observations=0,
+                                       failed=0, report=["no answer from the robot"])
+            text = f"built-in test of {entity or robot_id}: no answer"
+            health = None
+        else:
+            raw = int(result.A_healthStatus.value)
+            health = STATUSES[raw] if 0 <= raw < len(STATUSES) else "UNKNOWN"
+            self.store.finish_ibit_run(run, rid, status="done", health=health,
+                                       observations=int(result.A_observations),
+                                       failed=int(result.A_failed),
+                                       report=[str(r) for r in _items(result.A_report)[:1000]])
+            text = (f"built-in test of {entity or robot_id}: {health}, "
+                    f"{int(result.A_failed)} of {int(result.A_observations)} checks failed")
+        self.store.add_event(rid, now, "ibit", dedup=f"ibit|{run}", entity=entity,
+                             origin="station", text=text,
+                             details={"run": run, "requested_by": user, "health": health})
+        self.store.flush(force=True)
+
+    def _work(self, lane: _Lane) -> None:
+        while not self._stop.is_set():
+            job = lane.jobs.get()
+            if job is None:
+                return
+            try:
+                job()
+            except StationStoreError as exc:
+                self.store.report_problem("store", str(exc))
+            except Exception as exc:
+                log.exception("station: request failed")
+                self.store.report_problem("requests", f"request failed: {exc}")
+
+    # ---- for blackbox listen ------------------------------------------------------------
+
+    def snapshot(self, events: int = 50) -> dict[str, Any]:
+        """The whole state as plain data (what ``blackbox listen --json`` prints)."""
+        out: dict[str, Any] = {}
+        for summary in self.store.fleet():
+            rid = summary.resource_id
+            ents = self.store.entities(rid)
+            chars = self.store.characteristics(rid)
+            page = self.store.events(rid, limit=events)
+            out[summary.name] = {
+                "robot_id": summary.robot_id, "resource_id": rid, "status": summary.status,
+                "stale": summary.stale, "online": summary.online,
+                "diagnosis": list(summary.diagnosis),
+                "entities": {e.name: {"health": e.reported_status, "online": e.online,
+                                      "kind": e.kind, "bit": e.bit_in_progress,
+                                      "failures": e.failures} for e in ents},
+                "characteristics": {c.name: c.value for c in chars},
+                "events": [{"time": e.time, "kind": e.kind, "entity": e.entity,
+                            "text": e.text, "origin": e.origin}
+                           for e in reversed(page.events)],
+            }
+        return {"robots": out, "received": self.stats.received,
+                "rejected": self.stats.rejected,
+                "problems": [f"{p.source}: {p.message}" for p in self.store.problems()]}
+
+
+def robot_ref(text: str) -> RobotRef:
+    """A :data:`RobotRef` from user input (digits or ``#digits`` = resource id)."""
+    return int(text) if text.isdigit() else robot_resource(text) if text.startswith("#") \
+        else text

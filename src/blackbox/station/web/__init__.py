@@ -1,0 +1,1 @@
+"""The station's web application (:func:`blackbox.station.web.app.create_app`)."""

@@ -1,0 +1,139 @@
+// Live updates for the station's pages: one Server-Sent Events stream per page, no reloads.
+// Robot-supplied text is only ever written with textContent.
+"use strict";
+(function () {
+  const HEALTH = ["h-operational", "h-degraded", "h-not-operational", "h-unknown"];
+  function healthClass(status) {
+    return "h-" + String(status || "UNKNOWN").toLowerCase().replace(/_/g, "-");
+  }
+  function paint(el, status) {
+    if (!el) return;
+    HEALTH.forEach(function (c) { el.classList.remove(c); });
+    el.classList.add(healthClass(status));
+  }
+  function setText(el, text) { if (el) el.textContent = text == null ? "" : String(text); }
+
+  function cell(text) { const td = document.createElement("td"); td.textContent = text; return td; }
+  function ackForm(ev, back) {
+    const form = document.createElement("form");
+    form.method = "post"; form.action = "/ack"; form.className = "inline";
+    [["csrf_token", document.body.dataset.csrf], ["event", ev.id], ["robot", ev.robot],
+     ["back", back]].forEach(function (kv) {
+      const input = document.createElement("input");
+      input.type = "hidden"; input.name = kv[0]; input.value = String(kv[1]);
+      form.appendChild(input);
+    });
+    const button = document.createElement("button");
+    button.type = "submit"; button.className = "small"; button.textContent = "Acknowledge";
+    form.appendChild(button);
+    return form;
+  }
+  function renderEvents(table, events) {
+    if (!table) return;
+    const operator = ["operator", "admin"].indexOf(document.body.dataset.role) >= 0;
+    const body = table.tBodies[0];
+    if (!events.length) return;
+    body.replaceChildren.apply(body, events.map(function (ev) {
+      const tr = document.createElement("tr");
+      tr.className = "ev-" + ev.kind;
+      const kind = cell(ev.kind + (ev.origin !== "live" ? " (" + ev.origin + ")" : ""));
+      [cell(ev.time), cell(ev.robot), cell(ev.entity), kind, cell(ev.text)]
+        .forEach(function (td) { tr.appendChild(td); });
+      const ack = cell(ev.acknowledged_by || "");
+      if (!ev.acknowledged_by && operator && (ev.kind === "failure" || ev.kind === "exceedance")) {
+        ack.appendChild(ackForm(ev, table.dataset.back || "/events"));
+      }
+      tr.appendChild(ack);
+      return tr;
+    }));
+  }
+
+  let reloading = false;
+  function reloadOnce() {
+    // The page's structure changed (a new robot or entity, a finished log): render it anew.
+    if (!reloading) { reloading = true; window.location.reload(); }
+  }
+
+  const views = {
+    fleet: function (root, s) {
+      Object.keys(s.robots || {}).forEach(function (ref) {
+        const row = Array.from(root.querySelectorAll("tr[data-robot]"))
+          .find(function (r) { return r.dataset.robot === ref; });
+        if (!row) { reloadOnce(); return; }  // a new robot: the list changed
+        const r = s.robots[ref];
+        const badge = row.querySelector('[data-field="status"]');
+        setText(badge, r.status); paint(badge, r.status);
+        ["entities", "failing", "unacknowledged", "last_heard", "silent", "diagnosis"].forEach(function (f) {
+          setText(row.querySelector('[data-field="' + f + '"]'), r[f]);
+        });
+      });
+    },
+    robot: function (root, s) {
+      const badge = document.getElementById("robot-status");
+      setText(badge, s.status); paint(badge, s.status);
+      setText(document.getElementById("robot-heard"), s.last_heard);
+      const comp = document.getElementById("diagnosis-components");
+      setText(comp, s.diagnosis || "none");
+      comp.className = s.diagnosis ? "bad" : "good";
+      setText(document.getElementById("diagnosis-explanation"), s.explanation);
+      if (s.events) renderEvents(root.ownerDocument.querySelector("table.events"), s.events);
+      Object.keys(s.entities || {}).forEach(function (id) {
+        const li = document.querySelector('li[data-entity="' + CSS.escape(id) + '"]');
+        if (!li) { reloadOnce(); return; }  // the robot described a new entity
+        paint(li, s.entities[id]);
+        setText(li.querySelector('[data-field="status"]'), s.entities[id]);
+      });
+    },
+    entity: function (root, s) {
+      const badge = document.getElementById("entity-status");
+      setText(badge, s.status); paint(badge, s.status);
+      Object.keys(s.values || {}).forEach(function (id) {
+        const v = s.values[id];
+        const row = document.querySelector('tr[data-char="' + CSS.escape(id) + '"]');
+        if (row) {
+          setText(row.querySelector('[data-field="value"]'),
+                  v[1] == null ? "-" : Number(v[1]).toPrecision(4).replace(/\.?0+$/, ""));
+          row.classList.toggle("exceeded", !!v[2]);
+        }
+        if (window.stationCharts && v[0] != null && v[1] != null) window.stationCharts.add(id, v[0], v[1]);
+      });
+    },
+    ibit: function (root, s) {
+      setText(document.getElementById("ibit-status"), s.status);
+      const h = document.getElementById("ibit-health");
+      setText(h, s.health || "-"); paint(h, s.health || "UNKNOWN");
+      setText(document.getElementById("ibit-counts"), s.observations + " observations, " + s.failed + " failed");
+      const ul = document.getElementById("ibit-report");
+      ul.replaceChildren.apply(ul, (s.report || []).map(function (line) {
+        const li = document.createElement("li"); li.textContent = line; return li;
+      }));
+    },
+    log: function (root, s) {
+      setText(document.getElementById("log-status"), s.status);
+      setText(document.getElementById("log-rows"), s.rows);
+      setText(document.getElementById("log-message"), s.message);
+      document.getElementById("log-progress").value = s.progress || 0;
+      const done = s.status !== "pending" && s.status !== "running";
+      const downloads = document.getElementById("log-downloads");
+      if (done && downloads.classList.contains("hidden") && s.rows > 0 &&
+          !document.getElementById("log-preview")) reloadOnce();  // show the first rows
+      downloads.classList.toggle("hidden", !done);
+    },
+  };
+
+  const root = document.querySelector("[data-live]");
+  if (!root || !window.EventSource) return;
+  const view = root.dataset.live;
+  const params = new URLSearchParams({ view: view });
+  if (root.dataset.ref) params.set("r", root.dataset.ref);
+  if (root.dataset.id) params.set("id", root.dataset.id);
+  const source = new EventSource("/api/stream?" + params.toString());
+  source.addEventListener("state", function (e) {
+    const state = JSON.parse(e.data);
+    if (views[view] && Object.keys(state).length) views[view](root, state);
+    document.body.dataset.updated = String(Date.now());
+  });
+  source.addEventListener("end", function () { source.close(); });
+  source.onopen = function () { document.body.classList.remove("offline"); document.body.dataset.live = "open"; };
+  source.onerror = function () { document.body.classList.add("offline"); };
+})();

@@ -1,0 +1,287 @@
+"""The station in a real browser: Debian's Chromium driven by Playwright against a real
+``blackbox station`` process following a real ``blackbox run --dds`` of the simulated
+thesis robot (Cyclone DDS on loopback), with a fault schedule that kills ``/usb_cam``.
+
+The screenshots in README.md and docs/station.md are taken here: with
+``STATION_SCREENSHOTS=1`` they are written to docs/img/station-*.png, otherwise to the
+test's temporary directory (so a test run leaves the work tree as it was).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+import pytest
+
+from blackbox.transport.auth import station_trusted_by
+from conftest import ROOT, wait_for
+
+CHROMIUM = Path("/usr/bin/chromium")
+playwright_api = pytest.importorskip("playwright.sync_api")
+pytestmark = [
+    pytest.mark.dds, pytest.mark.slow,
+    pytest.mark.skipif(not CHROMIUM.exists(),
+                       reason="needs Debian's chromium (scripts/install-system-deps.sh)"),
+]
+
+BLACKBOX = [sys.executable, "-m", "blackbox"]
+IMG = ROOT / "docs" / "img" if os.environ.get("STATION_SCREENSHOTS") == "1" else None
+FAULT_START, FAULT_END, RUN_FOR = 30.0, 45.0, 110.0
+PASSWORDS = {"ada": "admin password 1", "otto": "operator password 1",
+             "vera": "viewer password 1"}
+ROLES = {"ada": "admin", "otto": "operator", "vera": "viewer"}
+
+
+@dataclass
+class Fleet:
+    url: str
+    record: Path
+    started: float
+    tmp: Path
+
+    def shot(self, page: object, name: str, full_page: bool = False) -> None:
+        folder = IMG if IMG is not None else self.tmp
+        folder.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(folder / f"station-{name}.png"),  # type: ignore[attr-defined]
+                        full_page=full_page)
+
+
+def _stop(proc: subprocess.Popen[bytes]) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
+    tmp = tmp_path_factory.mktemp("station")
+    domain = 200 + os.getpid() % 30
+    env = {k: v for k, v in os.environ.items() if k != "CYCLONEDDS_URI"}
+    db = tmp / "station.db"
+    for name, password in PASSWORDS.items():
+        added = subprocess.run([*BLACKBOX, "station", "user", "add", name, "--role",
+                                ROLES[name], "--db", str(db)], input=password + "\n",
+                               capture_output=True, text=True, timeout=60, env=env)
+        assert added.returncode == 0, added.stderr
+    faults = tmp / "faults.yaml"
+    faults.write_text("faults:\n  - {kind: kill, component: /usb_cam, "
+                      f"start: {FAULT_START}, end: {FAULT_END}}}\n")
+    record = tmp / "robot.db"
+    started = time.time()
+    key, config = station_trusted_by(ROOT / "src/blackbox/configs/thesis.yaml", tmp,
+                                     "browser-station")
+    box = subprocess.Popen([*BLACKBOX, "run", "--dds", "--domain", str(domain), "--quiet",
+                            "--config", str(config),
+                            "--faults", str(faults), "--record", str(record),
+                            "--duration", str(RUN_FOR)], env=env,
+                           stdout=(tmp / "box.log").open("wb"), stderr=subprocess.STDOUT)
+    ready = tmp / "ready"
+    station = subprocess.Popen([*BLACKBOX, "station", "--db", str(db), "--key", str(key),
+                                "--bind",
+                                "127.0.0.1:0", "--domain", str(domain), "--ready-file",
+                                str(ready), "--duration", str(RUN_FOR + 30)], env=env,
+                               stdout=(tmp / "station.log").open("wb"),
+                               stderr=subprocess.STDOUT)
+    try:
+        assert wait_for(lambda: ready.exists() and ready.read_text().endswith("\n"), 60), \
+            (tmp / "station.log").read_text()
+        yield Fleet(ready.read_text().strip().rstrip("/"), record, started, tmp)
+    finally:
+        _stop(station)
+        _stop(box)
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[object]:
+    with playwright_api.sync_playwright() as p:
+        chromium = p.chromium.launch(executable_path=str(CHROMIUM))
+        yield chromium
+        chromium.close()
+
+
+SCRIPT_ERRORS: list[str] = []
+
+
+@pytest.fixture(autouse=True)
+def no_script_errors() -> Iterator[None]:
+    """Every page of every test runs its JavaScript without an error (CSP included)."""
+    SCRIPT_ERRORS.clear()
+    yield
+    assert SCRIPT_ERRORS == []
+
+
+def new_page(browser: object, fleet: Fleet, user: str | None = None) -> object:
+    context = browser.new_context(viewport={"width": 1280, "height": 860},  # type: ignore
+                                  base_url=fleet.url, accept_downloads=True)
+    page = context.new_page()
+    page.on("pageerror", lambda error: SCRIPT_ERRORS.append(str(error)))
+    page.on("console", lambda m: SCRIPT_ERRORS.append(m.text) if m.type == "error" and not
+            m.text.startswith("Failed to load resource") else None)  # refusals are tested
+    page.set_default_timeout(20_000)
+    if user is not None:
+        log_in(page, user, PASSWORDS[user])
+        assert page.url.endswith("/"), page.url
+    return page
+
+
+def log_in(page: object, user: str, password: str, *, here: bool = False) -> None:
+    if not here:
+        page.goto("/login")  # type: ignore[attr-defined]
+    page.fill("input[name=username]", user)  # type: ignore[attr-defined]
+    page.fill("input[name=password]", password)  # type: ignore[attr-defined]
+    page.click("button[type=submit]")  # type: ignore[attr-defined]
+    page.wait_for_load_state()  # type: ignore[attr-defined]
+
+
+def utc_input(t: float) -> str:
+    return datetime.fromtimestamp(t, UTC).strftime("%Y-%m-%dT%H:%M:%S")
+
+
+def test_unauthenticated_pages_redirect_to_log_in(browser: object, fleet: Fleet) -> None:
+    page = new_page(browser, fleet)
+    page.goto("/robot?r=thesis-robot")
+    assert "/login?next=" in page.url
+    assert page.locator("h1").inner_text() == "Log in"
+    fleet.shot(page, "login")
+    log_in(page, "vera", PASSWORDS["vera"], here=True)  # then back where it was going
+    assert page.url.endswith("/robot?r=thesis-robot")
+    page.context.close()
+
+
+def test_wrong_password_is_refused_and_repeated_ones_are_throttled(
+        browser: object, fleet: Fleet) -> None:
+    page = new_page(browser, fleet)
+    log_in(page, "otto", "not my password")
+    assert page.locator("#login-message").inner_text() == "Wrong user name or password."
+    for _ in range(3):
+        log_in(page, "otto", "not my password")
+    assert "Too many failed log-ins" in page.locator("#login-message").inner_text()
+    log_in(page, "otto", PASSWORDS["otto"])  # the right one must wait too
+    assert "Too many failed log-ins" in page.locator("#login-message").inner_text()
+    log_in(page, "vera", PASSWORDS["vera"])  # other users are not locked out
+    assert page.locator("h1").inner_text() == "Fleet"
+    page.context.close()
+
+
+def test_a_viewer_gets_403_on_log_requests_and_ibit(browser: object, fleet: Fleet) -> None:
+    page = new_page(browser, fleet, "vera")
+    csrf = page.locator("body").get_attribute("data-csrf")
+    for path in ("/logs", "/ibit"):
+        reply = page.request.post(path, form={"csrf_token": csrf, "robot": "thesis-robot"})
+        assert reply.status == 403, path
+    page.goto("/robot?r=thesis-robot")
+    assert page.locator("#ibit-robot").count() == 0  # no button either
+    page.context.close()
+
+
+def test_posts_without_csrf_token_are_refused(browser: object, fleet: Fleet) -> None:
+    page = new_page(browser, fleet, "ada")
+    for path in ("/logs", "/ibit", "/users", "/logout"):
+        reply = page.request.post(path, form={"robot": "thesis-robot", "op": "add",
+                                              "name": "mallory", "role": "admin",
+                                              "password": "mallory password"})
+        assert reply.status == 403, path
+    page.goto("/users")
+    assert "mallory" not in page.locator("table.users").inner_text()
+    page.context.close()
+
+
+def test_a_killed_node_turns_red_without_reload_and_green_after_recovery(
+        browser: object, fleet: Fleet) -> None:
+    page = new_page(browser, fleet, "otto")
+    page.goto("/robot?r=thesis-robot")
+    page.locator("body[data-live=open]").wait_for()
+    page.evaluate("window.__sameDocument = true")
+    usb_cam = page.locator("li.entity[data-name='/usb_cam']")
+    deadline = (fleet.started + FAULT_START - time.time() + 25) * 1000
+    usb_cam.and_(page.locator(".h-operational")).wait_for(timeout=20_000)
+    usb_cam.and_(page.locator(".h-not-operational")).wait_for(timeout=deadline)
+    assert page.locator("#diagnosis-components").inner_text() == "/usb_cam"
+    failure = page.locator("table.events tr.ev-failure").first  # the timeline is live too
+    failure.wait_for()
+    assert "/usb_cam" in failure.inner_text()
+    assert page.evaluate("window.__sameDocument") is True  # updated in place
+    fleet.shot(page, "robot", full_page=True)
+    fleet_page = new_page(browser, fleet, "otto")
+    fleet_page.locator("body[data-live=open]").wait_for()
+    row = fleet_page.locator("tr[data-robot='thesis-robot']")
+    row.locator("[data-field=diagnosis]", has_text="/usb_cam").wait_for()
+    fleet.shot(fleet_page, "fleet")
+    fleet_page.context.close()
+
+    usb_cam.and_(page.locator(".h-operational")).wait_for(
+        timeout=(fleet.started + FAULT_END - time.time() + 25) * 1000)
+    assert page.evaluate("window.__sameDocument") is True
+    page.context.close()
+
+
+def test_a_log_downloaded_from_the_page_equals_the_robots_own_health_log(
+        browser: object, fleet: Fleet) -> None:
+    from blackbox.record import Store
+
+    page = new_page(browser, fleet, "otto")
+    since = int(fleet.started) + 2
+    until = int(time.time()) - 3
+    page.goto("/logs?robot=thesis-robot")
+    page.fill("input[name=since]", utc_input(since))
+    page.fill("input[name=until]", utc_input(until))
+    page.click("#log-form button[type=submit]")
+    page.locator("#log-downloads:not(.hidden)").wait_for(timeout=60_000)
+    assert page.locator("#log-status").inner_text() == "done"
+    fleet.shot(page, "logs")
+    with page.expect_download() as download:
+        page.click("#dl-jsonl")
+    downloaded = [json.loads(line) for line in
+                  Path(download.value.path()).read_text().splitlines() if line.strip()]
+
+    robot = Store.open(fleet.record, readonly=True, check=False)
+    try:
+        expected = [json.loads(json.dumps(e.to_dict()))
+                    for e in robot.query(start=since, end=until)]
+    finally:
+        robot.close()
+    assert len(expected) > 10
+    assert downloaded == expected
+    with page.expect_download() as download:
+        page.click("#dl-csv")
+    rows = list(csv.reader(Path(download.value.path()).read_text().splitlines()))
+    assert rows[0][:3] == ["id", "time", "kind"]
+    assert [int(r[0]) for r in rows[1:]] == [e["id"] for e in expected]
+    with page.expect_download() as download:
+        page.click("#dl-mcap")
+    assert Path(download.value.path()).read_bytes()[:5] == b"\x89MCAP"
+    page.context.close()
+
+
+def test_entity_ibit_and_events_pages(browser: object, fleet: Fleet) -> None:
+    page = new_page(browser, fleet, "otto")
+    page.goto("/robot?r=thesis-robot")
+    page.click("li.entity[data-name='/usb_cam/image_raw'] a.name")
+    page.locator("body[data-live=open]").wait_for()
+    assert page.locator("h1").inner_text().startswith("/usb_cam/image_raw")
+    page.locator("figure.chart .uplot").first.wait_for()
+    page.wait_for_timeout(1500)  # a few live points
+    fleet.shot(page, "entity", full_page=True)
+    page.click("#ibit-entity")  # an operator runs the built-in test of this entity
+    page.locator("#ibit-status", has_text="done").wait_for(timeout=30_000)
+    assert page.locator("#ibit-report li").count() >= 1
+    assert "/usb_cam/image_raw" in page.locator("#ibit-report").inner_text()
+    fleet.shot(page, "ibit")
+    page.goto("/events?robot=thesis-robot&kind=failure")
+    assert "/usb_cam" in page.locator("table.events").inner_text()
+    fleet.shot(page, "events")
+    page.context.close()
