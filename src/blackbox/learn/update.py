@@ -166,6 +166,22 @@ def _without_hand(block: Block, hand: set[Key], old: Sequence[dict[str, Any]]) -
     return Block(block.id, block.comments, kept, block.notes), said
 
 
+def _unseen_block_text(seg: Segment, indent: str, entries: Sequence[dict[str, Any]],
+                       hand: set[Key], when: str) -> str:
+    """A block the update run did not produce, kept as it was with a note; its entries a
+    hand-written one now covers are left out (two would share one identity)."""
+    note = f"not seen in the update run ({when}); kept as it was"
+    assert seg.block is not None
+    if any(entry_key(e) in hand for e in entries):
+        _, said = _without_hand(Block(seg.block, entries=list(entries)), hand, [])
+        return block_text(Block(seg.block, entries=[e for e in entries
+                                                     if entry_key(e) not in hand]),
+                          indent, [note, *said])
+    lines = seg.text.splitlines(keepends=True)
+    return "".join([lines[0], f"{indent}# {note}\n",
+                    *[ln for ln in lines[1:] if "not seen in the update run" not in ln]])
+
+
 def update_config(old_text: str, file: str, learned: Learned, model_file: str,
                   when: str) -> str:
     """The text of ``file`` (``old_text``) refined by ``learned``; raises ConfigError when
@@ -198,10 +214,8 @@ def update_config(old_text: str, file: str, learned: Learned, model_file: str,
             pieces.append(block_text(merged, indent, said))
             last_observer_piece = len(pieces) - 1
         else:
-            lines = seg.text.splitlines(keepends=True)
-            note = f"{indent}# not seen in the update run ({when}); kept as it was\n"
-            pieces.append("".join([lines[0], note, *[ln for ln in lines[1:]
-                                                    if "not seen in the update run" not in ln]]))
+            pieces.append(_unseen_block_text(seg, indent, old_entries.get(seg.block, []),
+                                             hand, when))
             last_observer_piece = len(pieces) - 1
         done.add(seg.block)
     added = []
