@@ -191,7 +191,7 @@ class SfddDetector:
             why = f"window not full ({h.shape[0]} of {s.window} samples)"
             return [SignalVerdict(name, "unjudged", why) for name in self.names]
         h = h[-s.window:]
-        finite = np.isfinite(h).all(axis=0)
+        finite: npt.NDArray[np.bool_] = np.asarray(np.isfinite(h).all(axis=0))
         hs = _smooth(np.where(np.isfinite(h), h, 0.0), s.smoothing)
         first = s.first - s.smoothing + 1
         a, b = hs[:first], hs[first:]
@@ -235,22 +235,20 @@ class SfddDetector:
         drifting = pair & (trend >= s.sigmas)
         deviating = pair & ((shift >= s.sigmas) | (spread >= s.spread_ratio))
 
-        if s.strict:
-            disagree = broken
-        else:
-            disagree = broken | drifting | deviating
+        disagree = broken if s.strict else broken | drifting | deviating
         agree = pair & ~disagree
         count = pair.sum(axis=1)
         denom = np.maximum(disagree.sum(axis=1), 1)
         # Cleared as a response of the system when some correlated signal still agrees.
-        suspect = disagree.any(axis=1) & ~agree.any(axis=1)
+        suspect: npt.NDArray[np.bool_] = np.asarray(disagree.any(axis=1) & ~agree.any(axis=1))
         broken_f = broken.sum(axis=1) / np.maximum(count, 1)
         drift_f = (disagree & drifting).sum(axis=1) / denom
         dev_f = (disagree & deviating).sum(axis=1) / denom
         ratio_b = np.where(usable, sd_b / safe_a, 1.0)
-        stuck_self = ratio_b <= s.stuck_ratio
+        stuck_self: npt.NDArray[np.bool_] = np.asarray(ratio_b <= s.stuck_ratio)
         peer_stuck = stuck_self[peers][None, :] & pair
-        peers_still = (pair & ~peer_stuck).sum(axis=1) > peer_stuck.sum(axis=1)
+        moving_peers = (pair & ~peer_stuck).sum(axis=1)
+        peers_still: npt.NDArray[np.bool_] = np.asarray(moving_peers > peer_stuck.sum(axis=1))
 
         out: list[SignalVerdict] = []
         for i, name in enumerate(self.names):
