@@ -224,7 +224,9 @@ class SfddDetector:
         gain = r_a * sd_a[:, None] / np.where(usable, sd_a, 1.0)[peers][None, :]
         icpt = mu_a[:, None] - gain * mu_a[peers][None, :]
         sigma = sd_a[:, None] * np.sqrt(np.clip(1.0 - r_a ** 2, 0.0, None))
-        sigma = np.maximum(sigma, 1e-6 * (1.0 + np.abs(mu_a))[:, None])
+        # A residual below 2 % of the signal's own spread is no fault worth a verdict (it
+        # keeps noise-free, exactly related signals from alarming on rounding).
+        sigma = np.maximum(sigma, 0.02 * np.where(usable, sd_a, 1.0)[:, None])
         resid = b[:, :, None] - (icpt[None] + gain[None] * b[:, peers][:, None, :])  # (mb, n, p)
         mb = b.shape[0]
         t = np.arange(mb, dtype=np.float64) - (mb - 1) / 2.0

@@ -1,0 +1,219 @@
+"""SFDD (issue 18): the window judge, its variants, bad input, the engines on the pipeline."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from blackbox.app import RunOptions, build
+from blackbox.config.node import ConfigError, ConfigNode
+from blackbox.diagnose.live import DiagnosisSettings
+from blackbox.diagnose.sfdd import SfddDetector, SfddSettings
+from blackbox.diagnose.sfdd_live import SfddConfig, SfddTap, SignalSpec
+from blackbox.events import MessageArrival
+from blackbox.model import Code, Diagnosis
+from blackbox.sources.sim import Fault
+
+CONFIG = Path(__file__).parents[1] / "src" / "blackbox" / "configs" / "diffdrive.yaml"
+NAMES = ["a", "b", "c", "x", "y", "z"]
+
+
+def motion(start: float = 0.0, seed: int = 1) -> np.ndarray:
+    """Two independent motions, three sensors each (one of them inverted)."""
+    t = np.arange(100) * 0.1 + start
+    v = 0.3 + 0.4 * np.sin(2 * np.pi * t / 23) + 0.15 * np.sin(2 * np.pi * t / 7.1)
+    w = 0.5 * np.sin(2 * np.pi * t / 17 + 1) + 0.2 * np.sin(2 * np.pi * t / 5.3)
+    noise = np.random.default_rng(seed).normal(0, 0.02, (100, 6))
+    return np.stack([v, 2 * v, v, w, w, -w], axis=1) + noise
+
+
+def faulty(window: np.ndarray, settings: SfddSettings | None = None) -> set[str]:
+    return {v.name for v in SfddDetector(NAMES, settings).judge(window) if v.faulty}
+
+
+def patterns(window: np.ndarray, settings: SfddSettings | None = None) -> dict[str, str]:
+    return {v.name: v.pattern for v in SfddDetector(NAMES, settings).judge(window)}
+
+
+def test_correlated_healthy_signals_are_ok() -> None:
+    assert patterns(motion()) == dict.fromkeys(NAMES, "ok")
+
+
+def test_stuck_sensor_is_found_and_only_it() -> None:
+    h = motion()
+    h[50:, 2] = h[49, 2]
+    p = patterns(h)
+    assert p["c"] == "stuck"
+    assert [n for n, v in p.items() if v != "ok"] == ["c"]
+
+
+@pytest.mark.parametrize(("column", "change"), [
+    (4, lambda col: col + 0.09 * np.arange(40) * 0.1 * 3),    # drift
+    (2, lambda col: col + 0.15),                               # offset
+    (4, lambda col: col * 1.5),                                # scale
+])
+def test_value_faults_on_one_correlated_sensor(column: int, change: object) -> None:
+    h = motion()
+    h[60:, column] = change(h[60:, column])  # type: ignore[operator]
+    assert faulty(h) == {NAMES[column]}
+
+
+def test_strict_mode_is_the_papers_stuck_and_drift_only() -> None:
+    h = motion()
+    h[70:, 2] += 0.15
+    assert faulty(h, SfddSettings(strict=True)) == set()
+    h = motion()
+    h[50:, 2] = h[49, 2]
+    assert faulty(h, SfddSettings(strict=True)) == {"c"}
+
+
+def test_signed_variant_sees_a_sign_flip_the_absolute_value_hides() -> None:
+    h = motion()
+    h[50:, 5] = -h[50:, 5]   # z = -w becomes +w: |r| unchanged, sign flipped
+    assert patterns(h, SfddSettings(strict=True))["z"] == "ok"
+    assert patterns(h, SfddSettings(signed=True, strict=True))["z"] in ("uncertain", "drift")
+
+
+def test_reference_variant_correlates_with_references_only() -> None:
+    refs = SfddSettings(references=("a", "b", "x", "y"))
+    verdicts = {v.name: v for v in SfddDetector(NAMES, refs).judge(motion())}
+    assert set(verdicts["c"].peers) == {"a", "b"}
+    assert set(verdicts["z"].peers) == {"x", "y"}
+    h = motion()
+    h[50:, 2] = h[49, 2]
+    assert "c" in faulty(h, refs)
+
+
+def test_change_variant_flags_a_correlation_change() -> None:
+    h = motion()
+    h[50:, 5] = -h[50:, 5]
+    p = patterns(h, SfddSettings(change=True, strict=True))
+    assert p["z"] in ("correlation_change", "drift")
+    assert [n for n, v in p.items() if v != "ok"] == ["z"]
+
+
+# ---- bad input --------------------------------------------------------------------------------
+
+def test_window_shorter_than_configured_judges_nothing() -> None:
+    out = SfddDetector(NAMES).judge(motion()[:40])
+    assert {v.pattern for v in out} == {"unjudged"}
+    assert "window not full (40 of 100" in out[0].reason
+
+
+def test_constant_signal_is_unjudged_and_others_are_judged() -> None:
+    h = motion()
+    h[:, 1] = 5.0
+    p = patterns(h)
+    assert p["b"] == "unjudged"
+    assert all(p[n] == "ok" for n in NAMES if n != "b")
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf])
+def test_non_finite_rows_make_only_that_signal_unjudged(bad: float) -> None:
+    h = motion()
+    h[:30, 0] = bad
+    p = patterns(h)
+    assert p["a"] == "unjudged"
+    assert all(p[n] == "ok" for n in NAMES if n != "a")
+
+
+def test_bad_settings_are_refused() -> None:
+    with pytest.raises(ValueError, match="window"):
+        SfddSettings(window=4)
+    with pytest.raises(ValueError, match="correlation"):
+        SfddSettings(correlation=1.5)
+    with pytest.raises(ValueError, match="reference"):
+        SfddDetector(NAMES, SfddSettings(references=("nope",)))
+
+
+class _Msg:
+    def __init__(self, data: float) -> None:
+        self.data = data
+
+
+def _arrival(t: float, topic: str, data: float) -> MessageArrival:
+    msg = _Msg(data)
+    return MessageArrival(t, topic, "/pub", 8, decode=lambda: msg)
+
+
+def test_tap_drops_non_finite_values_and_a_late_signal_waits_for_a_full_window() -> None:
+    config = SfddConfig((SignalSpec("/a"), SignalSpec("/b"), SignalSpec("/late")),
+                        SfddSettings(window=20), period=0.1)
+    tap = SfddTap(config)
+    for k in range(60):
+        t = 0.05 + 0.1 * k
+        tap.on_message(_arrival(t, "/a", math.sin(t)))
+        tap.on_message(_arrival(t, "/b", math.nan if k == 55 else 2 * math.sin(t)))
+        if k >= 50:
+            tap.on_message(_arrival(t, "/late", -math.sin(t)))
+    obs = {o.resource.topic: o for o in tap.evaluate(6.0)}
+    assert obs["/late"].code == Code.NOT_AVAILABLE
+    assert obs["/b"].values["non_finite"] == 1.0
+    assert obs["/a"].code != Code.NOT_AVAILABLE      # judged: it had a full fresh window
+
+
+def test_tap_marks_a_silent_signal_unjudged() -> None:
+    config = SfddConfig((SignalSpec("/a"), SignalSpec("/b")), SfddSettings(window=20))
+    tap = SfddTap(config)
+    for k in range(60):
+        t = 0.05 + 0.1 * k
+        tap.on_message(_arrival(t, "/a", math.sin(t)))
+        if k < 40:
+            tap.on_message(_arrival(t, "/b", math.sin(t)))
+    codes = {o.resource.topic: o.code for o in tap.evaluate(6.0)}
+    assert codes["/b"] == Code.NOT_AVAILABLE
+
+
+# ---- configuration and engines on the pipeline ------------------------------------------------
+
+def test_engine_without_signals_is_a_located_config_error(tmp_path: Path) -> None:
+    node = ConfigNode.parse("engine: sfdd\n", str(tmp_path / "c.yaml"))
+    with pytest.raises(ConfigError) as err:
+        DiagnosisSettings.from_config(node, tmp_path)
+    assert err.value.line == 1 and "sfdd.signals" in err.value.message
+
+
+def test_unknown_engine_is_refused(tmp_path: Path) -> None:
+    node = ConfigNode.parse("engine: magic\n", str(tmp_path / "c.yaml"))
+    with pytest.raises(ConfigError):
+        DiagnosisSettings.from_config(node, tmp_path)
+
+
+class _Diagnoses:
+    def __init__(self) -> None:
+        self.diagnoses: list[Diagnosis] = []
+
+    def on_observations(self, now: float, observations: object) -> None: ...
+    def on_event(self, event: object) -> None: ...
+    def close(self) -> None: ...
+
+    def on_diagnosis(self, diagnosis: Diagnosis) -> None:
+        self.diagnoses.append(diagnosis)
+
+
+def _run(engine: str, fault: Fault) -> list[Diagnosis]:
+    sink = _Diagnoses()
+    box = build(RunOptions(config=CONFIG, source="sim:diffdrive", duration=40.0,
+                           simulated_clock=True, faults=[fault], seed=3, live=False,
+                           engine=engine, extra_sinks=[sink]))  # type: ignore[list-item]
+    box.run()
+    return sink.diagnoses
+
+
+def test_sfdd_engine_names_the_stuck_odometry() -> None:
+    diagnoses = _run("sfdd", Fault("stuck", "/odom", 20.0, 35.0))
+    during = [d for d in diagnoses if 20.0 <= d.time <= 36.0 and d.candidates]
+    assert during and all(d.engine == "sfdd" for d in diagnoses)
+    assert any(d.candidates[0] & {"/odom", "/odometry"} for d in during)
+
+
+def test_hybrid_records_agreement_and_sfdd_is_blind_to_a_kill() -> None:
+    diagnoses = _run("hybrid", Fault("kill", "/camera", 20.0, 30.0))
+    during = [d for d in diagnoses if 20.0 <= d.time <= 30.0 and d.candidates]
+    assert during
+    assert {d.engine for d in diagnoses} == {"hybrid"}
+    assert any(d.agreement == "cbd only" and "/camera" in d.candidates[0] for d in during)
+    assert diagnoses[-1].to_dict()["agreement"] == diagnoses[-1].agreement
