@@ -217,3 +217,22 @@ def test_hybrid_records_agreement_and_sfdd_is_blind_to_a_kill() -> None:
     assert {d.engine for d in diagnoses} == {"hybrid"}
     assert any(d.agreement == "cbd only" and "/camera" in d.candidates[0] for d in during)
     assert diagnoses[-1].to_dict()["agreement"] == diagnoses[-1].agreement
+
+
+def test_ucms_mapping_carries_sfdd_verdicts_and_the_engines_agreement() -> None:
+    from blackbox.health.mapping import HealthMapper
+    from blackbox.health.types import C_Failure_Event
+    from blackbox.model import Observation, Resource
+
+    mapper = HealthMapper("r1", owners={"/odom": "/odometry"})
+    obs = Observation(5.0, "sfdd:twist.twist.linear.x", Resource(topic="/odom"),
+                      Code.NO_STATE_FITS, values={"shift_sigmas": 9.0},
+                      message="stuck: no change while its correlated signals moved")
+    mapper.start(0.0)
+    assert mapper.observations(5.0, [obs])
+    samples = mapper.diagnosis(Diagnosis(5.0, (frozenset({"/odometry"}),), (obs,),
+                                         "[hybrid: agree] ...", True, "hybrid", "agree"))
+    events = [s for s in samples if isinstance(s, C_Failure_Event)]
+    assert len(events) == 1
+    assert "engine hybrid (agree)" in events[0].A_complementaryInformation
+    assert events[0].A_causeDescription.startswith("[hybrid: agree]")
