@@ -236,3 +236,9 @@ def test_ucms_mapping_carries_sfdd_verdicts_and_the_engines_agreement() -> None:
     assert len(events) == 1
     assert "engine hybrid (agree)" in events[0].A_complementaryInformation
     assert events[0].A_causeDescription.startswith("[hybrid: agree]")
+
+
+def test_sfdd_is_blind_to_a_killed_sensor_node() -> None:
+    diagnoses = _run("sfdd", Fault("kill", "/imu_driver", 20.0, 30.0))
+    during = [d for d in diagnoses if 20.0 <= d.time <= 30.0 and d.candidates]
+    assert not any(d.candidates[0] & {"/imu_driver", "/imu/data"} for d in during)

@@ -295,7 +295,8 @@ class SignalState:
 
     @property
     def faulty(self) -> bool:
-        return self.observation.faulty
+        """A fault pattern; an unjudged signal (``NOT_AVAILABLE``) is not faulty."""
+        return self.observation.code == Code.NO_STATE_FITS
 
 
 class SfddDiagnoser:
