@@ -273,12 +273,10 @@ class StructuralModel:
             health[comp] = 1.0 - len(bad) / len(specs)
             if not bad:
                 continue
-            if len(bad) == len(specs) and len(specs) >= 2:
+            if len(bad) == len(specs):
                 blamed.add(comp)
             else:
                 blamed.update(s.topic for s in bad)
-                if len(specs) == 1:
-                    blamed.add(comp)
         return frozenset(blamed), health
 
 
