@@ -242,3 +242,32 @@ def test_sfdd_is_blind_to_a_killed_sensor_node() -> None:
     diagnoses = _run("sfdd", Fault("kill", "/imu_driver", 20.0, 30.0))
     during = [d for d in diagnoses if 20.0 <= d.time <= 30.0 and d.candidates]
     assert not any(d.candidates[0] & {"/imu_driver", "/imu/data"} for d in during)
+
+
+def test_evaluate_engine_scores_each_engine_on_the_same_campaign(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from blackbox.cli import main
+
+    lines = {}
+    for engine in ("cbd", "sfdd", "hybrid"):
+        assert main(["evaluate", "--quiet", "--config", str(CONFIG), "--source",
+                     "sim:diffdrive", "--runs", "1", "--duration", "60", "--kinds",
+                     "stuck,kill", "--engine", engine]) == 0
+        out = capsys.readouterr().out
+        lines[engine] = next(line for line in out.splitlines() if line.startswith("engine "))
+    assert lines["cbd"].startswith("engine cbd: diagnoses as detections: TP ")
+    assert all("engine CPU" in line for line in lines.values())
+    # same faults for every engine: the fault counts (TP + FN) agree
+    def faults(line: str) -> int:
+        words = line.replace(",", "").split()
+        return int(words[words.index("TP") + 1]) + int(words[words.index("FN") + 1])
+    assert faults(lines["cbd"]) == faults(lines["sfdd"]) == faults(lines["hybrid"]) > 0
+
+
+def test_evaluate_engine_sfdd_on_a_robot_without_signals_is_a_usage_error(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from blackbox.cli import main
+
+    assert main(["evaluate", "--quiet", "--runs", "1", "--duration", "30",
+                 "--engine", "sfdd"]) == 2
+    assert "needs diagnosis.sfdd.signals" in capsys.readouterr().err
