@@ -14,7 +14,7 @@ from blackbox.diagnose.live import DiagnosisSettings
 from blackbox.diagnose.sfdd import SfddDetector, SfddSettings
 from blackbox.diagnose.sfdd_live import SfddConfig, SfddTap, SignalSpec
 from blackbox.events import MessageArrival
-from blackbox.model import Code, Diagnosis
+from blackbox.model import Code, Diagnosis, Observation, Resource
 from blackbox.sources.sim import Fault
 
 CONFIG = Path(__file__).parents[1] / "src" / "blackbox" / "configs" / "diffdrive.yaml"
@@ -222,7 +222,7 @@ def test_hybrid_records_agreement_and_sfdd_is_blind_to_a_kill() -> None:
 def test_ucms_mapping_carries_sfdd_verdicts_and_the_engines_agreement() -> None:
     from blackbox.health.mapping import HealthMapper
     from blackbox.health.types import C_Failure_Event
-    from blackbox.model import Observation, Resource
+
 
     mapper = HealthMapper("r1", owners={"/odom": "/odometry"})
     obs = Observation(5.0, "sfdd:twist.twist.linear.x", Resource(topic="/odom"),
@@ -271,3 +271,44 @@ def test_evaluate_engine_sfdd_on_a_robot_without_signals_is_a_usage_error(
     assert main(["evaluate", "--quiet", "--runs", "1", "--duration", "30",
                  "--engine", "sfdd"]) == 2
     assert "needs diagnosis.sfdd.signals" in capsys.readouterr().err
+
+
+def _hybrid(mode: str, cbd_failed: Observation, sfdd_code: Code) -> Diagnosis:
+    from blackbox.diagnose.hybrid import CbdDiagnoser, HybridDiagnoser
+    from blackbox.diagnose.sfdd_live import SfddDiagnoser
+
+    config = SfddConfig((SignalSpec("/odom", "twist.twist.linear.x", "/odometry"),
+                         SignalSpec("/cmd_vel", "linear.x", "/teleop")))
+    hybrid = HybridDiagnoser(CbdDiagnoser([], DiagnosisSettings()), SfddDiagnoser(config), mode)
+    hybrid.cbd.current = Diagnosis(9.0, (frozenset({"/odometry"}),), (cbd_failed,), "cbd")
+    hybrid.sfdd.feed([
+        Observation(9.0, "sfdd:twist.twist.linear.x", Resource(topic="/odom"), sfdd_code),
+        Observation(9.0, "sfdd:linear.x", Resource(topic="/cmd_vel"), Code.GENERAL_OK)])
+    return hybrid.combine(10.0)
+
+
+VALUE_ALARM = Observation(9.0, "scores", Resource(topic="/odom"), Code.NO_STATE_FITS)
+RATE_ALARM = Observation(9.0, "timeout", Resource(topic="/odom"), Code.TIMEOUT)
+
+
+def test_hybrid_confirms_a_cbd_candidate_sfdd_also_blames() -> None:
+    d = _hybrid("rank", VALUE_ALARM, Code.NO_STATE_FITS)
+    assert d.agreement == "agree" and d.candidates[0] == frozenset({"/odometry"})
+
+
+def test_hybrid_rank_keeps_a_questioned_candidate_and_verify_withholds_it() -> None:
+    ranked = _hybrid("rank", VALUE_ALARM, Code.GENERAL_OK)
+    assert ranked.agreement == "questioned by sfdd"
+    assert ranked.candidates == (frozenset({"/odometry"}),)
+    verified = _hybrid("verify", VALUE_ALARM, Code.GENERAL_OK)
+    assert verified.agreement == "withheld: sfdd questions cbd" and verified.candidates == ()
+
+
+def test_hybrid_verify_never_withholds_an_alarm_sfdd_cannot_see() -> None:
+    d = _hybrid("verify", RATE_ALARM, Code.GENERAL_OK)
+    assert d.candidates == (frozenset({"/odometry"}),)
+
+
+def test_hybrid_unjudged_signal_leaves_cbd_alone() -> None:
+    d = _hybrid("rank", VALUE_ALARM, Code.NOT_AVAILABLE)
+    assert d.agreement == "cbd only"

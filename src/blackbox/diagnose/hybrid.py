@@ -15,6 +15,13 @@ questioned candidate is kept, since CBD's verdict is sound for what the observer
 SFDD's silence is not proof. A fault only SFDD sees (CBD's thresholds are quiet) is added
 as the last candidate. The diagnosis's ``agreement`` says which engines agree: ``agree``,
 ``agree: healthy``, ``cbd only``, ``questioned by sfdd`` or ``sfdd only``.
+
+``diagnosis.hybrid: verify`` (default ``rank``) takes section 7.3 literally, SFDD as the check
+"if a fault has actually occurred": when every failed CBD observation judges values (no rate,
+timeout or liveness alarm, which SFDD cannot see) and SFDD questions every CBD candidate, the
+alarm is withheld: no candidates, agreement ``withheld: sfdd questions cbd``. This trades
+CBD's soundness for fewer false alarms from value thresholds; ``rank`` never drops a
+candidate.
 """
 
 from __future__ import annotations
@@ -23,12 +30,14 @@ import time
 from collections.abc import Sequence
 
 from blackbox.diagnose.live import DiagnosisSettings, LiveDiagnoser
+from blackbox.diagnose.robot_model import is_rate_type
 from blackbox.diagnose.sfdd_live import SfddDiagnoser, SfddTap, is_sfdd
 from blackbox.events import GraphSnapshot
 from blackbox.model import Diagnosis, Observation
 from blackbox.observe.base import Observer
 
 ENGINES = ("cbd", "sfdd", "hybrid")
+HYBRID_MODES = ("rank", "verify")
 
 _ORDER = {"confirmed": 0, "unjudged": 1, "questioned": 2}
 
@@ -70,9 +79,12 @@ class HybridDiagnoser:
 
     engine = "hybrid"
 
-    def __init__(self, cbd: CbdDiagnoser, sfdd: SfddDiagnoser) -> None:
+    def __init__(self, cbd: CbdDiagnoser, sfdd: SfddDiagnoser, mode: str = "rank") -> None:
+        if mode not in HYBRID_MODES:
+            raise ValueError(f"hybrid mode must be one of {', '.join(HYBRID_MODES)}")
         self.cbd = cbd
         self.sfdd = sfdd
+        self.mode = mode
         self._current: Diagnosis | None = None
         self._own_cpu = 0.0
 
@@ -114,7 +126,13 @@ class HybridDiagnoser:
         candidates = list(ranked)
         if blamed and "confirmed" not in verdicts and blamed not in candidates:
             candidates.append(blamed)
-        if not proposed and not blamed:
+        values_only = cbd is not None and bool(cbd.failed) and not any(
+            is_rate_type(o.observer) for o in cbd.failed)
+        if (self.mode == "verify" and proposed and values_only
+                and all(v == "questioned" for v in verdicts)):
+            candidates = [blamed] if blamed else []
+            agreement = "withheld: sfdd questions cbd"
+        elif not proposed and not blamed:
             agreement = "agree: healthy"
         elif not proposed:
             agreement = "sfdd only"
@@ -159,7 +177,7 @@ def make_diagnoser(observers: Sequence[Observer], settings: DiagnosisSettings,
     sfdd = SfddDiagnoser(settings.sfdd)
     if chosen == "sfdd":
         return sfdd, [tap]
-    return HybridDiagnoser(CbdDiagnoser(observers, settings), sfdd), [tap]
+    return HybridDiagnoser(CbdDiagnoser(observers, settings), sfdd, settings.hybrid), [tap]
 
 
-__all__ = ["ENGINES", "CbdDiagnoser", "HybridDiagnoser", "make_diagnoser"]
+__all__ = ["ENGINES", "HYBRID_MODES", "CbdDiagnoser", "HybridDiagnoser", "make_diagnoser"]

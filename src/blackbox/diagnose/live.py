@@ -15,6 +15,7 @@ Configured by the native ``diagnosis:`` section::
       time_budget: 0.1          # seconds per re-diagnosis (anytime: best so far)
       engine: cbd               # cbd | sfdd | hybrid (docs/diagnosis.md, "SFDD")
       sfdd: {signals: [...]}    # SFDD's signals and settings (diagnose/sfdd_live.py)
+      hybrid: rank              # rank | verify: may SFDD withhold a CBD value alarm?
       propagation:              # how an input's fault reaches a node's outputs
         rate: learn             # learn | always | never: does a silent input silence the node?
         learn_after: 3.0        # seconds of "input silent, output at rate" before learning never
@@ -58,13 +59,14 @@ class DiagnosisSettings:
     propagation: Propagation = field(default_factory=Propagation)
     engine: str = "cbd"
     sfdd: SfddConfig = field(default_factory=SfddConfig)
+    hybrid: str = "rank"
 
     @classmethod
     def from_config(cls, node: ConfigNode | None, base_dir: Path) -> DiagnosisSettings:
         if node is None:
             return cls()
         node.check_keys(["enabled", "model", "priors", "max_cardinality", "time_budget",
-                         "propagation", "engine", "sfdd"])
+                         "propagation", "engine", "sfdd", "hybrid"])
         enabled = node["enabled"].bool() if node.get("enabled") is not None else True
         model = None
         if node.get("model") is not None:
@@ -88,7 +90,9 @@ class DiagnosisSettings:
         if engine != "cbd" and len(sfdd.signals) < 2:
             raise node["engine"].error(f"engine {engine} needs diagnosis.sfdd.signals: two or "
                                        "more numeric fields of topics")
-        return cls(enabled, model, priors, max_card, budget, propagation, engine, sfdd)
+        hybrid = (node["hybrid"].str(["rank", "verify"]) if node.get("hybrid") is not None
+                  else "rank")
+        return cls(enabled, model, priors, max_card, budget, propagation, engine, sfdd, hybrid)
 
 
 def _modes(node: ConfigNode) -> NodePropagation:
