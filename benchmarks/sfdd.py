@@ -40,8 +40,10 @@ VARIANTS: tuple[tuple[str, str, str], ...] = (
      "references: [{topic: /cmd_vel, field: linear.x}, {topic: /cmd_yaw, field: data}]"),
     ("sfdd sigmas 6", "sfdd", "sigmas: 6.0"),
     ("hybrid sigmas 6", "hybrid", "sigmas: 6.0"),
+    ("sfdd persistence 3", "sfdd", "persistence: 3"),
+    ("sfdd sigmas 6, persistence 3", "sfdd", "sigmas: 6.0\npersistence: 3"),
+    ("hybrid sigmas 6, persistence 3", "hybrid", "sigmas: 6.0\npersistence: 3"),
     ("hybrid verify", "hybrid", "hybrid: verify"),
-    ("hybrid verify, sigmas 6", "hybrid", "hybrid: verify\nsigmas: 6.0"),
 )
 
 

@@ -312,3 +312,21 @@ def test_hybrid_verify_never_withholds_an_alarm_sfdd_cannot_see() -> None:
 def test_hybrid_unjudged_signal_leaves_cbd_alone() -> None:
     d = _hybrid("rank", VALUE_ALARM, Code.NOT_AVAILABLE)
     assert d.agreement == "cbd only"
+
+
+def test_persistence_reports_a_pattern_only_after_k_windows_in_a_row() -> None:
+    config = SfddConfig((SignalSpec("/a"), SignalSpec("/b"), SignalSpec("/c")),
+                        SfddSettings(window=40), period=0.1, persistence=2)
+    tap = SfddTap(config)
+    codes = []
+    for k in range(100):
+        t = 0.05 + 0.1 * k
+        x = math.sin(t) + 0.01 * math.cos(37 * t)
+        tap.on_message(_arrival(t, "/a", x))
+        tap.on_message(_arrival(t, "/b", 2 * x + 0.01 * math.sin(53 * t)))
+        tap.on_message(_arrival(t, "/c", x if t < 7.0 else 0.5))   # stuck from 7 s
+        if k % 5 == 4:
+            codes.append({o.resource.topic: o for o in tap.evaluate(t + 0.05)}["/c"])
+    faulty_at = [i for i, o in enumerate(codes) if o.code == Code.NO_STATE_FITS]
+    suspect_at = [i for i, o in enumerate(codes) if o.message.startswith("suspect")]
+    assert faulty_at and suspect_at and suspect_at[0] == faulty_at[0] - 1

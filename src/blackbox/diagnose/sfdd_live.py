@@ -8,6 +8,7 @@ Configured under ``diagnosis:`` (docs/diagnosis.md, "SFDD")::
         period: 0.1             # seconds between samples of the common clock
         window: 100             # samples per window (10 s), first half for correlation
         stale_after: 1.0        # a signal without a message for this long is silent
+        persistence: 1          # windows in a row a fault pattern must last to be reported
         signals:
           - {topic: /odom, field: twist.twist.linear.x}
           - {topic: /imu/data, field: angular_velocity.z, component: /imu_hardware}
@@ -72,12 +73,14 @@ class SfddConfig:
     period: float = 0.1
     stale_after: float = 1.0
     interval: float = 1.0
+    persistence: int = 1
 
     @classmethod
     def from_config(cls, node: ConfigNode | None) -> SfddConfig:
         if node is None:
             return cls()
-        node.check_keys(["signals", "period", "stale_after", "interval", "window", "split",
+        node.check_keys(["signals", "period", "stale_after", "interval", "persistence",
+                         "window", "split",
                          "smoothing", "correlation", "hold", "signed", "references", "change",
                          "change_threshold", "stuck_ratio", "sigmas", "spread_ratio",
                          "strict"])
@@ -126,8 +129,10 @@ class SfddConfig:
             return (node[key].float(min=0.0, min_exclusive=True) if node.get(key) is not None
                     else default)
 
+        persistence = (node["persistence"].int(min=1) if node.get("persistence") is not None
+                       else 1)
         return cls(tuple(signals), settings, seconds("period", 0.1),
-                   seconds("stale_after", 1.0), seconds("interval", 1.0))
+                   seconds("stale_after", 1.0), seconds("interval", 1.0), persistence)
 
 
 class SfddTap(ObserverBase):
@@ -159,6 +164,7 @@ class SfddTap(ObserverBase):
         self._non_finite = np.zeros(n, dtype=np.int64)
         self._unreadable = np.zeros(n, dtype=np.int64)
         self._tick: float | None = None
+        self._streak = np.zeros(n, dtype=np.int64)
         self.cpu_seconds = 0.0
         self.windows = 0
 
@@ -225,6 +231,12 @@ class SfddTap(ObserverBase):
             values["non_finite"] = float(self._non_finite[i])
         if self._unreadable[i]:
             values["unreadable"] = float(self._unreadable[i])
+        self._streak[i] = self._streak[i] + 1 if v.faulty else 0
+        if v.faulty and self._streak[i] < self.config.persistence:
+            return Observation(now, OBSERVER_PREFIX + spec.field, Resource(topic=spec.topic),
+                               Code.GENERAL_OK, values=values,
+                               message=f"suspect ({v.pattern}, window {self._streak[i]} of "
+                                       f"{self.config.persistence} needed): {v.reason}")
         if v.faulty:
             code = Code.NO_STATE_FITS
         elif v.pattern == "unjudged":
