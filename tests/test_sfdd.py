@@ -330,3 +330,13 @@ def test_persistence_reports_a_pattern_only_after_k_windows_in_a_row() -> None:
     faulty_at = [i for i, o in enumerate(codes) if o.code == Code.NO_STATE_FITS]
     suspect_at = [i for i, o in enumerate(codes) if o.message.startswith("suspect")]
     assert faulty_at and suspect_at and suspect_at[0] == faulty_at[0] - 1
+
+
+def test_a_long_gap_in_the_source_costs_one_window_not_the_gap() -> None:
+    config = SfddConfig((SignalSpec("/a"), SignalSpec("/b")), SfddSettings(window=20))
+    tap = SfddTap(config)
+    tap.on_message(_arrival(0.0, "/a", 1.0))
+    tap.on_message(_arrival(1e7, "/a", 2.0))        # 116 days later: 1e8 ticks if walked
+    obs = tap.evaluate(1e7 + 0.5)
+    assert {o.code for o in obs} == {Code.NOT_AVAILABLE}
+    assert tap.window().shape == (20, 2)

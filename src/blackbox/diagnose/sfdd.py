@@ -234,8 +234,10 @@ class SfddDetector:
         trend = np.abs(slope) * (mb - 1) / sigma
         shift = np.abs(resid.mean(axis=0)) / sigma
         spread = resid.std(axis=0) / sigma
-        drifting = pair & (trend >= s.sigmas)
-        deviating = pair & ((shift >= s.sigmas) | (spread >= s.spread_ratio))
+        # Residual tests only where a regression means something: correlated pairs.
+        correlated = valid & (np.abs(r_a) >= s.correlation)
+        drifting = correlated & (trend >= s.sigmas)
+        deviating = correlated & ((shift >= s.sigmas) | (spread >= s.spread_ratio))
 
         disagree = broken if s.strict else broken | drifting | deviating
         agree = pair & ~disagree

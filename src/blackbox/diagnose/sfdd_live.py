@@ -179,6 +179,10 @@ class SfddTap(ObserverBase):
         period = self.config.period
         if self._tick is None:
             self._tick = now
+        behind = int((now - self._tick) / period) - self._rows
+        if behind > 0:
+            # A gap longer than the window: only its last ``window`` rows can matter.
+            self._tick += behind * period
         while self._tick <= now:
             fresh = (self._tick - self._heard) <= self.config.stale_after
             self._buffer[self._next] = np.where(fresh, self._held, np.nan)
