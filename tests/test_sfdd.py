@@ -340,3 +340,15 @@ def test_a_long_gap_in_the_source_costs_one_window_not_the_gap() -> None:
     obs = tap.evaluate(1e7 + 0.5)
     assert {o.code for o in obs} == {Code.NOT_AVAILABLE}
     assert tap.window().shape == (20, 2)
+
+
+def test_recorder_logs_the_engine_and_the_agreement(tmp_path: Path) -> None:
+    from blackbox.record import Recorder, Store
+
+    rec = Recorder(tmp_path / "log.db", robot_id="r1", commit_interval=0.05, snapshot=None)
+    rec.on_diagnosis(Diagnosis(1_700_000_001.0, (frozenset({"/odometry"}),), (),
+                               "[hybrid: agree] ...", True, "hybrid", "agree"))
+    rec.close()
+    with Store.open(tmp_path / "log.db", readonly=True) as store:
+        (row,) = list(store.query(kinds=["diagnosis"]))
+    assert (row.payload["engine"], row.payload["agreement"]) == ("hybrid", "agree")
