@@ -17,7 +17,8 @@ from typing import TYPE_CHECKING, cast
 
 from blackbox.config.loader import LoadedConfig
 from blackbox.config.node import ConfigError
-from blackbox.diagnose.live import DiagnosisSettings, LiveDiagnoser
+from blackbox.diagnose.hybrid import make_diagnoser
+from blackbox.diagnose.live import DiagnosisSettings
 from blackbox.model import BlackBoxEvent, Observation
 from blackbox.observe.build import build_observers, load_config, load_config_text
 from blackbox.output.jsonlines import JsonLinesSink
@@ -66,6 +67,8 @@ class RunOptions:
     """Start a new log over a file at ``record`` that is not a health log (moved aside)."""
     dds: bool = False
     dds_domain: int | None = None
+    engine: str | None = None
+    """Diagnosis engine (``cbd``, ``sfdd``, ``hybrid``); ``None``: the configuration's."""
     extra_sinks: list[Sink] = field(default_factory=list)
 
 
@@ -137,8 +140,13 @@ def build(options: RunOptions) -> BlackBox:
         observers.append(recorder_probe(recorder))
     base_dir = Path(options.config).parent
     settings = DiagnosisSettings.from_config(config.sections.get("diagnosis"), base_dir)
-    diagnoser = (LiveDiagnoser(observers, settings)
-                 if options.diagnosis and settings.enabled else None)
+    diagnoser = None
+    if options.diagnosis and settings.enabled:
+        try:
+            diagnoser, extra = make_diagnoser(observers, settings, options.engine)
+        except ValueError as exc:
+            raise ConfigError(str(exc), str(options.config)) from None
+        observers.extend(extra)
     pipelines: list[Pipeline] = []
     if options.dds or "transport" in config.sections:
         sinks.append(open_dds(options, config, recorder,

@@ -138,6 +138,10 @@ class Diagnosis:
     ``candidates`` is best first; each candidate is a set of component names
     (nodes, topics or hardware behind a driver) assumed abnormal. An empty
     ``candidates`` tuple with no failed observations means all healthy.
+
+    ``engine`` says which method made it (``cbd``, ``sfdd`` or ``hybrid``, see
+    docs/diagnosis.md); ``agreement`` is the hybrid's word on whether CBD and SFDD agree
+    (empty for a single engine).
     """
 
     time: float
@@ -145,6 +149,8 @@ class Diagnosis:
     failed: tuple[Observation, ...] = ()
     explanation: str = ""
     complete: bool = True
+    engine: str = "cbd"
+    agreement: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -153,6 +159,8 @@ class Diagnosis:
             "failed": [o.to_dict() for o in self.failed],
             "explanation": self.explanation,
             "complete": self.complete,
+            "engine": self.engine,
+            "agreement": self.agreement,
         }
 
 

@@ -51,6 +51,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--mean-gap", type=float, default=CampaignSettings.mean_gap, metavar="S",
                    help="mean seconds between fault starts (default 10)")
     p.add_argument("--no-diagnosis", action="store_true", help="score observations only")
+    p.add_argument("--engine", choices=("cbd", "sfdd", "hybrid"), default=None,
+                   help="diagnosis engine (default: the configuration's diagnosis.engine); "
+                        "sfdd and hybrid need diagnosis.sfdd.signals")
     p.add_argument("--json", type=Path, default=None, metavar="OUT",
                    help="write settings, totals, per-kind and per-fault results as JSON")
     p.add_argument("--quiet", action="store_true", help="no per-run progress on stderr")
@@ -63,7 +66,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
             config=args.config, source=args.source, runs=args.runs, duration=args.duration,
             seed=args.seed, kinds=parse_kinds(args.kinds), grace=args.grace,
             separation=args.separation, mean_gap=args.mean_gap,
-            diagnosis=not args.no_diagnosis)
+            diagnosis=not args.no_diagnosis, engine=args.engine)
         settings.check()
         progress = None if args.quiet else _progress(settings.runs, sys.stderr)
         result = run_campaign(settings, progress)
@@ -71,6 +74,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     print_report(result, sys.stdout)
+    print_engine(result, sys.stdout)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result.to_dict(), indent=1) + "\n", encoding="utf-8")
@@ -188,6 +192,20 @@ def print_report(result: CampaignResult, out: TextIO) -> None:
         w("isolation per fault kind (top-1: first-ranked candidate names the fault; "
           "in candidates: some reported candidate names it)\n")
         _table(out, ("kind", "faults", "top-1", "rate", "in candidates", "rate"), rows)
+
+
+def print_engine(result: CampaignResult, out: TextIO) -> None:
+    """The engine's diagnoses scored as detections (docs/evaluation.md, engines)."""
+    totals = result.engine_totals()
+    if totals is None:
+        return
+    c, iso, delays, cpu = totals
+    engine = result.settings.engine or "configured"
+    out.write(f"\nengine {engine}: diagnoses as detections: TP {c.tp} FP {c.fp} FN {c.fn}, "
+              f"precision {_num(c.precision)}, recall {_num(c.recall)}, F1 {_num(c.f1)}, "
+              f"delay p50 {_secs(percentile(delays, 50))}, isolated top-1 "
+              f"{iso.isolated}/{iso.faults}, engine CPU {cpu:.2f} s over "
+              f"{len(result.runs)} runs\n")
 
 
 def _table(out: TextIO, header: tuple[str, ...], rows: Sequence[tuple[str, ...]]) -> None:

@@ -13,6 +13,9 @@ Configured by the native ``diagnosis:`` section::
       priors: {/usb_cam: 0.2, topic: 0.005}   # component names or kinds -> probability
       max_cardinality: 4        # largest diagnosis searched
       time_budget: 0.1          # seconds per re-diagnosis (anytime: best so far)
+      engine: cbd               # cbd | sfdd | hybrid (docs/diagnosis.md, "SFDD")
+      sfdd: {signals: [...]}    # SFDD's signals and settings (diagnose/sfdd_live.py)
+      hybrid: rank              # rank | verify: may SFDD withhold a CBD value alarm?
       propagation:              # how an input's fault reaches a node's outputs
         rate: learn             # learn | always | never: does a silent input silence the node?
         learn_after: 3.0        # seconds of "input silent, output at rate" before learning never
@@ -41,6 +44,7 @@ from blackbox.diagnose.robot_model import (
     ObservedResource,
     Propagation,
 )
+from blackbox.diagnose.sfdd_live import SfddConfig
 from blackbox.events import GraphSnapshot
 from blackbox.model import Diagnosis, Observation
 
@@ -53,13 +57,16 @@ class DiagnosisSettings:
     max_cardinality: int | None = 4
     time_budget: float = 0.1
     propagation: Propagation = field(default_factory=Propagation)
+    engine: str = "cbd"
+    sfdd: SfddConfig = field(default_factory=SfddConfig)
+    hybrid: str = "rank"
 
     @classmethod
     def from_config(cls, node: ConfigNode | None, base_dir: Path) -> DiagnosisSettings:
         if node is None:
             return cls()
         node.check_keys(["enabled", "model", "priors", "max_cardinality", "time_budget",
-                         "propagation"])
+                         "propagation", "engine", "sfdd", "hybrid"])
         enabled = node["enabled"].bool() if node.get("enabled") is not None else True
         model = None
         if node.get("model") is not None:
@@ -77,7 +84,15 @@ class DiagnosisSettings:
                   if node.get("time_budget") is not None else 0.1)
         propagation = (_propagation(node["propagation"]) if node.get("propagation")
                        is not None else Propagation())
-        return cls(enabled, model, priors, max_card, budget, propagation)
+        engine = (node["engine"].str(["cbd", "sfdd", "hybrid"]) if node.get("engine")
+                  is not None else "cbd")
+        sfdd = SfddConfig.from_config(node.get("sfdd"))
+        if engine != "cbd" and len(sfdd.signals) < 2:
+            raise node["engine"].error(f"engine {engine} needs diagnosis.sfdd.signals: two or "
+                                       "more numeric fields of topics")
+        hybrid = (node["hybrid"].str(["rank", "verify"]) if node.get("hybrid") is not None
+                  else "rank")
+        return cls(enabled, model, priors, max_card, budget, propagation, engine, sfdd, hybrid)
 
 
 def _modes(node: ConfigNode) -> NodePropagation:

@@ -17,6 +17,7 @@ from typing import Any, cast
 
 from blackbox.app import DEFAULT_CONFIG, RunOptions, build
 from blackbox.config.node import ConfigError
+from blackbox.evaluate.engine_score import diagnosis_observations
 from blackbox.evaluate.metrics import (
     DEFAULT_GRACE,
     THESIS_AFTER,
@@ -81,6 +82,8 @@ class CampaignSettings:
     warmup: float = 5.0
     tail: float = 5.0
     diagnosis: bool = True
+    engine: str | None = None
+    """``cbd``, ``sfdd`` or ``hybrid`` (``--engine``); ``None``: the configuration's."""
 
     def check(self) -> None:
         """Raise ``ValueError`` naming the bad option (``--runs: ...``)."""
@@ -103,6 +106,8 @@ class CampaignSettings:
                              "ground truth")
         if not self.kinds:
             raise ValueError("--kinds: no fault kinds")
+        if self.engine is not None and self.engine not in ("cbd", "sfdd", "hybrid"):
+            raise ValueError(f"--engine: expected cbd, sfdd or hybrid, got {self.engine!r}")
         unknown = [k for k in self.kinds if k not in FAULT_KINDS]
         if unknown:
             raise ValueError(f"--kinds: unknown fault kind {unknown[0]!r}")
@@ -111,7 +116,8 @@ class CampaignSettings:
         return {"config": str(self.config), "source": self.source, "runs": self.runs,
                 "duration": self.duration, "seed": self.seed, "kinds": list(self.kinds),
                 "grace": self.grace, "separation": self.separation, "mean_gap": self.mean_gap,
-                "warmup": self.warmup, "tail": self.tail, "diagnosis": self.diagnosis}
+                "warmup": self.warmup, "tail": self.tail, "diagnosis": self.diagnosis,
+                "engine": self.engine}
 
 
 class _Collector(SinkBase):
@@ -135,9 +141,19 @@ class RunResult:
     score: RunScore
     stats: RunStats
     wall: float
+    engine_score: RunScore | None = None
+    """The engine's diagnoses scored as detections (:mod:`.engine_score`)."""
+    engine_cpu: float | None = None
+    """CPU seconds of the diagnosis engine (and SFDD's signal tap) over the run; like
+    ``wall`` it varies between identical runs, so it is printed, not in :meth:`to_dict`."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"index": self.index, "seed": self.seed, **self.score.to_dict(),
+                "engine_score": None if self.engine_score is None else {
+                    "confusion": self.engine_score.confusion.to_dict(),
+                    "diagnosis": None if self.engine_score.diagnosis is None
+                    else self.engine_score.diagnosis.to_dict()},
+
                 "messages": self.stats.messages, "observations": self.stats.observations,
                 "faulty_observations": self.stats.faulty_observations,
                 "diagnoses": self.stats.diagnoses, "errors": self.stats.errors}
@@ -175,6 +191,19 @@ class CampaignResult:
 
     def delays(self) -> list[float]:
         return sorted(o.delay for o in self.outcomes if o.delay is not None)
+
+    def engine_totals(self) -> tuple[Confusion, DiagnosisScore, list[float], float] | None:
+        """The engine's detections summed over runs: confusion, isolation, delays, CPU s."""
+        scores = [r.engine_score for r in self.runs if r.engine_score is not None]
+        if not scores:
+            return None
+        confusion, iso = Confusion(), DiagnosisScore()
+        for s in scores:
+            confusion = confusion + s.confusion
+            if s.diagnosis is not None:
+                iso = iso + s.diagnosis
+        delays = sorted(d for s in scores for d in s.delays())
+        return confusion, iso, delays, sum(r.engine_cpu or 0.0 for r in self.runs)
 
     def to_dict(self) -> dict[str, Any]:
         delays = self.delays()
@@ -224,7 +253,7 @@ def run_one(settings: CampaignSettings, index: int) -> RunResult:
         box = build(RunOptions(config=Path(settings.config), source=settings.source,
                                duration=settings.duration, simulated_clock=True, faults=faults,
                                seed=seed, live=False, diagnosis=settings.diagnosis,
-                               extra_sinks=[sink]))
+                               extra_sinks=[sink], engine=settings.engine))
     except ConfigError as exc:
         if exc.file != "--source":
             raise
@@ -235,7 +264,18 @@ def run_one(settings: CampaignSettings, index: int) -> RunResult:
     score = score_run(robot.ground_truth, sink.observations, robot.topic_publishers(),
                       start=stats.started, end=stats.ended, grace=settings.grace,
                       diagnoses=sink.diagnoses if diagnosed else None)
-    return RunResult(index, seed, score, stats, time.perf_counter() - started)
+    engine_score = engine_cpu = None
+    if diagnosed:
+        publishers = robot.topic_publishers()
+        engine_score = score_run(
+            robot.ground_truth, diagnosis_observations(sink.diagnoses, publishers, stats.ended),
+            publishers, start=stats.started, end=stats.ended, grace=settings.grace,
+            diagnoses=sink.diagnoses)
+        engine_cpu = float(getattr(box.pipeline.diagnoser, "cpu_seconds", 0.0)) + sum(
+            float(getattr(o, "cpu_seconds", 0.0)) for o in box.pipeline.observers
+            if getattr(o, "type_name", "") == "sfdd")
+    return RunResult(index, seed, score, stats, time.perf_counter() - started, engine_score,
+                     engine_cpu)
 
 
 def run_campaign(settings: CampaignSettings,

@@ -417,6 +417,9 @@ class HealthMapper:
                                            for c in diagnosis.candidates)
         if not diagnosis.complete:
             info += " (search incomplete)"
+        info += f"; engine {diagnosis.engine}"
+        if diagnosis.agreement:
+            info += f" ({diagnosis.agreement})"
         t = datetime_of(diagnosis.time)
         return C_Failure_Event(
             A_sourceID=ident, A_timeOfDataGeneration=t, A_eventOccurrenceDate=t,

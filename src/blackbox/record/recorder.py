@@ -192,7 +192,9 @@ class Recorder(SinkBase):
             rows: list[Pending] = [Row(diagnosis.time, "diagnosis", None, None,
                                        {"candidates": [sorted(c) for c in cands],
                                         "failed": failed, "explanation": diagnosis.explanation,
-                                        "complete": diagnosis.complete})]
+                                        "complete": diagnosis.complete,
+                                        "engine": diagnosis.engine,
+                                        "agreement": diagnosis.agreement})]
             best = cands[0] if cands else frozenset()
             if best != self._last_failure:
                 payload: dict[str, Any] = {"components": sorted(best)}

@@ -132,12 +132,15 @@ def copy_message(message: Any) -> Any:
 
 @dataclass(frozen=True, slots=True)
 class ScalarModel:
-    """One numeric field: ``mean`` plus noise, uniform in +-``noise`` or gaussian (std)."""
+    """One numeric field: ``mean`` plus noise, uniform in +-``noise`` or gaussian (std),
+    plus ``gain * signal(t)`` for each ``(signal, gain)`` of ``follows`` (the robot's
+    motion signals, :mod:`.motion`)."""
 
     field: str
     mean: float
     noise: float = 0.0
     distribution: str = "uniform"
+    follows: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True, slots=True)

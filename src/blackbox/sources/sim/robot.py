@@ -282,6 +282,8 @@ class SimulatedSource:
             value = model.mean + state.values.gauss(0.0, model.noise)
         else:
             value = model.mean + state.values.uniform(-model.noise, model.noise)
+        for signal, gain in model.follows:
+            value += gain * self.topology.motion[signal].at(t - self.start_time)
         for fault, frozen in state.value_faults:
             if fault.kind == "offset":
                 value += fault.params["value"]
@@ -405,6 +407,7 @@ class SimulatedSource:
 
 BUILTIN_ROBOTS: Mapping[str, Path] = MappingProxyType({
     "thesis": Path(__file__).with_name("thesis.yaml"),
+    "diffdrive": Path(__file__).with_name("diffdrive.yaml"),
 })
 
 

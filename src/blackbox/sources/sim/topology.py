@@ -23,6 +23,7 @@ from .messages import (
     ros1_name,
     store_name,
 )
+from .motion import MotionSignal, motion_from_config
 
 THESIS_FILE = Path(__file__).with_name("thesis.yaml")
 
@@ -77,6 +78,7 @@ class Topology:
     interface: str = "eth0"
     definitions: Mapping[str, str] = field(default_factory=dict)
     store: Typestore = field(default=None, compare=False, repr=False)  # type: ignore[assignment]
+    motion: Mapping[str, MotionSignal] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "nodes", MappingProxyType(dict(self.nodes)))
@@ -89,6 +91,10 @@ class Topology:
 
     def _problem(self) -> str | None:
         for t in self.topics.values():
+            if isinstance(t.value, ScalarModel):
+                for signal, _ in t.value.follows:
+                    if signal not in self.motion:
+                        return f"topic {t.name}: follows unknown motion signal {signal}"
             if t.publisher not in self.nodes:
                 return f"topic {t.name}: unknown publisher node {t.publisher}"
             for s in t.subscribers:
@@ -122,7 +128,8 @@ class Topology:
 
     @classmethod
     def from_config(cls, root: ConfigNode) -> Topology:
-        root.check_keys(["name", "network", "nodes", "topics", "types"])
+        root.check_keys(["name", "network", "nodes", "topics", "types", "motion"])
+        motion = motion_from_config(root["motion"]) if root.get("motion") is not None else {}
         name = root["name"].str() if root.get("name") else "robot"
         interface = "eth0"
         net = root.get("network")
@@ -157,6 +164,12 @@ class Topology:
         topics: dict[str, TopicSpec] = {}
         for item in root["topics"].list():
             topic = _topic(item, nodes, store)
+            value = topic.value
+            if isinstance(value, ScalarModel):
+                for signal, _ in value.follows:
+                    if signal not in motion:
+                        raise item["value"]["follows"].error(
+                            f"unknown motion signal {signal!r}; define it under 'motion:'")
             if topic.name in topics:
                 raise item["name"].error(f"topic {topic.name} is defined twice")
             topics[topic.name] = topic
@@ -169,7 +182,7 @@ class Topology:
                 if node_name not in topics[r].subscribers:
                     raise r_item.error(f"{node_name} requires {r} but is not one of its "
                                        "subscribers")
-        return cls(name, nodes, topics, interface, definitions, store)
+        return cls(name, nodes, topics, interface, definitions, store, motion)
 
 
 def _graph_name(node: ConfigNode) -> str:
@@ -258,10 +271,14 @@ def _value(node: ConfigNode, store: Typestore, type_name: str, ros_type: str) ->
         if base not in ("uint8[]", "byte[]", "char[]"):
             raise where.error(f"{ros_type} has no uint8[] field {field_name!r}")
         return BytesModel(field_name, node["bytes"].int(min=0))
-    node.check_keys(["field", "mean", "noise", "distribution"])
+    node.check_keys(["field", "mean", "noise", "distribution", "follows"])
     if base not in _NUMERIC:
         raise where.error(f"{ros_type} has no numeric field {field_name!r}")
     noise = node["noise"].float(min=0.0) if node.get("noise") is not None else 0.0
     dist_node = node.get("distribution")
     dist = dist_node.str(["uniform", "gauss"]) if dist_node is not None else "uniform"
-    return ScalarModel(field_name, node["mean"].float(), noise, dist)
+    follows: tuple[tuple[str, float], ...] = ()
+    if node.get("follows") is not None:
+        follows = tuple((k, v.float()) for k, v in node["follows"].items())
+    mean = node["mean"].float() if node.get("mean") is not None else 0.0
+    return ScalarModel(field_name, mean, noise, dist, follows)
