@@ -344,8 +344,10 @@ def test_a_long_gap_in_the_source_costs_one_window_not_the_gap() -> None:
 
 def test_recorder_logs_the_engine_and_the_agreement(tmp_path: Path) -> None:
     from blackbox.record import Recorder, Store
+    from blackbox.record.settings import RecorderSettings
 
-    rec = Recorder(tmp_path / "log.db", robot_id="r1", commit_interval=0.05, snapshot=None)
+    rec = Recorder(RecorderSettings(tmp_path / "log.db", commit_interval=0.05, snapshot=None),
+                   robot_id="r1")
     rec.on_diagnosis(Diagnosis(1_700_000_001.0, (frozenset({"/odometry"}),), (),
                                "[hybrid: agree] ...", True, "hybrid", "agree"))
     rec.close()
