@@ -48,6 +48,13 @@ def parse_header(buf: bytes | memoryview) -> dict[str, bytes]:
     return fields
 
 
+def start_after_header(view: memoryview, pos: int) -> int:
+    """End of the record at ``pos`` in ``view`` (its header length already fits)."""
+    hlen: int = _U32.unpack_from(view, pos)[0]
+    dlen: int = _U32.unpack_from(view, pos + 4 + hlen)[0]
+    return pos + 8 + hlen + dlen
+
+
 class Ros1BagScanner:
     """Items of one bag in file order; ``scan()`` raises :class:`BagCorrupt` at damage."""
 
@@ -63,12 +70,18 @@ class Ros1BagScanner:
                 raise BagCorrupt(str(self.path), 0, "not a ROS 1 bag (no '#ROSBAG V2.0' line)")
             offset = len(MAGIC)
             while offset < self.size:
-                op, header, data = self._record(fh, offset)
-                yield from self._handle(op, header, data, offset)
+                op, header, data, complete = self._record(fh, offset)
+                if complete:
+                    yield from self._handle(op, header, data, offset)
+                else:
+                    yield from self._chunk(header, data, offset, complete=False)
                 offset = fh.tell()
                 self.bytes_read = offset
 
-    def _record(self, fh: BinaryIO, offset: int) -> tuple[int, dict[str, bytes], bytes]:
+    def _record(self, fh: BinaryIO, offset: int
+                ) -> tuple[int, dict[str, bytes], bytes, bool]:
+        """One record at ``offset``: op, header, data and whether the data is complete
+        (only a chunk may be cut off: its complete messages are still worth reading)."""
         head = fh.read(4)
         if len(head) < 4:
             self._cut(offset, "record header length cut off")
@@ -79,18 +92,18 @@ class Ros1BagScanner:
             header = parse_header(fh.read(hlen))
         except ValueError as exc:
             raise BagCorrupt(str(self.path), offset, f"bad record header: {exc}") from None
+        op_b = header.get("op")
+        if op_b is None or len(op_b) != 1:
+            raise BagCorrupt(str(self.path), offset, "record header has no 'op' field")
         dlen_b = fh.read(4)
         if len(dlen_b) < 4:
             self._cut(offset, "record data length cut off")
         (dlen,) = _U32.unpack(dlen_b)
-        if offset + 8 + hlen + dlen > self.size:
+        complete = offset + 8 + hlen + dlen <= self.size
+        if not complete and op_b[0] != OP_CHUNK:
             self._cut(offset, f"record of {8 + hlen + dlen:,} bytes runs past the end of "
                               f"the file ({self.size:,} bytes)")
-        data = fh.read(dlen)
-        op_b = header.get("op")
-        if op_b is None or len(op_b) != 1:
-            raise BagCorrupt(str(self.path), offset, "record header has no 'op' field")
-        return op_b[0], header, data
+        return op_b[0], header, fh.read(dlen), complete
 
     def _cut(self, offset: int, reason: str) -> None:
         raise BagCorrupt(str(self.path), offset, reason)
@@ -108,25 +121,39 @@ class Ros1BagScanner:
         elif op not in (OP_BAG_HEADER, OP_INDEX, OP_CHUNK_INFO):
             raise BagCorrupt(str(self.path), offset, f"unknown record op {op:#04x}")
 
-    def _chunk(self, header: dict[str, bytes], data: bytes, offset: int) -> Iterator[Item]:
+    def _chunk(self, header: dict[str, bytes], data: bytes, offset: int,
+               complete: bool = True) -> Iterator[Item]:
+        """The records of a chunk; of a chunk the file ends inside, the complete ones
+        before the cut (decompressed as far as the data goes), then :class:`BagCorrupt`."""
         compression = header.get("compression", b"none").decode("ascii", "replace")
         try:
             if compression == "none":
                 raw = data
             elif compression == "bz2":
-                raw = bz2.decompress(data)
+                raw = bz2.BZ2Decompressor().decompress(data)
             elif compression == "lz4":
-                import lz4.frame
+                import lz4.frame  # type: ignore[import-untyped]
 
-                raw = lz4.frame.decompress(data)
+                raw = lz4.frame.LZ4FrameDecompressor().decompress(data)
             else:
                 raise ValueError(f"unknown chunk compression {compression!r}")
         except Exception as exc:
             raise BagCorrupt(str(self.path), offset, f"chunk does not decompress: {exc}"
                              ) from None
-        view = memoryview(raw)
+        if not complete:
+            yield from self._chunk_records(memoryview(raw), offset, stop_at_cut=True)
+            raise BagCorrupt(str(self.path), offset,
+                             f"the file ({self.size:,} bytes) ends inside this chunk; its "
+                             "complete messages before the cut were read")
+        yield from self._chunk_records(memoryview(raw), offset)
+
+    def _chunk_records(self, view: memoryview, offset: int,
+                       stop_at_cut: bool = False) -> Iterator[Item]:
         pos, end = 0, len(view)
         while pos < end:
+            if stop_at_cut and (pos + 8 > end or pos + 8 + _U32.unpack_from(view, pos)[0] > end
+                                or start_after_header(view, pos) > end):
+                return
             try:
                 if pos + 4 > end:
                     raise ValueError("record cut off")
