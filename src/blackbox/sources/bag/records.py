@@ -9,9 +9,10 @@ offset, after yielding everything before it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, eq=False)
 class RecordedTopic:
     """A topic as the file describes it.
 
@@ -20,7 +21,8 @@ class RecordedTopic:
     ``definition_format`` says its language: ``msg`` (ROS 1 ``message_definition`` or ROS 2
     ``ros2msg``, both ``.msg`` text with ``MSG:`` sections), ``idl`` or ``jsonschema``.
     ``publisher`` is the node that published it where the file records one (ROS 1 bags:
-    the connection's ``callerid``), else ``None``.
+    the connection's ``callerid``), else ``None``. Each connection or channel of a file is
+    one object, compared by identity (two connections may describe the same topic).
     """
 
     name: str
@@ -32,10 +34,9 @@ class RecordedTopic:
     publisher: str | None = None
 
 
-@dataclass(frozen=True, slots=True)
-class RecordedMessage:
-    """One message: its topic, its publisher (``None`` if not recorded), the time it was
-    recorded (nanoseconds since the epoch) and its serialized bytes."""
+class RecordedMessage(NamedTuple):
+    """One message: the time it was recorded (nanoseconds since the epoch), its topic
+    (connection) and its serialized bytes. A tuple: replay makes millions of them."""
 
     time_ns: int
     topic: RecordedTopic

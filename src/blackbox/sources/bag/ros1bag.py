@@ -25,6 +25,10 @@ except connection records' message definitions, which stay far below)."""
 
 _U32 = struct.Struct("<I")
 _TIME = struct.Struct("<II")
+_OP_MESSAGE_FIELD = b"\x04\x00\x00\x00op=\x02"
+_CONN_FIELD = b"\x09\x00\x00\x00conn="
+_TIME_FIELD = b"\x0d\x00\x00\x00time="
+MESSAGE_HEADER_LEN = 3 * 4 + 4 + 9 + 13
 
 
 def parse_header(buf: bytes | memoryview) -> dict[str, bytes]:
@@ -154,6 +158,11 @@ class Ros1BagScanner:
             if stop_at_cut and (pos + 8 > end or pos + 8 + _U32.unpack_from(view, pos)[0] > end
                                 or start_after_header(view, pos) > end):
                 return
+            message = self._fast_message(view, pos, end)
+            if message is not None:
+                yield message[0]
+                pos = message[1]
+                continue
             try:
                 if pos + 4 > end:
                     raise ValueError("record cut off")
@@ -180,6 +189,30 @@ class Ros1BagScanner:
                 if topic is not None:
                     yield topic
             pos = start + dlen
+
+    def _fast_message(self, view: memoryview, pos: int, end: int
+                      ) -> tuple[RecordedMessage, int] | None:
+        """A message record with the usual three header fields (op, conn, time) in any
+        order, read without building a header dict; ``None`` for anything else."""
+        if pos + 8 + MESSAGE_HEADER_LEN > end or \
+                _U32.unpack_from(view, pos)[0] != MESSAGE_HEADER_LEN:
+            return None
+        head = view[pos + 4:pos + 4 + MESSAGE_HEADER_LEN].tobytes()
+        c = head.find(_CONN_FIELD)
+        t = head.find(_TIME_FIELD)
+        if c < 0 or t < 0 or _OP_MESSAGE_FIELD not in head:
+            return None
+        (conn,) = _U32.unpack_from(head, c + len(_CONN_FIELD))
+        topic = self._conns.get(conn)
+        if topic is None:
+            return None
+        sec, nsec = _TIME.unpack_from(head, t + len(_TIME_FIELD))
+        start = pos + 8 + MESSAGE_HEADER_LEN
+        (dlen,) = _U32.unpack_from(view, start - 4)
+        if start + dlen > end:
+            return None
+        return (RecordedMessage(sec * 1_000_000_000 + nsec, topic, view[start:start + dlen]),
+                start + dlen)
 
     def _connection(self, header: dict[str, bytes], data: bytes,
                     offset: int) -> RecordedTopic | None:

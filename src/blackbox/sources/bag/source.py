@@ -15,9 +15,9 @@ resource or network samples are produced.
 
 from __future__ import annotations
 
-import heapq
 import logging
 import time
+from collections import deque
 from collections.abc import Iterator
 from functools import partial
 from pathlib import Path
@@ -100,8 +100,10 @@ class BagSource:
         self.capabilities = Capabilities(simulated_clock=True, replay=True,
                                          snapshot_format=fmt)
         self._items: Iterator[Item] | None = self._scanner.scan()
-        self._heap: list[tuple[int, int, RecordedMessage | BlackBoxEvent]] = []
-        self._seq = 0
+        # Read-ahead in file order; sorted by time (stable) before handing out when a
+        # message came out of order (rare: timsort on nearly sorted data is linear).
+        self._pending: deque[tuple[int, RecordedMessage | BlackBoxEvent]] = deque()
+        self._unsorted = False
         self._read_ns = -1  # time of the last message read from the file
         self._first_ns: int | None = None
         self._start_ns = None if start_time is None else round(start_time * 1e9)
@@ -144,19 +146,23 @@ class BagSource:
                 time.sleep(wait)
         until_ns = int(until * 1e9)
         self._fill(until_ns + REORDER_NS)
+        pending = self._pending
+        if self._unsorted:
+            self._pending = pending = deque(sorted(pending, key=_stamp))
+            self._unsorted = False
         events: list[Event] = []
-        heap = self._heap
-        while heap and heap[0][0] <= until_ns:
-            stamp, _, item = heapq.heappop(heap)
-            if isinstance(item, BlackBoxEvent):
-                events.append(item)
+        emit = self._emit
+        while pending and pending[0][0] <= until_ns:
+            stamp, item = pending.popleft()
+            if type(item) is RecordedMessage:
+                emit(stamp, item, events)
             else:
-                self._emit(stamp, item, events)
+                events.append(item)  # type: ignore[arg-type]
         self._clock = max(self._clock, until)
         return events
 
     def exhausted(self) -> bool:
-        return self._items is None and not self._heap
+        return self._items is None and not self._pending
 
     def schema(self, topic: str) -> TopicSchema | None:
         recorded = self._topics.get(topic)
@@ -166,7 +172,7 @@ class BagSource:
         if self._items is not None:
             self._items.close()  # type: ignore[attr-defined]
             self._items = None
-        self._heap.clear()
+        self._pending.clear()
 
     @property
     def bytes_read(self) -> int:
@@ -179,7 +185,7 @@ class BagSource:
         items = self._items
         if items is None:
             return
-        heap = self._heap
+        pending = self._pending
         start_ns = self._start_ns
         try:
             while self._read_ns <= horizon_ns:
@@ -192,9 +198,11 @@ class BagSource:
                 self.messages_read += 1
                 if self._first_ns is None:
                     self._first_ns = stamp
-                self._read_ns = max(self._read_ns, stamp)
-                self._seq += 1
-                heapq.heappush(heap, (stamp, self._seq, item))
+                if stamp < self._read_ns:
+                    self._unsorted = True
+                else:
+                    self._read_ns = stamp
+                pending.append((stamp, item))
                 if first_only:
                     return
         except StopIteration:
@@ -204,8 +212,7 @@ class BagSource:
             self.corruption = exc
             log.error("%s; the %d messages before it are replayed", exc, self.messages_read)
             at_ns = max(self._read_ns, self._first_ns or 0, start_ns or 0)
-            self._seq += 1
-            heapq.heappush(heap, (at_ns, self._seq, BlackBoxEvent(
+            pending.append((at_ns, BlackBoxEvent(
                 at_ns / 1e9, "bag_corrupt",
                 f"{exc}; the {self.messages_read:,} messages before it were replayed",
                 str(self.path))))
@@ -252,6 +259,10 @@ class BagSource:
         topics = {n: TopicInfo(n, self._topics[n].type, tuple(sorted(pubs)))
                   for n, pubs in self._shown.items()}
         events.append(GraphSnapshot(t, {}, topics))
+
+
+def _stamp(entry: tuple[int, object]) -> int:
+    return entry[0]
 
 
 def _decode(decoder: Decoder, data: bytes | memoryview) -> object:
