@@ -359,3 +359,22 @@ def test_the_cli_replays_a_bag_and_writes_observations_on_the_recorded_clock(
                           "sim:thesis", "--rate", "2", "--quiet", "--duration", "1"],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "not a recording" in bad.stderr
+
+
+def test_a_snapshot_the_recorder_took_during_a_fault_replays_with_the_fault_in_it(
+        tmp_path: Path) -> None:
+    faults = tmp_path / "faults.yaml"
+    faults.write_text("faults:\n  - {kind: offset, component: /signal, start: 10, end: 20, "
+                      "value: 5}\n")
+    build(RunOptions(source="sim:thesis", simulated_clock=True, duration=30.0,
+                     faults=str(faults), record=tmp_path / "bb.db", live=False)).run()
+    (snapshot,) = (tmp_path / "bb.db.snapshots").iterdir()
+    config = tmp_path / "signal.yaml"
+    config.write_text(SIGNAL_CONFIG)
+    sink = Collect()
+    build(RunOptions(config=config, source=f"bag:{snapshot}", simulated_clock=True,
+                     live=False, extra_sinks=[sink])).run()
+    scores = [(o.time, o.code) for o in sink.observations if o.observer == "scores"]
+    assert any(code == Code.GENERAL_OK for t, code in scores if t < 10.0)
+    assert any(code < 0 for t, code in scores if t > 11.0)
+    assert not [e for e in sink.events if e.kind.startswith("bag_")]
