@@ -355,6 +355,12 @@ def test_the_cli_replays_a_bag_and_writes_observations_on_the_recorded_clock(
     assert records and min(times) > T0 and max(times) < T0 + 12
     assert {r["observer"] for r in records} == {"scores"}
     assert records[-1]["code_name"] == "GENERAL_OK"
+    truncated_copy(bag, tmp_path / "cut.bag", 0.5)
+    cut = subprocess.run([sys.executable, "-m", "blackbox", "run", "--config", str(config),
+                          "--source", f"bag:{tmp_path / 'cut.bag'}", "--simulated-clock",
+                          "--quiet"], capture_output=True, text=True, timeout=120)
+    assert cut.returncode == 0 and "cut.bag: corrupt or truncated at byte " in cut.stderr
+    assert "messages before it are replayed" in cut.stderr
     bad = subprocess.run([sys.executable, "-m", "blackbox", "run", "--source",
                           "sim:thesis", "--rate", "2", "--quiet", "--duration", "1"],
                          capture_output=True, text=True, timeout=60)
