@@ -51,6 +51,8 @@ class RunOptions:
     source: str = "sim:thesis"
     duration: float | None = None
     simulated_clock: bool = False
+    rate: float | None = None
+    """A recording's replay speed in real time (recorded seconds per second)."""
     observations: Path | None = None
     diagnoses: Path | None = None
     events: Path | None = None
@@ -104,7 +106,7 @@ def source_options(options: RunOptions) -> SourceOptions:
     if faults == "random":
         faults = RandomFaults(options.duration if options.duration is not None else 3600.0)
     return SourceOptions(realtime=not options.simulated_clock, seed=options.seed,
-                         faults=faults)
+                         faults=faults, rate=options.rate)
 
 
 def open_robot(options: RunOptions) -> Source:

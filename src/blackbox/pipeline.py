@@ -19,7 +19,7 @@ import traceback
 from collections import defaultdict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, cast
 
 from blackbox.events import (
     Event,
@@ -33,7 +33,7 @@ from blackbox.events import (
 from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource
 from blackbox.observe.base import Observer
 from blackbox.sinks import Sink
-from blackbox.sources.base import Source
+from blackbox.sources.base import ReplaySource, Source
 
 
 class Diagnoser(Protocol):
@@ -149,9 +149,11 @@ class Pipeline:
                                        f"with {len(self.observers)} observers"))
 
     def run(self, duration: float | None = None, stop: threading.Event | None = None) -> RunStats:
-        """Run until ``duration`` seconds of source time have passed or ``stop`` is set."""
+        """Run until ``duration`` seconds of source time have passed, ``stop`` is set or a
+        recording (a ``replay`` source) has run out."""
         self.start()
         end = None if duration is None else self.stats.started + duration
+        replay = self.source.capabilities.replay
         tick = 1.0
         try:
             while not (stop is not None and stop.is_set()):
@@ -160,6 +162,8 @@ class Pipeline:
                     until = end
                 self.step(until)
                 if end is not None and until >= end:
+                    break
+                if replay and cast(ReplaySource, self.source).exhausted():
                     break
         finally:
             self.close()

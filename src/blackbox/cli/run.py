@@ -46,11 +46,15 @@ def add_run_arguments(p: argparse.ArgumentParser, default_config: Path = DEFAULT
     p.add_argument("--config", type=Path, default=default_config,
                    help="native or tug_observers YAML (default: the thesis robot's observers)")
     p.add_argument("--source", default="sim:thesis",
-                   help="sim:thesis, sim:TOPOLOGY.yaml, ros1 or ros1://HOST:PORT")
+                   help="sim:thesis, sim:TOPOLOGY.yaml, ros1, ros1://HOST:PORT or bag:FILE "
+                        "(a ROS 1 bag, rosbag2 directory or MCAP file; docs/bags.md)")
     p.add_argument("--duration", type=positive_seconds, default=None, metavar="S",
                    help="stop after S seconds of source time (default: until Ctrl-C)")
     p.add_argument("--simulated-clock", action="store_true",
-                   help="run a simulated source as fast as possible instead of in real time")
+                   help="run a simulated source or a bag as fast as possible instead of in "
+                        "real time")
+    p.add_argument("--rate", type=float, default=None, metavar="X",
+                   help="bag only: replay in real time at X recorded seconds per second")
     p.add_argument("--faults", default=None, metavar="FILE|random",
                    help="simulator only: a fault schedule YAML, or 'random' for a seeded campaign")
     p.add_argument("--seed", type=int, default=1, help="seed of the simulator and its faults")
@@ -78,7 +82,7 @@ def add_run_arguments(p: argparse.ArgumentParser, default_config: Path = DEFAULT
 def options_from_args(args: argparse.Namespace) -> RunOptions:
     return RunOptions(
         config=args.config, source=args.source, duration=args.duration,
-        simulated_clock=args.simulated_clock, observations=args.observations,
+        simulated_clock=args.simulated_clock, rate=args.rate, observations=args.observations,
         diagnoses=args.diagnoses, events=args.events, live=not args.quiet,
         faults=args.faults, seed=args.seed, ground_truth=args.ground_truth,
         record=args.record, force_record=args.force, dds=args.dds, dds_domain=args.domain,

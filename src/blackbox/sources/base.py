@@ -42,6 +42,7 @@ __all__ = [
     "NetworkSample",
     "NodeInfo",
     "RandomFaults",
+    "ReplaySource",
     "ResourceSample",
     "Source",
     "SourceKind",
@@ -59,13 +60,16 @@ class Capabilities:
 
     ``simulated_clock``: it can run on its own clock, faster than real time.
     ``fault_injection``: it injects faults it is given. ``ground_truth``: it knows the
-    faults it injected (see :class:`GroundTruthSource`). ``snapshot_format``: the format
-    the recorder writes its raw messages in (``ros1`` bags or ``mcap``).
+    faults it injected (see :class:`GroundTruthSource`). ``replay``: it is a recording
+    that ends by itself (see :class:`ReplaySource`) and plays in real time at
+    ``SourceOptions.rate``. ``snapshot_format``: the format the recorder writes its raw
+    messages in (``ros1`` bags or ``mcap``).
     """
 
     simulated_clock: bool = False
     fault_injection: bool = False
     ground_truth: bool = False
+    replay: bool = False
     snapshot_format: Literal["ros1", "mcap"] = "mcap"
 
 
@@ -87,10 +91,13 @@ FaultPlan = str | Path | RandomFaults | Sequence["Fault"] | None
 @dataclass(frozen=True, slots=True)
 class SourceOptions:
     """How to open a source. Only a source with the matching capability takes ``faults``
-    or ``realtime=False``; ``start_time`` ``None`` means the wall clock in real time, else 0."""
+    or ``realtime=False``; ``start_time`` ``None`` means the wall clock in real time, else 0
+    (a recording: its first message). Only a ``replay`` source takes a ``rate``: recorded
+    seconds per real second in real time (``None``: 1)."""
 
     realtime: bool = True
     start_time: float | None = None
+    rate: float | None = None
     seed: int = 1
     faults: FaultPlan = None
 
@@ -128,6 +135,14 @@ class GroundTruthSource(Source, Protocol):
 
     def topic_publishers(self) -> Mapping[str, str]:
         """Each topic's publisher node, for scoring observations against the faults."""
+        ...
+
+
+class ReplaySource(Source, Protocol):
+    """A recording (``capabilities.replay``): it runs out, and then the run is over."""
+
+    def exhausted(self) -> bool:
+        """True once every recorded event has been returned by ``poll``."""
         ...
 
 
