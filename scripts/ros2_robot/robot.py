@@ -144,6 +144,17 @@ class ParameterClient:
         if not future.done():
             raise TimeoutError(f"{node} did not answer set_parameters")
 
+    def wait_for_node(self, name: str, timeout: float) -> bool:
+        """Wait until ``name`` shows in this node's view of the graph (bounded)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            names = {f"{ns.rstrip('/')}/{n}" for n, ns in
+                     self.node.get_node_names_and_namespaces()}
+            if name in names:
+                return True
+            time.sleep(0.1)
+        return False
+
     def close(self) -> None:
         self.node.destroy_node()
         self._rclpy.shutdown(context=self.context)

@@ -135,7 +135,7 @@ class Ros2Graph:
 
     def publisher_name(self, writer_guid: str, now: float = float("inf"),
                        grace: float = 0.0) -> str | None:
-        """The node of a writer, else ``dds:<participant guid>`` for a non-ROS writer;
+        """The node of a writer (or reader), else ``dds:<participant guid>`` for a non-ROS one;
         ``None`` while its participant has not yet said which nodes it holds (for at most
         ``grace`` seconds after it appeared)."""
         node = self.node_of_endpoint.get(writer_guid)

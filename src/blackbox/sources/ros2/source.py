@@ -459,7 +459,11 @@ class Ros2Source:
         self._check_processes()
         self._show_endpoints(now)
         self._ensure_readers()
+        grace = self.settings.node_info_grace
         for w, r, why in graph.incompatible_pairs():
+            if (graph.publisher_name(w.guid, now, grace) is None
+                    or graph.publisher_name(r.guid, now, grace) is None):
+                continue  # named once both nodes are known
             pub, sub = graph.node_name_of_pair(w, r)
             self._report("qos_incompatible", w.topic or "",
                          f"publisher {pub} and subscriber {sub} on {w.topic} cannot "
