@@ -22,6 +22,7 @@ cycle, so the fault injector changes them at run time with a plain ROS 2
 from __future__ import annotations
 
 import argparse
+import contextlib
 import random
 import time
 
@@ -136,7 +137,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    try:
+    with contextlib.suppress(KeyboardInterrupt, ExternalShutdownException):
         main()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
