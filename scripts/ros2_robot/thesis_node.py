@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import random
+import threading
 import time
 
 import rclpy
@@ -49,7 +50,11 @@ def _qos(reliability: str, depth: int = 10) -> QoSProfile:
 
 
 class Paced:
-    """Calls ``tick`` at the node's ``rate`` parameter, re-read every cycle (0 = paused)."""
+    """Calls ``tick`` at the node's ``rate`` parameter, re-read every cycle (0 = paused).
+
+    Callbacks (subscriptions, parameter services) run in a spinning thread of their own,
+    so a node receiving a lot still answers ``set_parameters`` at once.
+    """
 
     def __init__(self, node: Node, tick, rate: float) -> None:
         self.node = node
@@ -58,8 +63,8 @@ class Paced:
         self.next_t = time.monotonic()
 
     def run(self) -> None:
+        threading.Thread(target=_spin, args=(self.node,), daemon=True).start()
         while rclpy.ok():
-            rclpy.spin_once(self.node, timeout_sec=0)
             hz = float(self.node.get_parameter("rate").value)
             if hz > 0:
                 self.tick()
@@ -68,12 +73,14 @@ class Paced:
                 self.next_t += 0.1
             delay = self.next_t - time.monotonic()
             if delay > 0:
-                rclpy.spin_once(self.node, timeout_sec=delay)
-                delay = self.next_t - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
+                time.sleep(delay)
             else:
                 self.next_t = time.monotonic()
+
+
+def _spin(node: Node) -> None:
+    with contextlib.suppress(ExternalShutdownException, RuntimeError):
+        rclpy.spin(node)
 
 
 def main() -> None:
