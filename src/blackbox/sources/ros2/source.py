@@ -196,6 +196,19 @@ class Ros2Source:
         self._participant: DomainParticipant | None = None
         self._ready = threading.Event()
         self._start_error: BaseException | None = None
+        self._configure_domain()
+
+    def _configure_domain(self) -> None:
+        """Configure Cyclone's domain now, when the source is opened: a DDS sink of the
+        same process opened later (UCMS transport, ``/diagnostics``) then shares this
+        configuration, which Fast DDS interop needs."""
+        config = cyclone_config_for_ros2(self.settings.cyclone_config)
+        try:
+            self._domain = Domain(self.domain_id, config)
+        except DDSException:  # this process already runs the domain
+            log.warning("DDS domain %d was opened earlier in this process; its configuration "
+                        "may lack the Fast DDS compatibility setting (%s)", self.domain_id,
+                        IGNORE_TYPE_INFORMATION)
 
     @classmethod
     def from_spec(cls, spec: str, settings: Ros2Settings | None = None) -> Ros2Source:
@@ -267,12 +280,6 @@ class Ros2Source:
     # ---- the DDS thread --------------------------------------------------------------------
 
     def _open(self) -> None:
-        config = cyclone_config_for_ros2(self.settings.cyclone_config)
-        try:
-            self._domain = Domain(self.domain_id, config)
-        except DDSException:  # this process already runs the domain (e.g. the transport)
-            log.info("domain %d already configured in this process; using it",
-                     self.domain_id)
         dp = self._participant = DomainParticipant(self.domain_id)
         self.graph.own_participants.add(str(dp.guid))
         self._dcps_participants = BuiltinDataReader(dp, BuiltinTopicDcpsParticipant)
