@@ -16,7 +16,9 @@ cycle, so the fault injector changes them at run time with a plain ROS 2
   (std_msgs/Float64, offset + scale * (15 +- 0.5 uniform)) at 15 Hz
 - listener: ``/listener`` subscribes to ``--topic`` (std_msgs/Float64) and prints a line
   per message (tests use it to make an incompatible-QoS pair)
-- load: ``/load_publishers`` publishes Float64 on ``/load/t0`` ... at ``--rate`` each
+- load: ``--name`` (default ``load_publishers``) publishes Float64 on ``/NAME/t0`` ... at
+  ``--rate`` each; with ``--report FILE`` it writes how many rounds it published and over
+  how many seconds, once a second
 """
 
 from __future__ import annotations
@@ -91,8 +93,11 @@ def main() -> None:
                         default="reliable")
     parser.add_argument("--topic", default="/signal")
     parser.add_argument("--topics", type=int, default=100)
+    parser.add_argument("--name", default=None)
+    parser.add_argument("--report", default=None)
     args, _ = parser.parse_known_args()
     name, default_rate = ROLES[args.role]
+    name = args.name or name
     rate = default_rate if args.rate is None else args.rate
     rclpy.init()
     node = Node(name)
@@ -132,13 +137,21 @@ def main() -> None:
                                  lambda m: print(f"heard {m.data}", flush=True), qos)
         rclpy.spin(node)
     else:
-        pubs = [node.create_publisher(Float64, f"/load/t{i}", qos) for i in range(args.topics)]
+        pubs = [node.create_publisher(Float64, f"/{name}/t{i}", qos)
+                for i in range(args.topics)]
         count = [0]
+        began = time.monotonic()
+        reported = [began]
 
         def load() -> None:
             count[0] += 1
             for p in pubs:
                 p.publish(Float64(data=float(count[0])))
+            now = time.monotonic()
+            if args.report and now - reported[0] >= 1.0:
+                reported[0] = now
+                with open(args.report, "w") as f:
+                    f.write(f"{count[0]} {now - began:.3f}\n")
 
         Paced(node, load, rate).run()
 
