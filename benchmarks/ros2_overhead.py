@@ -24,6 +24,7 @@ CPU is the process's user+system time over the measuring window divided by the w
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import random
@@ -141,7 +142,12 @@ def published(reports: list[Path]) -> float:
 
 
 def rounds(reports: list[Path]) -> int:
-    return sum(int(r.read_text().split()[0]) for r in reports if r.exists() and r.read_text())
+    """Rounds published so far, summed over the publishers (files replaced atomically)."""
+    total = 0
+    for r in reports:
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            total += int(r.read_text().split()[0])
+    return total
 
 
 def load_phase(seconds: float, warmup: float, work: Path, topics: int, rate: float,
@@ -189,16 +195,54 @@ def load_phase(seconds: float, warmup: float, work: Path, topics: int, rate: flo
         finally:
             stop(bb)
         received = summary_rate(log)
+        got, sent = keep_up(domain, [f"/{n}/t{i}" for n in names for i in range(per)],
+                            reports, per, warmup, seconds)
         usage.note = (f"{per * processes} topics x {rate:g} Hz from {processes} rclpy "
                       f"processes: published {alone:.0f} msg/s alone, {watched:.0f} msg/s "
                       f"while watched; black box received "
                       f"{received or 0:.0f} msg/s over its whole run incl. discovery; "
-                      f"publishers used {pub_cpu:.0f} % CPU")
+                      f"publishers used {pub_cpu:.0f} % CPU; the source alone (in-process) "
+                      f"counted {got:,} of {sent:,} messages published in a {seconds:g} s window")
         out.append(usage)
     finally:
         for x in pubs:
             stop(x)
     return out
+
+
+def keep_up(domain: int, topics: list[str], reports: list[Path], per: int, warmup: float,
+            seconds: float) -> tuple[int, int]:
+    """Messages the ROS 2 source received vs published in the same window (publishers'
+    report files are written ten times a second; the window is aligned on their updates)."""
+    from blackbox.events import Interest, MessageArrival
+    from blackbox.sources.ros2 import Ros2Source
+
+    source = Ros2Source(domain)
+    source.start(Interest(frozenset(topics)))
+    try:
+        source.poll(time.time() + warmup)
+        start_rounds = _wait_report(reports)
+        source.poll(time.time())
+        got = 0
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            got += sum(isinstance(e, MessageArrival) for e in source.poll(time.time() + 0.1))
+        end_rounds = _wait_report(reports)
+        got += sum(isinstance(e, MessageArrival) for e in source.poll(time.time()))
+        sent = (end_rounds - start_rounds) * per
+    finally:
+        source.close()
+    return got, sent
+
+
+def _wait_report(reports: list[Path]) -> int:
+    """The publishers' round count right after they next update it."""
+    before = {r: r.stat().st_mtime_ns for r in reports}
+    deadline = time.monotonic() + 3
+    while time.monotonic() < deadline and any(r.stat().st_mtime_ns == before[r]
+                                              for r in reports):
+        time.sleep(0.005)
+    return rounds(reports)
 
 
 def main(argv: list[str] | None = None) -> int:

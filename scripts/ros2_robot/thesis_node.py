@@ -18,13 +18,14 @@ cycle, so the fault injector changes them at run time with a plain ROS 2
   per message (tests use it to make an incompatible-QoS pair)
 - load: ``--name`` (default ``load_publishers``) publishes Float64 on ``/NAME/t0`` ... at
   ``--rate`` each; with ``--report FILE`` it writes how many rounds it published and over
-  how many seconds, once a second
+  how many seconds, ten times a second
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import random
 import threading
 import time
@@ -148,10 +149,11 @@ def main() -> None:
             for p in pubs:
                 p.publish(Float64(data=float(count[0])))
             now = time.monotonic()
-            if args.report and now - reported[0] >= 1.0:
+            if args.report and now - reported[0] >= 0.1:
                 reported[0] = now
-                with open(args.report, "w") as f:
+                with open(args.report + ".tmp", "w") as f:
                     f.write(f"{count[0]} {now - began:.3f}\n")
+                os.replace(args.report + ".tmp", args.report)
 
         Paced(node, load, rate).run()
 
