@@ -165,10 +165,10 @@ def main(argv: list[str] | None = None) -> int:
     injector = Injector(robot, params, args.truth)
     try:
         robot.start()
-        print(json.dumps(robot.pids(), sort_keys=True), flush=True)
         for node in NODES:
             if not params.wait_for_node(node, 30):
                 raise RuntimeError(f"{node} did not join the ROS 2 graph within 30 s")
+        print(json.dumps(robot.pids(), sort_keys=True), flush=True)  # the robot is up
         finish = time.monotonic() + args.duration
         sleep(args.warmup)
         while not stop["now"] and time.monotonic() < finish:

@@ -137,6 +137,10 @@ def two_process_demo(args: argparse.Namespace, out: Path) -> int:
     elif args.source == "ros2":
         ros2_domain = (domain + 1) % 233
         processes.append(start_ros2_robot(args, out, ros2_domain))
+        deadline = time.monotonic() + 30  # until the injector says the nodes are up
+        while (time.monotonic() < deadline and processes[-1].poll() is None
+               and not (out / "robot.log").read_text().strip()):
+            time.sleep(0.2)
     log = (out / "blackbox.log").open("w")
     box = subprocess.Popen(
         [*blackbox, "run", *run_arguments(args, out, args.duration, port, ros2_domain), "--dds",
