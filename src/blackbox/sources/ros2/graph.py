@@ -42,6 +42,8 @@ class Participant:
     nodes: tuple[str, ...] = ()
     why_dead: str = ""
     first_seen: float = 0.0
+    ros: bool = False
+    """It announced a ROS 2 enclave (``enclave=`` user data), so it will list its nodes."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,15 +78,19 @@ class Ros2Graph:
     # ---- updates ---------------------------------------------------------------------------
 
     def participant_seen(self, guid: str, pid: int | None, host: str | None,
-                         local: bool, now: float) -> Participant | None:
+                         local: bool, now: float, ros: bool = False) -> Participant | None:
         if guid in self.own_participants:
             return None
         p = self.participants.get(guid)
         if p is None or p.pid is None:
             nodes = p.nodes if p is not None else ()
             p = self.participants[guid] = Participant(guid, True, pid, host, local, nodes,
-                                                      first_seen=now)
+                                                      first_seen=now, ros=ros)
         return p
+
+    def unnamed(self) -> list[Participant]:
+        """Live ROS 2 participants that have not yet said which nodes they hold."""
+        return [p for p in self.participants.values() if p.ros and p.alive and not p.nodes]
 
     def participant_gone(self, guid: str, why: str) -> None:
         p = self.participants.get(guid)

@@ -105,7 +105,8 @@ class Ros2Settings:
     new participant are held back until it says which nodes it holds (ROS 2 announces
     that on ``ros_discovery_info``, which reaches a late joiner only after the writer's
     next heartbeat, about 3 s with Fast DDS; messages meanwhile are not reported, so that
-    no publisher is ever reported under a wrong name), the event queue's
+    no publisher is ever reported under a wrong name; the first graph snapshot waits for
+    that too, and for ``discovery_settle`` seconds of discovery), the event queue's
     bound, each topic reader's history depth, the Cyclone configuration (``None``: see
     :func:`cyclone_config_for_ros2`) and the type store (``None``: ROS 2 Kilted's)."""
 
@@ -113,6 +114,7 @@ class Ros2Settings:
     resource_period: float = 1.0
     no_participant_grace: float = 3.0
     node_info_grace: float = 5.0
+    discovery_settle: float = 1.0
     queue_limit: int = 200_000
     reader_depth: int = 100
     cyclone_config: str | None = None
@@ -190,6 +192,7 @@ class Ros2Source:
         self._reported: set[tuple[str, ...]] = set()
         self._alive_nodes: dict[str, bool] = {}
         self._unattributed = 0
+        self._graph_ready = False
         self._machine_id = _machine_id()
         self._hostname = socket.gethostname()
         self._domain: Domain | None = None
@@ -444,7 +447,12 @@ class Ros2Source:
                 self._procs.pop(guid, None)
                 graph.participant_gone(guid, "its participant left the DDS domain")
                 continue
-            self._participant_seen(guid, _properties(getattr(s, "qos", None)), now)
+            qos = getattr(s, "qos", None)
+            props = _properties(qos)
+            userdata = qos[Policy.Userdata] if qos is not None else None
+            props["__user_data"] = bytes(getattr(userdata, "data", b"") or b"").decode(
+                "utf-8", "replace")
+            self._participant_seen(guid, props, now)
         for reader, writer in ((self._dcps_writers, True), (self._dcps_readers, False)):
             for s in reader.take(_TAKE_BATCH * 4):
                 if not _alive(s):
@@ -482,6 +490,15 @@ class Ros2Source:
                          f"{now - started:.0f} s: is the robot running, on this domain "
                          "(ROS_DOMAIN_ID), and does its discovery reach this machine "
                          "(ROS_AUTOMATIC_DISCOVERY_RANGE, loopback)?", "no_participants")
+        if not self._graph_ready:
+            # The first snapshot waits until discovery settled and every ROS 2 participant
+            # named its nodes (bounded): until then observers say "no graph yet" instead
+            # of "node not running".
+            settled = now - started >= self.settings.discovery_settle
+            self._graph_ready = (settled and not graph.unnamed()) or (
+                now - started >= self.settings.node_info_grace)
+            if not self._graph_ready:
+                return
         snapshot = graph.snapshot(now)
         self._node_transitions(snapshot)
         self._push(snapshot)
@@ -503,7 +520,8 @@ class Ros2Source:
         hostname = props.get("__Hostname")
         local = (bool(host_id) and host_id == self._machine_id) or hostname == self._hostname
         host = self._hostname if local else (hostname or host_id)
-        p = self.graph.participant_seen(guid, pid, host, local, now)
+        p = self.graph.participant_seen(guid, pid, host, local, now,
+                                        ros="enclave=" in props.get("__user_data", ""))
         if p is None or not local or pid is None or guid in self._procs:
             return
         try:
