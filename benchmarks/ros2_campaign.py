@@ -11,9 +11,11 @@ through ``blackbox.app.build``, default configuration = the thesis's ten observe
 once they are in the graph, then faults of the thesis kinds (kill, stall, rate, offset,
 scale; ``scripts/ros2_robot/inject.py``) are injected one at a time with random lengths
 and exponential gaps, none in the last ``--tail`` seconds. Each run is scored with
-``blackbox.evaluate.metrics.score_run`` (grace 2 s): a fault is detected when a faulty
-episode of an observer of its components starts inside it; a faulty episode on a
-component that overlaps no fault is a false positive.
+``blackbox.evaluate.metrics.score_run`` (grace 2 s) from ``--startup`` seconds after the
+black box started (before that it has no graph yet and says so with NOT_AVAILABLE, which
+the metrics count as faulty; the first fault comes after ``--warmup``): a fault is
+detected when a faulty episode of an observer of its components starts inside it; a
+faulty episode on a component that overlaps no fault is a false positive.
 """
 
 from __future__ import annotations
@@ -106,8 +108,8 @@ def one_run(args: argparse.Namespace, index: int, domain: int, work: Path) -> Ru
         params.close()
         robot.stop()
     time.sleep(0.5)
-    with sink.lock:
-        observations = list(sink.observations)
+    with sink.lock:  # the black box's own start-up (no graph yet) is not the robot's fault
+        observations = [o for o in sink.observations if o.time >= started + args.startup]
         diagnoses = list(sink.diagnoses)
     return score_run(truth, observations, TOPICS, start=started, end=ended,
                      grace=args.grace, diagnoses=diagnoses)
@@ -130,6 +132,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--separation", type=float, default=5.0)
     parser.add_argument("--warmup", type=float, default=10.0)
     parser.add_argument("--tail", type=float, default=5.0)
+    parser.add_argument("--startup", type=float, default=5.0,
+                        help="seconds of the black box's start-up left out of the score")
     parser.add_argument("--grace", type=float, default=DEFAULT_GRACE)
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
