@@ -193,6 +193,7 @@ class Ros2Source:
         self._alive_nodes: dict[str, bool] = {}
         self._unattributed = 0
         self._graph_ready = False
+        self._handed_out = 0.0
         self._machine_id = _machine_id()
         self._hostname = socket.gethostname()
         self._domain: Domain | None = None
@@ -239,6 +240,7 @@ class Ros2Source:
         events = self._held
         self._held = []
         with self._lock:
+            self._handed_out = max(self._handed_out, until)
             events.extend(self._queue)
             self._queue.clear()
             dropped, self._dropped = self._dropped, 0
@@ -265,6 +267,8 @@ class Ros2Source:
 
     def _push(self, event: Event) -> None:
         with self._lock:
+            if event.time < self._handed_out and not isinstance(event, MessageArrival):
+                event = dataclasses.replace(event, time=self._handed_out)  # keep time order
             if len(self._queue) < self.settings.queue_limit:
                 self._queue.append(event)
             else:
@@ -357,6 +361,10 @@ class Ros2Source:
         stamp = time.time()
         decoded = tr.decodable and tr.topic in self._interest.decoded
         arrivals: list[MessageArrival] = []
+        # Several samples taken at once arrived at different times: keep the spacing their
+        # writers gave them (source timestamps), ending at the time of the take.
+        last_sent = max((info.source_timestamp for _, info in batch if info.valid_data),
+                        default=0)
         for data, info in batch:
             if not info.valid_data:
                 continue
@@ -366,9 +374,13 @@ class Ros2Source:
                 continue
             raw = bytes(data)
             decode = partial(_decode, store, raw, tr.ros_type) if decoded else None
-            arrivals.append(MessageArrival(stamp, tr.topic, publisher, max(0, len(raw) - 4),
+            arrived = max(stamp - min(1.0, max(0, last_sent - info.source_timestamp) / _NS),
+                          self._handed_out)
+            arrivals.append(MessageArrival(arrived, tr.topic, publisher, max(0, len(raw) - 4),
                                            decode=decode, raw=partial(_identity, raw)))
         with self._lock:
+            for a in arrivals:  # never before what poll already handed out
+                a.time = max(a.time, self._handed_out)
             room = self.settings.queue_limit - len(self._queue)
             self._queue.extend(arrivals[:max(0, room)])
             self._dropped += max(0, len(arrivals) - max(0, room))
