@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import random
 import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -15,7 +17,23 @@ from blackbox.events import Event, GraphSnapshot, Interest, MessageArrival
 from blackbox.model import BlackBoxEvent
 from blackbox.sources.ros2 import Ros2Settings, Ros2Source
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros2_robot"))
+ROBOT_SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "ros2_robot" / "robot.py"
+
+
+def _load_robot() -> ModuleType:
+    """``scripts/ros2_robot/robot.py`` under a name of its own: the ROS 1 tests import
+    ``scripts/ros1_robot/robot.py`` as ``robot``."""
+    name = "ros2_thesis_robot"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, ROBOT_SCRIPT)
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+ros2_robot = _load_robot()
 
 try:
     import rclpy  # noqa: F401

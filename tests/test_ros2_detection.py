@@ -16,7 +16,7 @@ from blackbox.app import RunOptions
 from blackbox.model import Observation, Resource
 from blackbox.sinks import SinkBase
 from conftest import black_box_running, wait_for
-from ros2_support import fresh_domain, needs_rclpy
+from ros2_support import fresh_domain, needs_rclpy, ros2_robot
 
 pytestmark = [pytest.mark.ros2, needs_rclpy]
 
@@ -56,13 +56,11 @@ class Collected(SinkBase):
 
 @pytest.fixture
 def running(tmp_path: Path) -> Iterator[tuple[object, object, Collected]]:
-    from robot import ParameterClient, ThesisRobot2
-
     domain = fresh_domain()
     config = tmp_path / "observers.yaml"
     config.write_text(CONFIG)
-    robot = ThesisRobot2(domain, log_dir=tmp_path / "logs").start()
-    params = ParameterClient(domain)
+    robot = ros2_robot.ThesisRobot2(domain, log_dir=tmp_path / "logs").start()
+    params = ros2_robot.ParameterClient(domain)
     sink = Collected()
     options = RunOptions(config=config, source=f"ros2:{domain}", live=False,
                          extra_sinks=[sink])

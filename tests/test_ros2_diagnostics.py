@@ -15,7 +15,7 @@ from blackbox.app import RunOptions
 from blackbox.health.status import Health
 from blackbox.output.diagnostics import LEVEL_OF_HEALTH
 from conftest import black_box_running
-from ros2_support import fresh_domain, needs_rclpy
+from ros2_support import fresh_domain, needs_rclpy, ros2_robot
 
 CONFIG = """
 version: 1
@@ -49,13 +49,12 @@ def _spin_until(client: Any, condition: Callable[[], bool], timeout: float) -> b
 @pytest.mark.ros2
 def test_a_killed_node_shows_ok_then_error_on_diagnostics(tmp_path: Path) -> None:
     from diagnostic_msgs.msg import DiagnosticArray
-    from robot import ParameterClient, ThesisRobot2
 
     domain = fresh_domain()
     config = tmp_path / "observers.yaml"
     config.write_text(CONFIG)
-    robot = ThesisRobot2(domain, log_dir=tmp_path / "logs").start(["/audio_capture"])
-    client = ParameterClient(domain)
+    robot = ros2_robot.ThesisRobot2(domain, log_dir=tmp_path / "logs").start(["/audio_capture"])
+    client = ros2_robot.ParameterClient(domain)
     levels: list[tuple[float, int, str]] = []
 
     def heard(msg: DiagnosticArray) -> None:

@@ -16,7 +16,7 @@ from blackbox.sources import open_source
 from blackbox.sources.ros2 import Ros2Settings, Ros2Source, domain_id_from_spec
 from blackbox.sources.ros2.idl import IdlTypes, ros_type_name
 from blackbox.sources.ros2.qos import EndpointQos, incompatibilities
-from ros2_support import Watched, fresh_domain, needs_rclpy
+from ros2_support import Watched, fresh_domain, needs_rclpy, ros2_robot
 
 THESIS_TOPICS = frozenset({"/usb_cam/image_raw", "/audio", "/signal"})
 
@@ -62,9 +62,7 @@ def domain() -> int:
 
 @pytest.fixture
 def robot(domain: int, tmp_path: Path) -> Iterator[object]:
-    from robot import ThesisRobot2
-
-    r = ThesisRobot2(domain, log_dir=tmp_path / "logs")
+    r = ros2_robot.ThesisRobot2(domain, log_dir=tmp_path / "logs")
     try:
         yield r
     finally:
@@ -80,11 +78,10 @@ def _watch(domain: int, **kw: object) -> Watched:
 @pytest.mark.ros2
 def test_graph_arrivals_values_and_resources_of_the_thesis_robot_without_joining_it(
         robot, domain: int) -> None:
-    from robot import ParameterClient
 
     robot.start()
     watched = _watch(domain)
-    observer = ParameterClient(domain)
+    observer = ros2_robot.ParameterClient(domain)
     try:
         assert watched.until(lambda: all(len(watched.arrivals(t)) >= 10
                                          for t in THESIS_TOPICS), 20)
