@@ -71,6 +71,8 @@ class RunOptions:
     dds_domain: int | None = None
     engine: str | None = None
     """Diagnosis engine (``cbd``, ``sfdd``, ``hybrid``); ``None``: the configuration's."""
+    publish_diagnostics: bool = False
+    """Publish the verdicts on ROS 2 ``/diagnostics`` (see ``docs/ros2.md``)."""
     extra_sinks: list[Sink] = field(default_factory=list)
 
 
@@ -135,6 +137,8 @@ def build(options: RunOptions) -> BlackBox:
         sinks.append(JsonLinesSink(options.events, observations=False, diagnoses=False))
     sinks.extend(options.extra_sinks)
     source = open_robot(options)
+    if options.publish_diagnostics:
+        sinks.append(open_ros_diagnostics(options, config))
     recorder = None
     if options.record is not None or "recorder" in config.sections:
         recorder = open_recorder(options, config, source)
@@ -197,6 +201,20 @@ def open_dds(options: RunOptions, config: LoadedConfig, recorder: Recorder | Non
         kwargs.setdefault("log_store_path", recorder.path)
     descriptions = [describe_observer(entry) for entry in config.observers]
     return DdsHealthSink(config.robot_id, descriptions=descriptions, on_ibit=on_ibit, **kwargs)
+
+
+def open_ros_diagnostics(options: RunOptions, config: LoadedConfig) -> Sink:
+    """The ``/diagnostics`` publisher, on the watched ROS 2 domain (else ROS_DOMAIN_ID)."""
+    import os
+
+    from blackbox.health.describe import describe_observer
+    from blackbox.output.diagnostics import RosDiagnosticsSink
+    from blackbox.sources.ros2 import domain_id_from_spec
+
+    spec = options.source if options.source.split(":", 1)[0] == "ros2" else "ros2"
+    domain = domain_id_from_spec(spec, os.environ)
+    return RosDiagnosticsSink(config.robot_id, domain_id=domain,
+                              descriptions=[describe_observer(e) for e in config.observers])
 
 
 def open_recorder(options: RunOptions, config: LoadedConfig, source: Source) -> Recorder:

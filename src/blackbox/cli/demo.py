@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib.util
 import os
 import secrets
 import signal
@@ -39,10 +40,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--fast", action="store_true",
                    help="simulated clock, in one process: five robot minutes in a few seconds")
     p.add_argument("--seed", type=int, default=7)
-    p.add_argument("--source", choices=["sim", "ros1"], default="sim",
+    p.add_argument("--source", choices=["sim", "ros1", "ros2"], default="sim",
                    help="sim: the simulated thesis robot (default); ros1: the real thesis robot "
                    "as rospy nodes under Debian's ROS 1 (scripts/ros1_robot), faults injected "
-                   "on the real processes")
+                   "on the real processes; ros2: the same as rclpy nodes on ROS 2 "
+                   "(scripts/ros2_robot, needs the ros-rclpy wheels of the test extra)")
     p.add_argument("--domain", type=int, default=None,
                    help="DDS domain of the demo (default: derived from the process id)")
     p.add_argument("--out", type=Path, default=Path("out/demo"),
@@ -66,8 +68,11 @@ ROS1_CONFIG = Path(__file__).resolve().parent.parent / "configs" / "thesis.yaml"
 
 
 def run_arguments(args: argparse.Namespace, out: Path, duration: float | None,
-                  port: int | None = None, config: Path | None = None) -> list[str]:
-    if port is None:
+                  port: int | None = None, config: Path | None = None,
+                  ros2_domain: int | None = None) -> list[str]:
+    if ros2_domain is not None:
+        robot = ["--config", str(config or ROS1_CONFIG), "--source", f"ros2:{ros2_domain}"]
+    elif port is None:
         robot = ["--config", str(config or DEMO_CONFIG), "--source", "sim:thesis", "--faults",
                  "random", "--seed", str(args.seed), "--ground-truth",
                  str(out / "ground_truth.jsonl")]
@@ -117,6 +122,24 @@ def start_ros1_robot(args: argparse.Namespace, out: Path) -> tuple[subprocess.Po
     return robot, port
 
 
+ROS2_ROBOT = ROS1_ROBOT.parent.parent / "ros2_robot" / "inject.py"
+
+
+def start_ros2_robot(args: argparse.Namespace, out: Path, domain: int
+                     ) -> subprocess.Popen[bytes]:
+    """The three rclpy thesis nodes and their fault injector on ROS 2 domain ``domain``."""
+    if not ROS2_ROBOT.exists():
+        raise SystemExit("demo --source ros2 needs a source checkout (scripts/ros2_robot)")
+    if importlib.util.find_spec("rclpy") is None:
+        raise SystemExit("demo --source ros2 needs the ros-rclpy wheels (pip install -e '.[test]')")
+    return subprocess.Popen(
+        [sys.executable, str(ROS2_ROBOT), "--domain", str(domain), "--duration",
+         str(args.duration if args.duration is not None else 24 * 3600.0), "--seed",
+         str(args.seed), "--truth", str(out / "ground_truth.jsonl"),
+         "--log-dir", str(out / "ros2-logs")],
+        stdout=(out / "robot.log").open("w"), stderr=subprocess.STDOUT)
+
+
 def _interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
@@ -131,7 +154,7 @@ def two_process_demo(args: argparse.Namespace, out: Path) -> int:
     processes: list[subprocess.Popen[bytes]] = []
     db = out / "station.db"
     user, password = demo_account(db)
-    key, config = station_trusted_by(ROS1_CONFIG if args.source == "ros1" else DEMO_CONFIG,
+    key, config = station_trusted_by(DEMO_CONFIG if args.source == "sim" else ROS1_CONFIG,
                                      out, "demo-station")
     ready = out / "station.url"
     ready.unlink(missing_ok=True)
@@ -139,17 +162,26 @@ def two_process_demo(args: argparse.Namespace, out: Path) -> int:
     station_log = (out / "station.log").open("w")
     box: subprocess.Popen[bytes] | None = None
     try:
-        port = None
+        port = ros2_domain = None
         if args.source == "ros1":
             ros1, port = start_ros1_robot(args, out)
             processes.append(ros1)
             time.sleep(2.0)  # let the nodes register before the black box looks
+        elif args.source == "ros2":
+            ros2_domain = (domain + 1) % 233
+            processes.append(start_ros2_robot(args, out, ros2_domain))
+            deadline = time.monotonic() + 30  # until the injector says the nodes are up
+            while (time.monotonic() < deadline and processes[-1].poll() is None
+                   and not (out / "robot.log").read_text().strip()):
+                time.sleep(0.2)
         box = subprocess.Popen(
-            [*blackbox, "run", *run_arguments(args, out, args.duration, port, config), "--dds",
-             "--domain", str(domain), "--quiet"], stdout=log, stderr=subprocess.STDOUT)
+            [*blackbox, "run", *run_arguments(args, out, args.duration, port, config,
+                                              ros2_domain),
+             "--dds", "--domain", str(domain), "--quiet"], stdout=log, stderr=subprocess.STDOUT)
         processes.append(box)
-        what = ("the simulated thesis robot" if port is None
-                else f"the ROS 1 thesis robot (:{port})")
+        what = ("the simulated thesis robot" if port is None and ros2_domain is None else
+                f"the ROS 1 thesis robot (:{port})" if port is not None else
+                f"the ROS 2 thesis robot (domain {ros2_domain})")
         station = subprocess.Popen(
             [*blackbox, "station", "--db", str(db), "--key", str(key), "--domain", str(domain),
              "--bind",

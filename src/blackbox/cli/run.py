@@ -76,6 +76,10 @@ def add_run_arguments(p: argparse.ArgumentParser, default_config: Path = DEFAULT
                    help="publish UCMS health over DDS (loopback unless configured; docs/health.md)")
     p.add_argument("--domain", type=domain_id, default=None, metavar="ID",
                    help="DDS domain id (default: transport.domain_id, else 0)")
+    p.add_argument("--publish-diagnostics", action="store_true",
+                   help="also publish the verdicts as diagnostic_msgs/DiagnosticArray on ROS 2 "
+                        "/diagnostics (domain of --source ros2:N, else $ROS_DOMAIN_ID; "
+                        "docs/ros2.md)")
     p.add_argument("--quiet", action="store_true", help="no live status view")
 
 
@@ -86,6 +90,7 @@ def options_from_args(args: argparse.Namespace) -> RunOptions:
         diagnoses=args.diagnoses, events=args.events, live=not args.quiet,
         faults=args.faults, seed=args.seed, ground_truth=args.ground_truth,
         record=args.record, force_record=args.force, dds=args.dds, dds_domain=args.domain,
+        publish_diagnostics=args.publish_diagnostics,
     )
 
 
