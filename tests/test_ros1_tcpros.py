@@ -192,3 +192,19 @@ def test_remote_and_dead_nodes_have_no_resource_numbers_but_a_reason() -> None:
     assert far.cpu_percent is None and far.memory_bytes is None
     assert "runs on host 192.0.2.7" in far.reason
     assert "not in the ROS graph" in gone.reason
+
+
+def test_caller_ids_are_unique_per_source_and_ros_names() -> None:
+    from blackbox.sources.ros1.callerid import unique_caller_id, valid_caller_id
+    from blackbox.sources.ros1.source import split_caller_id
+
+    a, b = unique_caller_id(host="my-pi.local", pid=42), unique_caller_id(host="my-pi.local",
+                                                                          pid=42)
+    assert a.startswith("/blackbox_my_pi_local_42_") and a != b
+    assert valid_caller_id(a) and valid_caller_id(b)
+    with pytest.raises(ValueError):
+        unique_caller_id("blackbox")
+    assert split_caller_id("ros1://h:1?caller_id=/bb_front") == ("ros1://h:1", "/bb_front")
+    for bad in ("ros1://h:1?caller_id=bb", "ros1://h:1?callerid=/bb", "ros1://h:1?caller_id="):
+        with pytest.raises(ConfigError):
+            split_caller_id(bad)

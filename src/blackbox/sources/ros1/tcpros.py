@@ -29,7 +29,8 @@ from typing import Any, cast
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from blackbox.events import MessageArrival, TopicSchema
-from blackbox.sources.ros1.master import CALLER_ID, Report, RosApi, RosApiError
+from blackbox.sources.ros1.callerid import unique_caller_id
+from blackbox.sources.ros1.master import Report, RosApi, RosApiError
 
 log = logging.getLogger("blackbox.sources.ros1")
 
@@ -333,13 +334,16 @@ class Handshake:
     header: dict[str, str]
 
 
-def connect(publisher_uri: str, topic: str, timeout: float = 1.0,
+def connect(publisher_uri: str, topic: str, caller_id: str, timeout: float = 1.0,
             header_cap: int = MAX_HEADER_BYTES) -> Handshake:
-    """Ask the publisher for ``topic`` over TCPROS and exchange headers.
+    """Ask the publisher for ``topic`` over TCPROS as ``caller_id`` and exchange headers.
+
+    A rospy publisher keeps one connection per caller id, so every black box must give
+    its own (see :mod:`blackbox.sources.ros1.callerid`).
 
     Raises :class:`RosApiError`, :class:`HeaderError` or :class:`OSError` with a reason.
     """
-    proto = RosApi(publisher_uri, timeout).call("requestTopic", CALLER_ID, topic, [["TCPROS"]])
+    proto = RosApi(publisher_uri, timeout).call("requestTopic", caller_id, topic, [["TCPROS"]])
     if not (isinstance(proto, list) and len(proto) >= 3 and proto[0] == "TCPROS"
             and isinstance(proto[1], str) and isinstance(proto[2], int)):
         raise HeaderError(f"requestTopic {topic} on {publisher_uri}: no TCPROS endpoint "
@@ -348,7 +352,7 @@ def connect(publisher_uri: str, topic: str, timeout: float = 1.0,
     sock = socket.create_connection((host, port), timeout=timeout)
     try:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.sendall(encode_header({"callerid": CALLER_ID, "topic": topic, "md5sum": "*",
+        sock.sendall(encode_header({"callerid": caller_id, "topic": topic, "md5sum": "*",
                                     "type": "*", "tcp_nodelay": "1"}))
         (size,) = _LEN.unpack(_recv_exact(sock, 4))
         if size > header_cap:
@@ -396,8 +400,10 @@ class TcprosSubscriber:
                  max_message_bytes: Mapping[str, int], on_message: Callable[[MessageArrival],
                  None], report: Report, connect_timeout: float = 1.0,
                  backoff_min: float = 0.1, backoff_max: float = 2.0,
-                 default_max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES) -> None:
+                 default_max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
+                 caller_id: str | None = None) -> None:
         self.topics = topics | decoded
+        self.caller_id = caller_id or unique_caller_id()
         self.decoded = decoded
         self._caps = dict(max_message_bytes)
         self._default_cap = default_max_bytes
@@ -462,7 +468,7 @@ class TcprosSubscriber:
 
     def _connect(self, key: StreamKey, uri: str) -> None:
         try:
-            hs = connect(uri, key.topic, self._timeout)
+            hs = connect(uri, key.topic, self.caller_id, self._timeout)
         except (RosApiError, HeaderError, OSError, struct.error) as exc:
             self._failed(key, f"cannot subscribe to {key.topic} from {key.publisher}: "
                               f"{exc or type(exc).__name__}")
