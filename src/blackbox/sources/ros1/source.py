@@ -128,6 +128,7 @@ class Ros1Source:
         self._lock = threading.Lock()
         self._queue_limit = settings.queue_limit
         self._dropped = 0
+        self._floor = 0.0
         self._held: list[Event | BlackBoxEvent] = []
         self._stop = threading.Event()
         self._poller = GraphPoller(master_uri, self._report,
@@ -158,7 +159,8 @@ class Ros1Source:
         self._subscriber = TcprosSubscriber(
             interest.topics, interest.decoded, interest.max_message_bytes, self._push_message,
             self._report, backoff_min=self._backoff[0], backoff_max=self._backoff[1],
-            default_max_bytes=self._default_cap, caller_id=self.caller_id)
+            default_max_bytes=self._default_cap, caller_id=self.caller_id,
+            on_batch=self._push_batch)
         self._subscriber.start()
         self._thread = threading.Thread(target=self._graph_loop, name="ros1-graph",
                                         daemon=True)
@@ -175,6 +177,7 @@ class Ros1Source:
         events = self._held
         self._held = []
         with self._lock:  # every event stamped before this instant is in the queue
+            self._floor = max(self._floor, until)
             while queue:
                 events.append(queue.popleft())
         if self._dropped:
@@ -203,13 +206,25 @@ class Ros1Source:
     # ---- background ------------------------------------------------------------------------
 
     def _push_message(self, msg: MessageArrival) -> None:
-        """Stamp and queue under one lock, so ``poll`` never misses an earlier event."""
+        self._push_batch([msg])
+
+    def _push_batch(self, batch: list[MessageArrival]) -> None:
+        """Queue the arrivals of one read under one lock.
+
+        They carry the kernel's receive time, which may be a little before the last
+        ``until`` ``poll`` already handed out; such a stamp is raised to that ``until`` so
+        events keep coming in time order.
+        """
         with self._lock:
-            if len(self._queue) < self._queue_limit:
-                msg.time = time.time()
-                self._queue.append(msg)
-            else:
-                self._dropped += 1
+            floor = self._floor
+            room = self._queue_limit - len(self._queue)
+            if room < len(batch):
+                self._dropped += len(batch) - max(0, room)
+                batch = batch[:max(0, room)]
+            for msg in batch:
+                if msg.time < floor:
+                    msg.time = floor
+            self._queue.extend(batch)
 
     def _push(self, make: Callable[[float], Event | BlackBoxEvent]) -> None:
         with self._lock:
