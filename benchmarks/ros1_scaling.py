@@ -16,7 +16,8 @@ std_msgs/Float64 topics at ``R`` Hz, then ``blackbox run`` with one hz observer 
 - messages received (``blackbox run``'s closing summary) against messages published
   (the publishers' own counters);
 - every hz reading (``rate_hz``) against the publisher's true rate over the same second,
-  and how many observations were faulty (a healthy run has none).
+  and how many observations were faulty (a healthy run has none) and how many readings
+  counted a silence as a provisional period (``prov``).
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ class Case:
     rate_error_max_pct: float
     readings: int
     faulty: int
+    provisional: int
     load_average: float
 
 
@@ -94,6 +96,8 @@ def _sent_between(rows: list[tuple[float, int]], t0: float, t1: float) -> float:
         for (ta, na), (tb, nb) in itertools.pairwise(rows):
             if ta <= t <= tb:
                 return na + (nb - na) * (t - ta) / (tb - ta)
+        if rows and t > rows[-1][0]:
+            return float(rows[-1][1])  # a publisher too busy to report: its last count
         raise ValueError(f"no publisher count around {t:.3f}")
     return at(t1) - at(t0)
 
@@ -161,7 +165,7 @@ def run_case(topics: int, rate: float, seconds: float, warmup: float, work: Path
         received = int(m.group(2).replace(",", "")) / float(m.group(1).replace(",", ""))
         published = sum(n * _sent_between(_sent(out), w0, w1) for _, out, n in pubs) / (w1 - w0)
         errors: list[float] = []
-        faulty = 0
+        faulty = provisional = 0
         rows = {out: _sent(out) for _, out, _ in pubs}
         topic_rows = {name: rows[pubs[p][1]] for p, (_, _, n) in enumerate(pubs)
                       for name in [f"/pace{p}/t{i}" for i in range(n)]}
@@ -172,6 +176,7 @@ def run_case(topics: int, rate: float, seconds: float, warmup: float, work: Path
             if o.get("observer") != "hz" or not (w0 <= t <= w1):
                 continue
             faulty += bool(o["faulty"])
+            provisional += "provisional" in o.get("message", "")
             hz = o["values"].get("rate_hz")
             if hz is None:
                 continue
@@ -181,7 +186,8 @@ def run_case(topics: int, rate: float, seconds: float, warmup: float, work: Path
         return Case(topics, rate, w1 - w0, cpu, 100.0 * (pc1 - pc0) / (w1 - w0), published,
                     received, 1e6 * (c1 - c0) / max(1.0, received * (w1 - w0)),
                     statistics.median(errors) if errors else float("nan"),
-                    max(errors) if errors else float("nan"), len(errors), faulty, load)
+                    max(errors) if errors else float("nan"), len(errors), faulty, provisional,
+                    load)
     finally:
         for proc, _, _ in pubs:
             _stop(proc, group=True)
@@ -193,7 +199,8 @@ def _print(name: str, c: Case) -> None:
           f"{c.published_per_s:10.0f} {c.received_per_s:10.0f} "
           f"{c.received_per_s / c.published_per_s:8.3f} {c.us_cpu_per_message:7.1f} "
           f"{c.rate_error_median_pct:8.2f} / {c.rate_error_max_pct:7.2f} "
-          f"{c.faulty:3d}/{c.readings:<3d} {c.load_average:5.2f}", flush=True)
+          f"{c.faulty:3d}/{c.readings:<3d} {c.provisional:4d} {c.load_average:5.2f}",
+          flush=True)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -210,7 +217,8 @@ def main(argv: list[str] | None = None) -> int:
     cases = [(int(t), float(r)) for t, r in (c.split("x") for c in args.cases.split(","))]
     results: list[Case] = []
     print(f"{'case':>17} {'bb CPU':>7} {'pub CPU':>7} {'published':>10} {'received':>10} "
-          f"{'recv/pub':>8} {'us/msg':>7} {'rate err med/max %':>18} {'faulty':>7} {'load':>5}")
+          f"{'recv/pub':>8} {'us/msg':>7} {'rate err med/max %':>18} {'faulty':>7} "
+          f"{'prov':>4} {'load':>5}")
     with tempfile.TemporaryDirectory(prefix="ros1-scaling-") as tmp:
         variants: list[tuple[str, Path | None]] = [("", None)]
         if args.before is not None:

@@ -147,14 +147,13 @@ def latency(args: argparse.Namespace) -> int:
             time.sleep(args.warmup)
             injector = Injector(robot)
             for i in range(args.faults):
-                for _ in reader.take_iter(timeout=0):
-                    pass  # anything before the fault
+                reader.take(N=100_000)  # anything before the fault
                 fault = injector.begin("kill", "/usb_cam")
                 killed = time.time()
                 seen: float | None = None
                 deadline = time.monotonic() + args.timeout
                 while seen is None and time.monotonic() < deadline:
-                    for s in reader.take_iter(timeout=50_000_000):
+                    for s in reader.take_iter(timeout=20_000_000):
                         info = getattr(s, "sample_info", None)
                         if info is not None and not info.valid_data:
                             continue
