@@ -6,8 +6,7 @@ the topic counts, otherwise only messages from the listed publishers.
 
 A topic that stops publishing produces no periods, so the filtered period alone would stay
 at its last healthy value forever. At each evaluation the time since the last arrival is
-therefore taken as a *provisional* period when it is longer than the filtered period
-(plus ``DELIVERY_SLACK``, the lag of delivery): the
+therefore taken as a *provisional* period when it is longer than the filtered period: the
 verdict is made on the filtered value as if the next message arrived now (which is the
 shortest the real next period can be). The filter itself is not changed, so when the
 message does arrive its true period is counted once. A stalled or slowed topic thus shows
@@ -28,14 +27,6 @@ from blackbox.observe.base import OBSERVERS, ObserverKind, Quantity, Subject
 from blackbox.observe.observers.entry import PublisherGroup, read_filtered_group
 from blackbox.observe.observers.quantity import FilteredQuantity, JudgedObserver, number
 from blackbox.observe.states import StateSpec
-
-DELIVERY_SLACK = 0.05
-"""Seconds of silence beyond the filtered period before it counts as a provisional period.
-
-Arrivals reach the observer some milliseconds after they happened (the source's reader,
-the pipeline's tick), so at high rates the time since the last arrival almost always
-exceeds the period; counting that lag as a period biased readings low by up to a few per
-cent at 5 kHz (issue 17). A silence this much longer than the period is a real one."""
 
 
 class HzObserver(JudgedObserver):
@@ -78,7 +69,7 @@ class HzObserver(JudgedObserver):
                 now, f"waiting for a second message (one so far, {silent:.3g} s ago)",
                 {"silent_for": silent})]
         note = ""
-        if silent > summary.value + DELIVERY_SLACK:
+        if silent > summary.value:
             provisional = self.period.provisional_summary(silent)
             if provisional is not None:
                 summary = provisional
