@@ -6,6 +6,7 @@ import socket
 import struct
 import threading
 import time
+from typing import Any
 
 import pytest
 
@@ -22,6 +23,7 @@ from blackbox.sources.ros1.tcpros import (
     encode_header,
     ros2_style_type,
 )
+from conftest import wait_for
 
 FLOAT64_DEF = "float64 data\n"
 POINT_DEF = """Header header
@@ -109,10 +111,19 @@ def _frames(payloads: list[bytes]) -> bytes:
     return b"".join(struct.pack("<I", len(p)) + p for p in payloads)
 
 
-def test_reader_splits_a_byte_stream_into_messages_however_it_arrives() -> None:
-    """Length prefixes and bodies split across writes, an empty message, one large body."""
+def _tcp_pair() -> tuple[socket.socket, socket.socket]:
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        theirs = socket.create_connection(server.getsockname())
+        ours, _ = server.accept()
+    return ours, theirs
+
+
+@pytest.mark.parametrize("pair", [socket.socketpair, _tcp_pair], ids=["unix", "tcp"])
+def test_reader_splits_a_byte_stream_into_messages_however_it_arrives(pair: Any) -> None:
+    """Length prefixes and bodies split across writes, an empty message, one large body
+    (over TCP the kernel drops its bytes uncopied and wakes the reader when it is whole)."""
     reader, got = _reader()
-    ours, theirs = socket.socketpair()
+    ours, theirs = pair()
     payloads = [b"abc", b"", b"x" * 700_000, b"\x01\x02\x03\x04\x05"]
     stream = _frames(payloads)
     key = StreamKey("/t", "/pub")
@@ -192,3 +203,58 @@ def test_remote_and_dead_nodes_have_no_resource_numbers_but_a_reason() -> None:
     assert far.cpu_percent is None and far.memory_bytes is None
     assert "runs on host 192.0.2.7" in far.reason
     assert "not in the ROS graph" in gone.reason
+
+
+def test_caller_ids_are_unique_per_source_and_ros_names() -> None:
+    from blackbox.sources.ros1.callerid import unique_caller_id, valid_caller_id
+    from blackbox.sources.ros1.source import split_caller_id
+
+    a, b = unique_caller_id(host="my-pi.local", pid=42), unique_caller_id(host="my-pi.local",
+                                                                          pid=42)
+    assert a.startswith("/blackbox_my_pi_local_42_") and a != b
+    assert valid_caller_id(a) and valid_caller_id(b)
+    with pytest.raises(ValueError):
+        unique_caller_id("blackbox")
+    assert split_caller_id("ros1://h:1?caller_id=/bb_front") == ("ros1://h:1", "/bb_front")
+    for bad in ("ros1://h:1?caller_id=bb", "ros1://h:1?callerid=/bb", "ros1://h:1?caller_id="):
+        with pytest.raises(ConfigError):
+            split_caller_id(bad)
+
+
+def test_arrival_time_is_when_the_bytes_reached_the_socket_not_when_they_were_read() -> None:
+    from blackbox.sources.ros1.tcpros import _ANCILLARY, SO_TIMESTAMPNS, kernel_time
+
+    if SO_TIMESTAMPNS is None:
+        pytest.skip("no SO_TIMESTAMPNS on this platform")
+    server = socket.create_server(("127.0.0.1", 0))
+    client = socket.create_connection(server.getsockname())
+    peer, _ = server.accept()
+    try:
+        peer.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+        sent = time.time()
+        client.sendall(b"\x00" * 8)
+        time.sleep(0.3)  # a reader that is late
+        _, ancillary, _, _ = peer.recvmsg_into([bytearray(64)], _ANCILLARY)
+        assert kernel_time(ancillary) == pytest.approx(sent, abs=0.05)
+        assert kernel_time([]) == pytest.approx(time.time(), abs=0.05)  # no stamp: now
+    finally:
+        for s in (client, peer, server):
+            s.close()
+
+
+def test_the_arrivals_of_one_read_are_handed_on_together() -> None:
+    batches: list[list[MessageArrival]] = []
+    got = _Collected()
+    reader = TcprosReader(got.on_message, got.on_closed, got.first.append, MessageDecoder(),
+                          on_batch=batches.append)
+    reader.start()
+    a, b = socket.socketpair()
+    try:
+        reader.add(StreamKey("/t", "/pub"), b, 1 << 20, None)
+        a.sendall(_frames([b"x" * 10] * 50))
+        assert wait_for(lambda: sum(map(len, batches)) == 50, timeout=5.0)
+        assert len(batches) < 50 and got.messages == []
+        assert all(m.topic == "/t" and m.size == 10 for batch in batches for m in batch)
+    finally:
+        reader.close()
+        a.close()

@@ -54,9 +54,17 @@ Watch = tuple[Edge, list[Key], list[Key], list[Key]]
 
 def observation_fact(code: Code) -> bool | None:
     """``True`` for OK, ``False`` for a failure, ``None`` for no evidence (NOT_AVAILABLE)."""
+    fact = _FACT_OF.get(code, _UNKNOWN)
+    if fact is not _UNKNOWN:
+        return fact  # type: ignore[return-value]
     if code == Code.NOT_AVAILABLE:
         return None
     return code >= 0
+
+
+_UNKNOWN = object()
+_FACT_OF: dict[object, bool | None] = {c: None if c == Code.NOT_AVAILABLE else c >= 0
+                                        for c in Code}
 
 
 class DiagnosisEngine:
@@ -379,24 +387,39 @@ class DiagnosisEngine:
     def update(self, now: float, observations: Sequence[Observation]) -> Diagnosis | None:
         """Feed new observations; a new :class:`Diagnosis` when the failed observations or the
         diagnoses changed, else ``None``."""
+        # Incremental: an observation whose fact (ok / failed / no evidence) is the one
+        # already held changes no literal, so it only replaces the stored observation.
+        latest, literals, failed_keys = self._latest, self._literals, self._failed_keys
+        changed = False
         for obs in observations:
-            self._ensure_slot(obs)
             key = obs.key()
-            self._latest[key] = obs
+            prev = latest.get(key)
             value = observation_fact(obs.code)
-            self._literals[key] = self._literals_of(key, value)
-            if value is False:
-                self._failed_keys.add(key)
+            if prev is not None:
+                latest[key] = obs
+                if observation_fact(prev.code) is value:
+                    continue
+            elif key not in self._slot:
+                self._ensure_slot(obs)  # rebuilds the model and every literal
+                latest, literals = self._latest, self._literals
+                latest[key] = obs
             else:
-                self._failed_keys.discard(key)
+                latest[key] = obs
+            changed = True
+            literals[key] = self._literals_of(key, value)
+            if value is False:
+                failed_keys.add(key)
+            else:
+                failed_keys.discard(key)
         self._learn(now)
+        if not changed and self._depends_facts is not None and self._facts_key is not None:
+            return None  # same facts as last time
         facts = self._facts()
         fkey = frozenset(facts)
         if fkey == self._facts_key:
             return None
         self._facts_key = fkey
-        failed = tuple(sorted((o for o in self._latest.values()
-                               if observation_fact(o.code) is False),
+        failed = tuple(sorted((latest[k] for k in self._failed_keys),
                               key=lambda o: (o.observer, o.resource.label())))
         if failed:
             candidates, complete = self._search(facts)
@@ -446,7 +469,7 @@ class DiagnosisEngine:
             return text
         best = candidates[0]
         verb = "is" if len(best) == 1 else "are"
-        healthy = sum(observation_fact(o.code) is True for o in self._latest.values())
+        healthy = sum(1 for o in self._latest.values() if observation_fact(o.code) is True)
         agrees = f" and agrees with the {healthy} healthy ones" if healthy else ""
         same = [c for c in candidates[1:] if len(c) == len(best)]
         larger = [c for c in candidates[1:] if len(c) > len(best)]

@@ -20,7 +20,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from functools import partial
-from urllib.parse import urlsplit
+from urllib.parse import parse_qs, urlsplit
 
 import psutil
 
@@ -35,6 +35,7 @@ from blackbox.events import (
 )
 from blackbox.model import BlackBoxEvent
 from blackbox.sources.base import SOURCES, Capabilities, SourceKind, SourceOptions
+from blackbox.sources.ros1.callerid import DEFAULT_PREFIX, unique_caller_id, valid_caller_id
 from blackbox.sources.ros1.master import GraphPoller
 from blackbox.sources.ros1.resources import ResourceSampler
 from blackbox.sources.ros1.tcpros import DEFAULT_MAX_MESSAGE_BYTES, TcprosSubscriber
@@ -68,6 +69,23 @@ def master_uri_from_spec(spec: str, environ: dict[str, str] | os._Environ[str] =
     return f"http://{parts.hostname}:{port}/"
 
 
+def split_caller_id(spec: str) -> tuple[str, str | None]:
+    """``ros1://h:p?caller_id=/bb_front`` -> (``ros1://h:p``, ``/bb_front``)."""
+    base, sep, query = spec.partition("?")
+    if not sep:
+        return spec, None
+    params = parse_qs(query, keep_blank_values=True)
+    unknown = sorted(set(params) - {"caller_id"})
+    if unknown:
+        raise ConfigError(f"unknown ROS 1 source option {unknown[0]!r} in {spec!r}; "
+                          "only caller_id is known", "--source")
+    values = params.get("caller_id", [])
+    if len(values) != 1 or not valid_caller_id(values[0]):
+        raise ConfigError(f"bad caller_id in {spec!r}: expected one global ROS name such "
+                          "as /blackbox_front", "--source")
+    return base, values[0]
+
+
 ROS1_CAPABILITIES = Capabilities(snapshot_format="ros1")
 
 
@@ -76,7 +94,11 @@ class Ros1Settings:
     """How a ROS 1 robot is watched: seconds between graph polls and resource samples,
     the time an XML-RPC probe may take, how long a publisher may stay silent before its
     connection counts as idle, the event queue's bound, reconnection back-off (seconds)
-    and the default cap of one message (bytes)."""
+    and the default cap of one message (bytes).
+
+    ``caller_id`` is the name the black box gives publishers when it connects; ``None``
+    makes a unique one, ``<caller_id_prefix>_<host>_<pid>_<n>``, so two black boxes on one
+    robot never replace each other's connections."""
 
     graph_period: float = 0.45
     probe_timeout: float = 0.5
@@ -86,6 +108,8 @@ class Ros1Settings:
     backoff_min: float = 0.1
     backoff_max: float = 2.0
     default_max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES
+    caller_id: str | None = None
+    caller_id_prefix: str = DEFAULT_PREFIX
 
 
 class Ros1Source:
@@ -104,6 +128,7 @@ class Ros1Source:
         self._lock = threading.Lock()
         self._queue_limit = settings.queue_limit
         self._dropped = 0
+        self._floor = 0.0
         self._held: list[Event | BlackBoxEvent] = []
         self._stop = threading.Event()
         self._poller = GraphPoller(master_uri, self._report,
@@ -114,9 +139,15 @@ class Ros1Source:
         self._subscriber: TcprosSubscriber | None = None
         self._thread: threading.Thread | None = None
         self._interest = Interest()
+        self.caller_id = settings.caller_id or unique_caller_id(settings.caller_id_prefix)
 
     @classmethod
     def from_uri(cls, spec: str, settings: Ros1Settings | None = None) -> Ros1Source:
+        """``ros1://HOST:PORT`` or ``ros1``, optionally ``?caller_id=/NAME`` to fix the id."""
+        spec, caller_id = split_caller_id(spec)
+        settings = settings or Ros1Settings()
+        if caller_id is not None:
+            settings = dataclasses.replace(settings, caller_id=caller_id)
         return cls(master_uri_from_spec(spec), settings)
 
     # ---- Source protocol -------------------------------------------------------------------
@@ -128,7 +159,8 @@ class Ros1Source:
         self._subscriber = TcprosSubscriber(
             interest.topics, interest.decoded, interest.max_message_bytes, self._push_message,
             self._report, backoff_min=self._backoff[0], backoff_max=self._backoff[1],
-            default_max_bytes=self._default_cap)
+            default_max_bytes=self._default_cap, caller_id=self.caller_id,
+            on_batch=self._push_batch)
         self._subscriber.start()
         self._thread = threading.Thread(target=self._graph_loop, name="ros1-graph",
                                         daemon=True)
@@ -145,6 +177,7 @@ class Ros1Source:
         events = self._held
         self._held = []
         with self._lock:  # every event stamped before this instant is in the queue
+            self._floor = max(self._floor, until)
             while queue:
                 events.append(queue.popleft())
         if self._dropped:
@@ -173,13 +206,25 @@ class Ros1Source:
     # ---- background ------------------------------------------------------------------------
 
     def _push_message(self, msg: MessageArrival) -> None:
-        """Stamp and queue under one lock, so ``poll`` never misses an earlier event."""
+        self._push_batch([msg])
+
+    def _push_batch(self, batch: list[MessageArrival]) -> None:
+        """Queue the arrivals of one read under one lock.
+
+        They carry the kernel's receive time, which may be a little before the last
+        ``until`` ``poll`` already handed out; such a stamp is raised to that ``until`` so
+        events keep coming in time order.
+        """
         with self._lock:
-            if len(self._queue) < self._queue_limit:
-                msg.time = time.time()
-                self._queue.append(msg)
-            else:
-                self._dropped += 1
+            floor = self._floor
+            room = self._queue_limit - len(self._queue)
+            if room < len(batch):
+                self._dropped += len(batch) - max(0, room)
+                batch = batch[:max(0, room)]
+            for msg in batch:
+                if msg.time < floor:
+                    msg.time = floor
+            self._queue.extend(batch)
 
     def _push(self, make: Callable[[float], Event | BlackBoxEvent]) -> None:
         with self._lock:

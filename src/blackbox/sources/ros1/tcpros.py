@@ -7,6 +7,14 @@ never decoded: per message the cost is a length prefix and a few counters. Topic
 values are observed keep their bytes and decode lazily with ``rosbags`` from the
 ``message_definition`` the publisher sent in its connection header.
 
+Each wake-up reads everything the socket holds (up to 256 KiB) in one ``recvmsg`` and splits
+every message out of that one buffer; the arrivals of one read are handed on together, so
+the hand-over lock is taken once per read, not once per message. Arrival times come from the
+kernel (``SO_TIMESTAMPNS``: when the last segment of the read reached the socket), not from
+when Python got round to reading, so a reader that is late by some milliseconds does not
+distort inter-arrival times; where the kernel gives no stamp, the wall clock at the read is
+used.
+
 Whatever a publisher sends, the black box keeps going: malformed headers, absurd length
 prefixes (beyond a per-topic cap) and silent dead peers close that one connection with a
 reason, and the connection is retried with backoff.
@@ -16,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import mmap
 import selectors
 import socket
 import struct
@@ -29,7 +38,8 @@ from typing import Any, cast
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from blackbox.events import MessageArrival, TopicSchema
-from blackbox.sources.ros1.master import CALLER_ID, Report, RosApi, RosApiError
+from blackbox.sources.ros1.callerid import unique_caller_id
+from blackbox.sources.ros1.master import Report, RosApi, RosApiError
 
 log = logging.getLogger("blackbox.sources.ros1")
 
@@ -37,6 +47,14 @@ DEFAULT_MAX_MESSAGE_BYTES = 64 * 1024 * 1024
 MAX_HEADER_BYTES = 1024 * 1024
 _LEN = struct.Struct("<I")
 _SCRATCH_BYTES = 256 * 1024
+_SKIP_BYTES = 4 * 1024 * 1024
+_LOWAT_CAP = _SKIP_BYTES
+_READS_PER_WAKEUP = 16
+# Linux: SO_TIMESTAMPNS (== SCM_TIMESTAMPNS) delivers a struct timespec per recvmsg.
+SO_TIMESTAMPNS: int | None = getattr(socket, "SO_TIMESTAMPNS", 35 if hasattr(socket, "AF_NETLINK")
+                                     else None)
+_TIMESPEC = struct.Struct("@qq")
+_ANCILLARY = socket.CMSG_SPACE(_TIMESPEC.size) if hasattr(socket, "CMSG_SPACE") else 0
 
 
 class HeaderError(Exception):
@@ -128,7 +146,8 @@ class _Stream:
     """Reading state of one established connection."""
 
     __slots__ = ("body", "closed", "decode_as", "key", "last_rx", "lenbuf", "lenfill",
-                 "max_bytes", "messages", "publisher", "remaining", "size", "sock", "topic")
+                 "lowat", "max_bytes", "messages", "publisher", "remaining", "size", "sock",
+                 "topic")
 
     def __init__(self, key: StreamKey, sock: socket.socket, max_bytes: int,
                  decode_as: str | None) -> None:
@@ -146,6 +165,7 @@ class _Stream:
         self.last_rx = time.monotonic()
         self.messages = 0
         self.closed = False
+        self.lowat = 1
 
 
 class TcprosReader:
@@ -153,8 +173,12 @@ class TcprosReader:
 
     def __init__(self, on_message: Callable[[MessageArrival], None],
                  on_closed: Callable[[StreamKey, str, int], None],
-                 on_first: Callable[[StreamKey], None], decoder: MessageDecoder) -> None:
+                 on_first: Callable[[StreamKey], None], decoder: MessageDecoder,
+                 on_batch: Callable[[list[MessageArrival]], None] | None = None) -> None:
+        """``on_batch`` receives the arrivals of one read together (preferred, one call
+        per wake-up); without it ``on_message`` is called per message."""
         self._on_message = on_message
+        self._on_batch = on_batch
         self._on_closed = on_closed
         self._on_first = on_first
         self._decoder = decoder
@@ -168,6 +192,9 @@ class TcprosReader:
         self._streams: dict[StreamKey, _Stream] = {}
         self._scratch = bytearray(_SCRATCH_BYTES)
         self._view = memoryview(self._scratch)
+        # never written (MSG_TRUNC), so an anonymous mapping costs no memory
+        self._skip_map = mmap.mmap(-1, _SKIP_BYTES)
+        self._skip = memoryview(self._skip_map)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="ros1-tcpros", daemon=True)
 
@@ -177,6 +204,9 @@ class TcprosReader:
     def add(self, key: StreamKey, sock: socket.socket, max_bytes: int,
             decode_as: str | None) -> None:
         sock.setblocking(False)
+        if SO_TIMESTAMPNS is not None and _ANCILLARY:
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         with self._lock:
             self._pending.append(_Stream(key, sock, max_bytes, decode_as))
         self._wake()
@@ -200,6 +230,8 @@ class TcprosReader:
                 s.sock.close()
         self._streams.clear()
         self._selector.close()
+        self._skip.release()
+        self._skip_map.close()
         self._wake_r.close()
         self._wake_w.close()
 
@@ -251,20 +283,77 @@ class TcprosReader:
         if notify:
             self._on_closed(stream.key, reason, stream.messages)
 
-    def _read(self, s: _Stream) -> None:
-        view = self._view
+    def _recv(self, s: _Stream, into: memoryview, flags: int) -> tuple[int, float] | None:
+        """Bytes read (or, with ``MSG_TRUNC``, dropped) and their kernel time; ``None``
+        when nothing is there or the connection ended (then it is closed)."""
         try:
-            n = s.sock.recv_into(view)
+            n, ancillary, _, _ = s.sock.recvmsg_into((into,), _ANCILLARY, flags)
         except (BlockingIOError, InterruptedError):
-            return
+            return None
         except OSError as exc:
             self._close(s, f"connection error: {exc}")
-            return
+            return None
         if n == 0:
             self._close(s, "publisher closed the connection")
-            return
-        now = time.time()
-        s.last_rx = time.monotonic()
+            return None
+        return n, kernel_time(ancillary)
+
+    def _read(self, s: _Stream) -> None:
+        view = self._view
+        batch: list[MessageArrival] = []
+        try:
+            for _ in range(_READS_PER_WAKEUP):
+                if s.body is None and s.remaining > 0:
+                    # the body of a timing-only message: the kernel drops it uncopied
+                    got = self._recv(s, self._skip[:min(s.remaining, _SKIP_BYTES)],
+                                     socket.MSG_TRUNC)
+                    if got is None:
+                        break
+                    n, now = got
+                    s.remaining -= n
+                    if s.remaining == 0:
+                        self._complete(s, now, batch)
+                    continue
+                got = self._recv(s, view, 0)
+                if got is None:
+                    break
+                n, now = got
+                self._split(s, n, now, batch)
+                if s.closed or n < len(view):
+                    break
+        finally:
+            if not s.closed:
+                s.last_rx = time.monotonic()
+                self._wake_at(s)
+            if batch:
+                if self._on_batch is not None:
+                    self._on_batch(batch)
+                else:
+                    for arrival in batch:
+                        self._on_message(arrival)
+
+    def _wake_at(self, s: _Stream) -> None:
+        """Be woken only once the rest of the current message is there (``SO_RCVLOWAT``):
+        a 900 kB camera image then costs one or two wake-ups, not one per segment."""
+        want = min(s.remaining, _LOWAT_CAP) if s.remaining > 0 else \
+            (4 - s.lenfill if s.lenfill else 1)
+        if want != s.lowat:
+            with contextlib.suppress(OSError):
+                s.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVLOWAT, want)
+                s.lowat = want
+
+    def _complete(self, s: _Stream, now: float, batch: list[MessageArrival]) -> None:
+        s.remaining = -1
+        s.messages += 1
+        if s.messages == 1:
+            self._on_first(s.key)
+        if s.body is None:
+            batch.append(MessageArrival(now, s.topic, s.publisher, s.size))
+        else:
+            batch.append(self._decodable(s, now))
+
+    def _split(self, s: _Stream, n: int, now: float, batch: list[MessageArrival]) -> None:
+        view = self._view
         pos = 0
         while pos < n:
             if s.remaining < 0:
@@ -300,17 +389,11 @@ class TcprosReader:
                 s.remaining -= take
                 if s.remaining:
                     continue
-            s.remaining = -1
-            s.messages += 1
-            if s.messages == 1:
-                self._on_first(s.key)
-            self._emit(s, now)
+            self._complete(s, now, batch)
 
-    def _emit(self, s: _Stream, now: float) -> None:
+    def _decodable(self, s: _Stream, now: float) -> MessageArrival:
         body = s.body
-        if body is None:
-            self._on_message(MessageArrival(now, s.topic, s.publisher, s.size))
-            return
+        assert body is not None
         s.body = None
         decoder, name = self._decoder, s.decode_as
         assert name is not None
@@ -321,8 +404,18 @@ class TcprosReader:
             except Exception:
                 return None
 
-        self._on_message(MessageArrival(now, s.topic, s.publisher, s.size, decode=decode,
-                                        raw=lambda: bytes(body)))
+        return MessageArrival(now, s.topic, s.publisher, s.size, decode=decode,
+                              raw=lambda: bytes(body))
+
+
+def kernel_time(ancillary: list[tuple[int, int, bytes]]) -> float:
+    """The ``SCM_TIMESTAMPNS`` stamp of one ``recvmsg`` as wall-clock seconds, else now."""
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and \
+                len(data) >= _TIMESPEC.size:
+            sec, nsec = _TIMESPEC.unpack_from(data)
+            return float(sec) + float(nsec) * 1e-9
+    return time.time()
 
 
 @dataclass(frozen=True, slots=True)
@@ -333,13 +426,16 @@ class Handshake:
     header: dict[str, str]
 
 
-def connect(publisher_uri: str, topic: str, timeout: float = 1.0,
+def connect(publisher_uri: str, topic: str, caller_id: str, timeout: float = 1.0,
             header_cap: int = MAX_HEADER_BYTES) -> Handshake:
-    """Ask the publisher for ``topic`` over TCPROS and exchange headers.
+    """Ask the publisher for ``topic`` over TCPROS as ``caller_id`` and exchange headers.
+
+    A rospy publisher keeps one connection per caller id, so every black box must give
+    its own (see :mod:`blackbox.sources.ros1.callerid`).
 
     Raises :class:`RosApiError`, :class:`HeaderError` or :class:`OSError` with a reason.
     """
-    proto = RosApi(publisher_uri, timeout).call("requestTopic", CALLER_ID, topic, [["TCPROS"]])
+    proto = RosApi(publisher_uri, timeout).call("requestTopic", caller_id, topic, [["TCPROS"]])
     if not (isinstance(proto, list) and len(proto) >= 3 and proto[0] == "TCPROS"
             and isinstance(proto[1], str) and isinstance(proto[2], int)):
         raise HeaderError(f"requestTopic {topic} on {publisher_uri}: no TCPROS endpoint "
@@ -348,7 +444,7 @@ def connect(publisher_uri: str, topic: str, timeout: float = 1.0,
     sock = socket.create_connection((host, port), timeout=timeout)
     try:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.sendall(encode_header({"callerid": CALLER_ID, "topic": topic, "md5sum": "*",
+        sock.sendall(encode_header({"callerid": caller_id, "topic": topic, "md5sum": "*",
                                     "type": "*", "tcp_nodelay": "1"}))
         (size,) = _LEN.unpack(_recv_exact(sock, 4))
         if size > header_cap:
@@ -396,8 +492,11 @@ class TcprosSubscriber:
                  max_message_bytes: Mapping[str, int], on_message: Callable[[MessageArrival],
                  None], report: Report, connect_timeout: float = 1.0,
                  backoff_min: float = 0.1, backoff_max: float = 2.0,
-                 default_max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES) -> None:
+                 default_max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
+                 caller_id: str | None = None,
+                 on_batch: Callable[[list[MessageArrival]], None] | None = None) -> None:
         self.topics = topics | decoded
+        self.caller_id = caller_id or unique_caller_id()
         self.decoded = decoded
         self._caps = dict(max_message_bytes)
         self._default_cap = default_max_bytes
@@ -406,7 +505,8 @@ class TcprosSubscriber:
         self._backoff_min = backoff_min
         self._backoff_max = backoff_max
         self.decoder = MessageDecoder()
-        self.reader = TcprosReader(on_message, self._closed, self._first, self.decoder)
+        self.reader = TcprosReader(on_message, self._closed, self._first, self.decoder,
+                                   on_batch)
         self._pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="ros1-connect")
         self._lock = threading.Lock()
         self._active: set[StreamKey] = set()
@@ -462,7 +562,7 @@ class TcprosSubscriber:
 
     def _connect(self, key: StreamKey, uri: str) -> None:
         try:
-            hs = connect(uri, key.topic, self._timeout)
+            hs = connect(uri, key.topic, self.caller_id, self._timeout)
         except (RosApiError, HeaderError, OSError, struct.error) as exc:
             self._failed(key, f"cannot subscribe to {key.topic} from {key.publisher}: "
                               f"{exc or type(exc).__name__}")

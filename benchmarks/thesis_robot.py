@@ -1,0 +1,204 @@
+"""What a user of the thesis robot feels, measured side by side in one run on real ROS 1.
+
+    .venv/bin/python benchmarks/thesis_robot.py overhead [--repeat 5] [--seconds 20]
+        [--before SRC]
+    .venv/bin/python benchmarks/thesis_robot.py latency [--faults 10]
+
+The robot is the thesis robot on Debian's ROS 1 (roscore, /usb_cam 640x480 rgb8 at 15 Hz,
+/audio_capture ~33 Hz, /Signal_generator 15 Hz; ``scripts/ros1_robot``).
+
+``overhead``: per round, ``rostopic hz /usb_cam/image_raw`` and the black box with its
+default settings (``blackbox run`` with no ``--config``: ``configs/thesis.yaml``, which
+matches the robot) plus ``--record --dds`` run *at the same time*; both processes' CPU
+(user+system over the same window, 100 % = one core) is read over one window, and the
+ratio black box / rostopic hz printed. Rounds are repeated; min/median/max are printed
+with the load average. The black box's observations over the window are counted: a
+healthy robot must give no faulty one. ``--before SRC`` alternates every round with the
+black box from another ``src/`` directory (before/after in the same run).
+
+``latency``: the black box (default settings, ``--dds``) watches the robot while a
+listener in this process reads ``C_Failure_Event`` from DDS; the camera node is killed
+(SIGKILL) and the time from the kill to the failure event reaching the listener is the
+end-to-end latency (detection + diagnosis + health mapping + DDS). The node is then
+restarted and the robot left to recover before the next fault.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import psutil
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "scripts" / "ros1_robot"))
+from inject import Injector  # noqa: E402
+from robot import ThesisRobot, free_port, ros_env  # noqa: E402
+
+BLACKBOX = [sys.executable, "-m", "blackbox"]
+CAMERA = "/usb_cam/image_raw"
+
+
+def _stop(proc: subprocess.Popen[bytes]) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def _blackbox(robot: ThesisRobot, work: Path, domain: int, extra: list[str],
+              src: Path | None = None) -> subprocess.Popen[bytes]:
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("ROS_MASTER_URI", "CYCLONEDDS_URI")}
+    if src is not None:
+        env["PYTHONPATH"] = str(src)
+    log = (work / "bb.log").open("wb")
+    return subprocess.Popen([*BLACKBOX, "run", "--source", f"ros1://127.0.0.1:{robot.port}",
+                             "--dds", "--domain", str(domain), "--quiet", *extra],
+                            stdout=log, stderr=subprocess.STDOUT, env=env, cwd=ROOT)
+
+
+def _cpu(p: psutil.Process) -> float:
+    return float(sum(p.cpu_times()[:2]))
+
+
+def overhead_round(robot: ThesisRobot, work: Path, seconds: float, warmup: float,
+                   domain: int, src: Path | None) -> dict[str, float]:
+    work.mkdir(parents=True, exist_ok=True)
+    obs = work / "obs.jsonl"
+    bb = _blackbox(robot, work, domain, ["--record", str(work / "health.db"),
+                                         "--observations", str(obs)], src)
+    hz = subprocess.Popen(["rostopic", "hz", CAMERA], env=ros_env(robot.port, robot.home),
+                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        pb, ph = psutil.Process(bb.pid), psutil.Process(hz.pid)
+        time.sleep(warmup)
+        if bb.poll() is not None or hz.poll() is not None:
+            raise RuntimeError(f"exited early; see {work / 'bb.log'}")
+        t0, b0, h0 = time.time(), _cpu(pb), _cpu(ph)
+        time.sleep(seconds)
+        t1, b1, h1 = time.time(), _cpu(pb), _cpu(ph)
+        rss = pb.memory_info().rss / 1e6
+        load = os.getloadavg()[0]
+    finally:
+        _stop(hz)
+        _stop(bb)
+    faulty = total = 0
+    for line in obs.read_text().splitlines():
+        o = json.loads(line)
+        if t0 <= o["time"] <= t1:
+            total += 1
+            faulty += bool(o["faulty"])
+    bb_cpu, hz_cpu = 100 * (b1 - b0) / (t1 - t0), 100 * (h1 - h0) / (t1 - t0)
+    return {"bb_cpu": bb_cpu, "hz_cpu": hz_cpu, "ratio": bb_cpu / hz_cpu, "rss_mb": rss,
+            "faulty": faulty, "observations": total, "load": load}
+
+
+def overhead(args: argparse.Namespace) -> int:
+    variants: list[tuple[str, Path | None]] = [("after", None)]
+    if args.before is not None:
+        variants = [("before", args.before.resolve()), ("after", None)]
+    rows: dict[str, list[dict[str, float]]] = {label: [] for label, _ in variants}
+    print(f"{'round':>5} {'variant':>7} {'blackbox':>9} {'rostopic hz':>11} {'ratio':>6} "
+          f"{'RSS MB':>7} {'faulty/obs':>10} {'load':>5}")
+    with tempfile.TemporaryDirectory(prefix="thesis-bench-") as tmp, \
+            ThesisRobot(free_port(), log_dir=Path(tmp) / "robot") as robot:
+        robot.start()
+        for r in range(args.repeat):
+            for label, src in variants:
+                row = overhead_round(robot, Path(tmp) / f"{label}{r}", args.seconds,
+                                     args.warmup, args.domain, src)
+                rows[label].append(row)
+                print(f"{r:5d} {label:>7} {row['bb_cpu']:8.2f}% {row['hz_cpu']:10.2f}% "
+                      f"{row['ratio']:6.2f} {row['rss_mb']:7.1f} "
+                      f"{row['faulty']:>4.0f}/{row['observations']:<5.0f} {row['load']:5.2f}",
+                      flush=True)
+    for label, got in rows.items():
+        ratios = sorted(x["ratio"] for x in got)
+        print(f"{label}: black box / rostopic hz over {len(got)} rounds: min "
+              f"{ratios[0]:.2f}  median {statistics.median(ratios):.2f}  max {ratios[-1]:.2f}"
+              f"; faulty observations {sum(x['faulty'] for x in got):.0f}")
+    return 0
+
+
+def latency(args: argparse.Namespace) -> int:
+    from blackbox.transport.participant import Bus, TransportSettings
+
+    os.environ.pop("CYCLONEDDS_URI", None)
+    results: list[float] = []
+    with tempfile.TemporaryDirectory(prefix="thesis-latency-") as tmp, \
+            ThesisRobot(free_port(), log_dir=Path(tmp) / "robot") as robot:
+        robot.start()
+        bus = Bus.open(TransportSettings(args.domain))
+        reader = bus.reader("C_Failure_Event")
+        bb = _blackbox(robot, Path(tmp), args.domain, [])
+        try:
+            time.sleep(args.warmup)
+            injector = Injector(robot)
+            for i in range(args.faults):
+                reader.take(N=100_000)  # anything before the fault
+                fault = injector.begin("kill", "/usb_cam")
+                killed = time.time()
+                seen: float | None = None
+                deadline = time.monotonic() + args.timeout
+                while seen is None and time.monotonic() < deadline:
+                    for s in reader.take_iter(timeout=20_000_000):
+                        info = getattr(s, "sample_info", None)
+                        if info is not None and not info.valid_data:
+                            continue
+                        text = f"{s.A_failureDescription} {s.A_causeDescription}"
+                        if "usb_cam" in text:
+                            seen = time.time()
+                            break
+                injector.end(fault)
+                robot.wait_registered(["/usb_cam"])
+                if seen is None:
+                    print(f"fault {i}: no failure event within {args.timeout} s", flush=True)
+                else:
+                    results.append(seen - killed)
+                    print(f"fault {i}: kill -> failure event at the listener "
+                          f"{1000 * (seen - killed):7.1f} ms  (load "
+                          f"{os.getloadavg()[0]:.2f})", flush=True)
+                time.sleep(args.recover)
+        finally:
+            _stop(bb)
+            bus.close()
+    if results:
+        ms = sorted(1000 * x for x in results)
+        print(f"end-to-end fault -> remote listener over {len(ms)} of {args.faults} faults: "
+              f"min {ms[0]:.0f} ms  median {statistics.median(ms):.0f} ms  max {ms[-1]:.0f} ms")
+    return 0 if len(results) == args.faults else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="what", required=True)
+    o = sub.add_parser("overhead")
+    o.add_argument("--repeat", type=int, default=5)
+    o.add_argument("--seconds", type=float, default=20.0)
+    o.add_argument("--warmup", type=float, default=6.0)
+    o.add_argument("--before", type=Path, metavar="SRC")
+    lat = sub.add_parser("latency")
+    lat.add_argument("--faults", type=int, default=10)
+    lat.add_argument("--warmup", type=float, default=8.0)
+    lat.add_argument("--recover", type=float, default=6.0)
+    lat.add_argument("--timeout", type=float, default=10.0)
+    for p in (o, lat):
+        p.add_argument("--domain", type=int, default=100 + os.getpid() % 50)
+    args = parser.parse_args(argv)
+    return overhead(args) if args.what == "overhead" else latency(args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
