@@ -1,4 +1,5 @@
-"""Helpers of the station tests: a disk that fills up, a scripted black box process."""
+"""Helpers of the station tests: a disk that fills up, a scripted black box process,
+accounts that are quick to check and operations that must not be reached."""
 
 from __future__ import annotations
 
@@ -8,13 +9,16 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+from argon2 import PasswordHasher
 
+from blackbox.station.auth import Auth, AuthPolicy
 from blackbox.station.store import StationStore
 from blackbox.transport.auth import RequestSigner, station_trusted_by
 
@@ -73,6 +77,30 @@ def full_disk_in(variant: str, directory: Path) -> Iterator[FullDisk]:
         subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
+def quick_hasher() -> PasswordHasher:
+    """Argon2 at its cheapest: the tests check logic, not the hashing cost."""
+    return PasswordHasher(time_cost=1, memory_cost=8192, parallelism=1)
+
+
+def quick_auth(path: Path, policy: AuthPolicy | None = None,
+               clock: Callable[[], float] = time.time) -> Auth:
+    """The station's accounts in ``path``, hashed with :func:`quick_hasher`."""
+    return Auth(path, policy, clock, hasher=quick_hasher())
+
+
+class Unreachable:
+    """Operations a test must not reach: every call fails the test."""
+
+    def request_logs(self, robot: str | int, *, entity: str | None = None,
+                     characteristic: str | None = None, since: float | None = None,
+                     until: float | None = None, kinds: Sequence[str] = (),
+                     requested_by: str = "") -> int:
+        raise AssertionError("request_logs reached")
+
+    def run_ibit(self, robot: str | int, entity: str = "", requested_by: str = "") -> int:
+        raise AssertionError("run_ibit reached")
+
+
 def dds_env() -> dict[str, str]:
     env = dict(os.environ)
     env.pop("CYCLONEDDS_URI", None)  # the built-in loopback configuration applies
@@ -103,18 +131,18 @@ def station_signer_for_tests() -> RequestSigner:
     return RequestSigner.from_file(station_key_for_tests())
 
 
-class ScriptedBlackBox:
-    """``tests/dds_blackbox_driver.py`` in its own process: ``send("ok" | "fault")``."""
+class DriverBlackBox:
+    """``tests/dds_blackbox_driver.py`` in its own process: ``send("ok" | "fault")``.
+    ``allow``: public key file of a station -> the rights the robot grants it."""
 
     def __init__(self, robot: str, domain: int, store: Path | None = None,
-                 trust: Path | None = None) -> None:
-        """``trust``: the public key file of a station this robot answers (logs, ibit);
-        default: the tests' station key (:func:`station_key_for_tests`)."""
-        trust = trust or station_key_for_tests().with_suffix(".key.pub")
+                 partition: str = "blackbox", allow: Mapping[Path, str] | None = None) -> None:
         cmd = [sys.executable, str(DRIVER), "--robot", robot, "--domain", str(domain),
-               "--allow", f"{trust}=logs,ibit"]
+               "--partition", partition]
         if store is not None:
             cmd += ["--store", str(store)]
+        for public_key, rights in (allow or {}).items():
+            cmd += ["--allow", f"{public_key}={rights}"]
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      text=True, env=dds_env())
         assert self._line() == "ready"
@@ -139,3 +167,14 @@ class ScriptedBlackBox:
             except (OSError, subprocess.TimeoutExpired):
                 self.proc.kill()
                 self.proc.wait(timeout=10)
+
+
+class ScriptedBlackBox(DriverBlackBox):
+    """A :class:`DriverBlackBox` that answers one station's log requests and IBIT."""
+
+    def __init__(self, robot: str, domain: int, store: Path | None = None,
+                 trust: Path | None = None) -> None:
+        """``trust``: the public key file of a station this robot answers (logs, ibit);
+        default: the tests' station key (:func:`station_key_for_tests`)."""
+        trust = trust or station_key_for_tests().with_suffix(".key.pub")
+        super().__init__(robot, domain, store, allow={trust: "logs,ibit"})

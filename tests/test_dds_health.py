@@ -22,17 +22,12 @@ from typing import Any
 import psutil
 import pytest
 
+from station_support import DriverBlackBox, dds_env
+
 pytestmark = pytest.mark.dds
 
 HERE = Path(__file__).parent
-DRIVER = HERE / "dds_blackbox_driver.py"
 _counter = itertools.count()
-
-
-def _env() -> dict[str, str]:
-    env = dict(os.environ)
-    env.pop("CYCLONEDDS_URI", None)  # the built-in loopback configuration applies
-    return env
 
 
 def fresh_domain() -> int:
@@ -48,42 +43,20 @@ def station_key(directory: Path, name: str = "depot") -> Path:
     return key
 
 
-class BlackBox:
+class BlackBox(DriverBlackBox):
+    """``allow``: a station's private key file (``blackbox keygen``) -> rights."""
+
     def __init__(self, robot: str, domain: int, store: Path | None = None,
                  partition: str = "blackbox", allow: dict[Path, str] | None = None) -> None:
-        cmd = [sys.executable, str(DRIVER), "--robot", robot, "--domain", str(domain),
-               "--partition", partition]
-        if store is not None:
-            cmd += ["--store", str(store)]
-        for key, rights in (allow or {}).items():
-            cmd += ["--allow", f"{key}.pub={rights}"]
-        self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     text=True, env=_env())
-        assert self._line() == "ready"
-
-    def _line(self) -> str:
-        assert self.proc.stdout is not None
-        return self.proc.stdout.readline().strip()
-
-    def send(self, command: str) -> None:
-        assert self.proc.stdin is not None
-        self.proc.stdin.write(command + "\n")
-        self.proc.stdin.flush()
-        assert self._line() == f"done {command}"
-
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            assert self.proc.stdin is not None
-            self.proc.stdin.write("quit\n")
-            self.proc.stdin.close()
-            self.proc.wait(timeout=10)
+        super().__init__(robot, domain, store, partition,
+                         {Path(f"{key}.pub"): rights for key, rights in (allow or {}).items()})
 
 
 class Listener:
     """``blackbox listen --json`` in its own process; a thread collects its state lines."""
 
     def __init__(self, domain: int, *extra: str, key: Path | None = None) -> None:
-        env = _env()
+        env = dds_env()
         if key is not None:
             env["BLACKBOX_STATION_KEY"] = str(key)  # its backfill requests are signed
         self.proc = subprocess.Popen(
@@ -236,7 +209,7 @@ def test_log_request_is_answered_only_by_the_addressed_robot(cleanup, tmp_path):
     done = subprocess.run(
         [sys.executable, "-m", "blackbox", "request-logs", "--domain", str(domain), "--robot",
          "alpha", "--kind", "failure", "--out", str(out), "--key", str(key)],
-        capture_output=True, text=True, env=_env(), timeout=30)
+        capture_output=True, text=True, env=dds_env(), timeout=30)
     assert done.returncode == 0, done.stderr
     entries = [json.loads(line) for line in out.read_text().splitlines()]
     assert [e["payload"]["components"] for e in entries] == [["/usb_cam"]]
@@ -258,7 +231,7 @@ def test_foreign_and_garbage_samples_do_not_crash_the_listener(cleanup):
     # A different type on a UCMS topic name, written by a third process.
     intruder = subprocess.run(
         [sys.executable, str(HERE / "dds_intruder.py"), str(domain)],
-        capture_output=True, text=True, env=_env(), timeout=30)
+        capture_output=True, text=True, env=dds_env(), timeout=30)
     assert intruder.returncode == 0, intruder.stderr
     # Raw garbage datagrams at every UDP port the listener has open.
     ports = _udp_ports(listener.proc.pid)

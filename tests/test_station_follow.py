@@ -14,8 +14,9 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import psutil
 import pytest
@@ -65,10 +66,24 @@ def kinds(store: StationStore, robot: str) -> list[tuple[str, str]]:
     return sorted((e.kind, e.origin) for e in page.events)
 
 
+class NewBox(Protocol):
+    def __call__(self, robot: str, domain: int, *commands: str,
+                 store: Path | None = None) -> ScriptedBlackBox: ...
+
+
 @pytest.fixture
-def boxes() -> Iterator[list[ScriptedBlackBox]]:
+def new_box() -> Iterator[NewBox]:
+    """Starts a scripted black box, sends it ``commands``; stops them all at the end."""
     started: list[ScriptedBlackBox] = []
-    yield started
+
+    def start(robot: str, domain: int, *commands: str,
+              store: Path | None = None) -> ScriptedBlackBox:
+        box = ScriptedBlackBox(robot, domain, store=store)
+        started.append(box)
+        for command in commands:
+            box.send(command)
+        return box
+    yield start
     for box in started:
         box.stop()
 
@@ -86,15 +101,24 @@ def follower_for(store: StationStore, domain: int, **kwargs: Any) -> StationFoll
     return follower
 
 
-def test_live_state_events_and_a_rectification_reach_the_station_database(
-        tmp_path: Path, boxes: list[ScriptedBlackBox]) -> None:
-    domain = fresh_domain()
-    box = ScriptedBlackBox("thesis", domain)
-    boxes.append(box)
-    box.send("ok")
-    store = StationStore.open(tmp_path / "station.db")
-    follower = follower_for(store, domain, backfill=0)
+@contextmanager
+def following(path: Path, domain: int,
+              **kwargs: Any) -> Iterator[tuple[StationStore, StationFollower]]:
+    """A station database at ``path`` and a follower of ``domain`` into it, for the block."""
+    store = StationStore.open(path)
+    follower = follower_for(store, domain, **kwargs)
     try:
+        yield store, follower
+    finally:
+        follower.stop()
+        store.close()
+
+
+def test_live_state_events_and_a_rectification_reach_the_station_database(
+        tmp_path: Path, new_box: NewBox) -> None:
+    domain = fresh_domain()
+    box = new_box("thesis", domain, "ok")
+    with following(tmp_path / "station.db", domain, backfill=0) as (store, _):
         wait(lambda: health(store, "thesis").get("/usb_cam") == "OPERATIONAL")
         box.send("fault")
         wait(lambda: ("failure", "live") in kinds(store, "thesis"))
@@ -120,9 +144,6 @@ def test_live_state_events_and_a_rectification_reach_the_station_database(
         assert [(t.type, t.value) for t in code.thresholds] == [("min", 0.0)]
         fleet = store.fleet()
         assert [(r.robot_id, r.online, r.stale) for r in fleet] == [("thesis", True, False)]
-    finally:
-        follower.stop()
-        store.close()
     db = sqlite3.connect(tmp_path / "station.db")
     assert db.execute("SELECT count(*) FROM events WHERE kind LIKE '%exceedence%'"
                       ).fetchone()[0] == 0
@@ -130,28 +151,19 @@ def test_live_state_events_and_a_rectification_reach_the_station_database(
 
 
 def test_a_restarted_station_rereads_state_and_backfills_exactly_what_it_missed(
-        tmp_path: Path, boxes: list[ScriptedBlackBox]) -> None:
+        tmp_path: Path, new_box: NewBox) -> None:
     domain = fresh_domain()
-    box = ScriptedBlackBox("thesis", domain, store=tmp_path / "health.db")
-    boxes.append(box)
-    box.send("ok")
+    box = new_box("thesis", domain, "ok", store=tmp_path / "health.db")
     path = tmp_path / "station.db"
-    store = StationStore.open(path)
-    follower = follower_for(store, domain, backfill=600)
-    try:
+    with following(path, domain, backfill=600) as (store, follower):
         wait(lambda: health(store, "thesis").get("/usb_cam") == "OPERATIONAL")
         box.send("fault")
         wait(lambda: ("failure", "live") in kinds(store, "thesis"))
         wait(lambda: ("exceedance", "live") in kinds(store, "thesis"))
-    finally:
-        follower.stop()
-        store.close()
     # While the station is down: the camera recovers and fails again.
     box.send("ok")
     box.send("fault")
-    store = StationStore.open(path)
-    follower = follower_for(store, domain, backfill=600)
-    try:
+    with following(path, domain, backfill=600) as (store, follower):
         wait(lambda: ("rectification", "log") in kinds(store, "thesis"))
         wait(lambda: kinds(store, "thesis").count(("failure", "log")) == 1)
         time.sleep(0.5)
@@ -162,24 +174,18 @@ def test_a_restarted_station_rereads_state_and_backfills_exactly_what_it_missed(
         assert health(store, "thesis")["/usb_cam"] == "NOT_OPERATIONAL"
         assert store.diagnosis("thesis").components == ("/usb_cam",)
         assert follower.stats.backfilled >= 3
-    finally:
-        follower.stop()
-        store.close()
 
 
 def test_log_requests_page_through_the_robots_own_log_and_download_it(
-        tmp_path: Path, boxes: list[ScriptedBlackBox]) -> None:
+        tmp_path: Path, new_box: NewBox) -> None:
     domain = fresh_domain()
     health_db = tmp_path / "health.db"
-    box = ScriptedBlackBox("thesis", domain, store=health_db)
-    boxes.append(box)
+    box = new_box("thesis", domain, store=health_db)
     start = time.time()
     for command in ("ok", "fault", "ok", "fault", "ok"):
         box.send(command)
     end = time.time()
-    store = StationStore.open(tmp_path / "station.db")
-    follower = follower_for(store, domain, backfill=0, log_page=4)
-    try:
+    with following(tmp_path / "station.db", domain, backfill=0, log_page=4) as (store, follower):
         wait(lambda: health(store, "thesis"))
 
         def own_log(**query: Any) -> list[dict[str, Any]]:
@@ -224,20 +230,13 @@ def test_log_requests_page_through_the_robots_own_log_and_download_it(
             follower.request_logs("nobody")
         assert [e.kind for e in store.events("thesis", kinds=["log_request"]).events] == [
             "log_request"] * 3
-    finally:
-        follower.stop()
-        store.close()
 
 
 def test_a_built_in_test_runs_and_its_result_is_stored(
-        tmp_path: Path, boxes: list[ScriptedBlackBox]) -> None:
+        tmp_path: Path, new_box: NewBox) -> None:
     domain = fresh_domain()
-    box = ScriptedBlackBox("thesis", domain)
-    boxes.append(box)
-    box.send("fault")
-    store = StationStore.open(tmp_path / "station.db")
-    follower = follower_for(store, domain, backfill=0)
-    try:
+    new_box("thesis", domain, "fault")
+    with following(tmp_path / "station.db", domain, backfill=0) as (store, follower):
         wait(lambda: health(store, "thesis").get("/usb_cam"))
         run = follower.run_ibit("thesis", requested_by="olga")
         result = wait(lambda: (r := store.ibit_run(run)) and r.status != "pending" and r)
@@ -247,9 +246,6 @@ def test_a_built_in_test_runs_and_its_result_is_stored(
         assert "0 of 5 checks failed" in event.text
         with pytest.raises(UnknownRobot):
             follower.run_ibit("thesis", entity="/no_such_node")
-    finally:
-        follower.stop()
-        store.close()
 
 
 def _udp_ports(pid: int) -> list[int]:
@@ -257,11 +253,9 @@ def _udp_ports(pid: int) -> list[int]:
 
 
 def test_unknown_robots_spoofed_oversized_and_garbage_input_are_reported_and_survived(
-        tmp_path: Path, boxes: list[ScriptedBlackBox]) -> None:
+        tmp_path: Path, new_box: NewBox) -> None:
     domain = fresh_domain()
-    box = ScriptedBlackBox("thesis", domain)
-    boxes.append(box)
-    box.send("ok")
+    box = new_box("thesis", domain, "ok")
     store = StationStore.open(tmp_path / "station.db")
     follower = StationFollower(store, TransportSettings(domain), backfill=0,
                                signer=station_signer_for_tests())
@@ -305,14 +299,10 @@ def full_disk(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Any]:
 
 
 def test_a_full_station_disk_is_reported_and_nothing_heard_meanwhile_is_lost(
-        full_disk: Any, boxes: list[ScriptedBlackBox]) -> None:
+        full_disk: Any, new_box: NewBox) -> None:
     domain = fresh_domain()
-    box = ScriptedBlackBox("thesis", domain)
-    boxes.append(box)
-    box.send("ok")
-    store = StationStore.open(full_disk.directory / "station.db")
-    follower = follower_for(store, domain, backfill=0)
-    try:
+    box = new_box("thesis", domain, "ok")
+    with following(full_disk.directory / "station.db", domain, backfill=0) as (store, follower):
         wait(lambda: health(store, "thesis").get("/usb_cam") == "OPERATIONAL")
         full_disk.fill(store)
         for _ in range(20):  # more than fits in the last free pages
@@ -331,9 +321,6 @@ def test_a_full_station_disk_is_reported_and_nothing_heard_meanwhile_is_lost(
                                   store.pending, store.problems())) from None
         time.sleep(0.5)
         assert store.count_events("thesis", kinds=["failure", "rectification"]) == 40
-    finally:
-        follower.stop()
-        store.close()
 
 
 def test_the_simulated_robot_run_by_blackbox_run_feeds_the_station(tmp_path: Path) -> None:
@@ -385,18 +372,12 @@ def test_the_simulated_robot_run_by_blackbox_run_feeds_the_station(tmp_path: Pat
 
 
 def test_an_operators_log_request_does_not_wait_behind_a_stuck_backfill(
-        tmp_path: Path, boxes: list[ScriptedBlackBox]) -> None:
+        tmp_path: Path, new_box: NewBox) -> None:
     domain = fresh_domain()
-    mute = ScriptedBlackBox("mute", domain)  # no recorder: its log requests go unanswered
-    boxes.append(mute)
-    mute.send("ok")
-    store = StationStore.open(tmp_path / "station.db")
-    follower = follower_for(store, domain, backfill=600)
-    try:
+    new_box("mute", domain, "ok")  # no recorder: its log requests go unanswered
+    with following(tmp_path / "station.db", domain, backfill=600) as (store, follower):
         wait(lambda: follower._backfills.lock.locked())  # the mute robot's backfill waits
-        box = ScriptedBlackBox("thesis", domain, store=tmp_path / "health.db")
-        boxes.append(box)
-        box.send("fault")
+        new_box("thesis", domain, "fault", store=tmp_path / "health.db")
         wait(lambda: health(store, "thesis"))
         request = follower.request_logs("thesis", kinds=["failure"])
         info = wait(lambda: (r := store.log_request(request)) and r.status == "done" and r)
@@ -404,6 +385,3 @@ def test_an_operators_log_request_does_not_wait_behind_a_stuck_backfill(
         assert not any("mute" in p.message for p in store.problems(200))  # still waiting
         wait(lambda: any("mute: missed events not fetched" in p.message
                          for p in store.problems(200)), timeout=30)
-    finally:
-        follower.stop()
-        store.close()

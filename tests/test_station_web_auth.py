@@ -6,9 +6,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from argon2 import PasswordHasher
 
 from blackbox.station.auth import Auth, AuthError, AuthPolicy, Role
+from station_support import quick_auth
 
 PASSWORD = "correct horse battery"
 
@@ -28,11 +28,10 @@ def clock() -> Clock:
 
 @pytest.fixture
 def auth(tmp_path: Path, clock: Clock) -> Auth:
-    fast = PasswordHasher(time_cost=1, memory_cost=8192, parallelism=1)
-    return Auth(tmp_path / "station.db", AuthPolicy(idle_timeout=60, max_age=600,
-                                                    free_failures=3, base_backoff=2.0,
-                                                    free_failures_per_address=6),
-                clock=clock, hasher=fast)
+    return quick_auth(tmp_path / "station.db", AuthPolicy(idle_timeout=60, max_age=600,
+                                                          free_failures=3, base_backoff=2.0,
+                                                          free_failures_per_address=6),
+                      clock=clock)
 
 
 def test_no_account_exists_until_one_is_added(auth: Auth) -> None:

@@ -11,16 +11,16 @@ from __future__ import annotations
 import socket
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from argon2 import PasswordHasher
 
 from blackbox.health.ids import robot_resource_id
-from blackbox.station.auth import Auth, Role
+from blackbox.station.auth import Role
 from blackbox.station.store import StationStore
 from blackbox.station.web.app import create_app
+from station_support import Unreachable, quick_auth
 
 CHROMIUM = Path("/usr/bin/chromium")
 playwright_api = pytest.importorskip("playwright.sync_api")
@@ -33,27 +33,14 @@ IMG_EVIL = '<img src=x onerror="alert(2)">'
 PASSWORD = "station password 1"
 
 
-class Refuse:
-    """Operations are not used here; any call fails the test."""
-
-    def request_logs(self, robot: str | int, *, entity: str | None = None,
-                     characteristic: str | None = None, since: float | None = None,
-                     until: float | None = None, kinds: Sequence[str] = (),
-                     requested_by: str = "") -> int:
-        raise AssertionError("request_logs reached")
-
-    def run_ibit(self, robot: str | int, entity: str = "", requested_by: str = "") -> int:
-        raise AssertionError("run_ibit reached")
-
-
 @pytest.fixture
 def served(tmp_path: Path) -> Iterator[tuple[str, StationStore]]:
     path = tmp_path / "station.db"
     store = StationStore.open(path)
-    auth = Auth(path, hasher=PasswordHasher(time_cost=1, memory_cost=8192, parallelism=1))
+    auth = quick_auth(path)
     auth.add_user("vera", PASSWORD, Role.OPERATOR)
     stop = threading.Event()
-    server = uvicorn.Server(uvicorn.Config(create_app(auth, store, Refuse(), stop=stop),
+    server = uvicorn.Server(uvicorn.Config(create_app(auth, store, Unreachable(), stop=stop),
                                            log_level="warning"))
     sock = socket.socket()
     sock.bind(("127.0.0.1", 0))

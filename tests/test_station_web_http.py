@@ -10,40 +10,27 @@ from __future__ import annotations
 
 import re
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from argon2 import PasswordHasher
 from fastapi.testclient import TestClient
 
 from blackbox.health.ids import robot_resource_id
 from blackbox.station.auth import Auth, Role
 from blackbox.station.store import StationStore
 from blackbox.station.web.app import create_app
+from station_support import Unreachable, quick_auth
 
 PASSWORD = "station password 1"
 EVIL = "<script>alert(1)</script>"
-
-
-class Unreachable:
-    """Operations that must not run in these tests: every call fails the test."""
-
-    def request_logs(self, robot: str | int, *, entity: str | None = None,
-                     characteristic: str | None = None, since: float | None = None,
-                     until: float | None = None, kinds: Sequence[str] = (),
-                     requested_by: str = "") -> int:
-        raise AssertionError("request_logs reached")
-
-    def run_ibit(self, robot: str | int, entity: str = "", requested_by: str = "") -> int:
-        raise AssertionError("run_ibit reached")
 
 
 @pytest.fixture
 def station(tmp_path: Path) -> Iterator[tuple[StationStore, Auth, TestClient]]:
     path = tmp_path / "station.db"
     store = StationStore.open(path)
-    auth = Auth(path, hasher=PasswordHasher(time_cost=1, memory_cost=8192, parallelism=1))
+    auth = quick_auth(path)
     for name, role in (("vera", Role.VIEWER), ("otto", Role.OPERATOR), ("ada", Role.ADMIN)):
         auth.add_user(name, PASSWORD, role)
     rid = robot_resource_id("evil-bot")
@@ -216,7 +203,7 @@ def test_a_robot_that_stops_talking_turns_grey_unknown(tmp_path: Path) -> None:
     now = [time.time()]
     path = tmp_path / "station.db"
     store = StationStore.open(path, stale_after=10.0, clock=lambda: now[0])
-    auth = Auth(path, hasher=PasswordHasher(time_cost=1, memory_cost=8192, parallelism=1))
+    auth = quick_auth(path)
     auth.add_user("vera", PASSWORD, Role.VIEWER)
     rid = robot_resource_id("quiet-bot")
     store.heard(rid, now[0])

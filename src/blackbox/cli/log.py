@@ -22,6 +22,7 @@ from blackbox.record.retention import (
 )
 from blackbox.record.settings import DEFAULT_BUDGET, parse_size, recorder_settings
 from blackbox.record.store import KINDS, LogEntry, StorageError, Store
+from blackbox.timestamps import parse_timestamp
 
 EXIT_ERROR = 1
 EXIT_USAGE = 2
@@ -112,14 +113,9 @@ def parse_time(text: str | None) -> float | None:
     if text is None:
         return None
     try:
-        return float(text)
-    except ValueError:
-        pass
-    try:
-        dt = datetime.fromisoformat(text)
+        return parse_timestamp(text)
     except ValueError:
         raise ValueError(f"not a time: {text!r} (seconds or ISO 8601)") from None
-    return (dt if dt.tzinfo else dt.replace(tzinfo=UTC)).timestamp()
 
 
 def _entries(args: argparse.Namespace, store: Store) -> list[LogEntry] | None:

@@ -13,6 +13,7 @@ import getpass
 import socket
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -91,61 +92,64 @@ def _db(args: argparse.Namespace) -> Path:
     return Path(args.user_db or args.db)
 
 
-def user_add_command(args: argparse.Namespace) -> int:
+def _usage_error(message: object) -> int:
+    print(f"error: {message}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+def _open_or_say(path: Path, stale_after: float = 10.0) -> tuple[Any, Auth] | None:
+    """:func:`open_databases`, or ``None`` after saying why the file cannot be opened."""
     from blackbox.station.store import StationStoreError
 
     try:
-        store, auth = open_databases(_db(args))
+        return open_databases(path, stale_after)
     except StationStoreError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        _usage_error(exc)
+        return None
+
+
+def _with_accounts(args: argparse.Namespace, action: Callable[[Auth], object]) -> int:
+    """Run one ``station user`` action on the accounts; a refused one exits 2."""
+    opened = _open_or_say(_db(args))
+    if opened is None:
         return EXIT_USAGE
+    store, auth = opened
     try:
-        auth.add_user(args.name, read_password(args.name), Role.parse(args.role))
+        action(auth)
     except AuthError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return _usage_error(exc)
     finally:
         auth.close()
         store.close()
-    print(f"station: user {args.name} ({args.role}) added to {_db(args)}", file=sys.stderr)
     return 0
+
+
+def user_add_command(args: argparse.Namespace) -> int:
+    code = _with_accounts(args, lambda auth: auth.add_user(
+        args.name, read_password(args.name), Role.parse(args.role)))
+    if code == 0:
+        print(f"station: user {args.name} ({args.role}) added to {_db(args)}",
+              file=sys.stderr)
+    return code
 
 
 def user_passwd_command(args: argparse.Namespace) -> int:
-    store, auth = open_databases(_db(args))
-    try:
-        auth.set_password(args.name, read_password(args.name), by="cli", address="local")
-    except AuthError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    finally:
-        auth.close()
-        store.close()
-    return 0
+    return _with_accounts(args, lambda auth: auth.set_password(
+        args.name, read_password(args.name), by="cli", address="local"))
+
+
+def _print_users(auth: Auth) -> None:
+    for user in auth.users():
+        print(f"{user.name}\t{user.role.label}")
 
 
 def user_list_command(args: argparse.Namespace) -> int:
-    store, auth = open_databases(_db(args))
-    try:
-        for user in auth.users():
-            print(f"{user.name}\t{user.role.label}")
-    finally:
-        auth.close()
-        store.close()
-    return 0
+    return _with_accounts(args, _print_users)
 
 
 def user_remove_command(args: argparse.Namespace) -> int:
-    store, auth = open_databases(_db(args))
-    try:
-        auth.remove_user(args.name, by="cli", address="local")
-    except AuthError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    finally:
-        auth.close()
-        store.close()
-    return 0
+    return _with_accounts(args, lambda auth: auth.remove_user(args.name, by="cli",
+                                                               address="local"))
 
 
 def parse_bind(text: str) -> tuple[str, int]:
@@ -156,25 +160,20 @@ def parse_bind(text: str) -> tuple[str, int]:
 
 
 def serve_command(args: argparse.Namespace) -> int:
-    from blackbox.station.store import StationStoreError
-
     if getattr(args, "station_command", None) == "user" and not getattr(args, "user_command",
                                                                           None):
         print("usage: blackbox station user {add,passwd,list,remove} ...", file=sys.stderr)
         return EXIT_USAGE
     if (args.tls_cert is None) != (args.tls_key is None):
-        print("error: --tls-cert and --tls-key go together", file=sys.stderr)
-        return EXIT_USAGE
+        return _usage_error("--tls-cert and --tls-key go together")
     try:
         host, port = parse_bind(args.bind)
     except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        return _usage_error(exc)
+    opened = _open_or_say(args.db, args.stale_after)
+    if opened is None:
         return EXIT_USAGE
-    try:
-        store, auth = open_databases(args.db, args.stale_after)
-    except StationStoreError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+    store, auth = opened
     try:
         return serve(args, store, auth, host, port)
     finally:
@@ -198,8 +197,7 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
         signer = (RequestSigner.from_file(args.key) if args.key is not None
                   else RequestSigner.from_environment())
     except (AuthError, OSError) as exc:
-        print(f"error: --key: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return _usage_error(f"--key: {exc}")
     if signer is None:
         print("station: no station key (--key or $BLACKBOX_STATION_KEY): robots will refuse "
               "its log requests and IBIT commands", file=sys.stderr)
@@ -215,8 +213,7 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
         sock.bind((host, port))
     except OSError as exc:
         follower.stop()
-        print(f"error: cannot listen on {host}:{port}: {exc.strerror}", file=sys.stderr)
-        return EXIT_USAGE
+        return _usage_error(f"cannot listen on {host}:{port}: {exc.strerror}")
     config = uvicorn.Config(app, log_level="warning", access_log=False,
                             ssl_certfile=str(args.tls_cert) if tls else None,
                             ssl_keyfile=str(args.tls_key) if tls else None,

@@ -1007,22 +1007,29 @@ class StationStore:
                            until: float | None, kinds: Sequence[str],
                            requested_by: str) -> int:
         """A new log request record (written at once); returns its id."""
+        return self._insert_now(
+            "INSERT INTO log_requests (resource_id, robot_id, entity, characteristic, "
+            "since, until, kinds, requested_by, created) VALUES (?,?,?,?,?,?,?,?,?)",
+            (resource_id, _clip(robot_id, MAX_NAME), entity, characteristic, since,
+             until, json.dumps(list(kinds)), _clip(requested_by, 100), self.clock()),
+            resource_id, "logs", "the log request")
+
+    def _insert_now(self, sql: str, args: Sequence[Any], resource_id: int, topic: str,
+                    what: str) -> int:
+        """Write one row at once (after the queue, so it is in order) and return its id:
+        the caller needs the id before it answers."""
         with self._write_lock:
             if not self.flush(force=True):
                 raise StationStoreError("the station database cannot be written now")
             try:
-                cur = self._db.execute(
-                    "INSERT INTO log_requests (resource_id, robot_id, entity, characteristic, "
-                    "since, until, kinds, requested_by, created) VALUES (?,?,?,?,?,?,?,?,?)",
-                    (resource_id, _clip(robot_id, MAX_NAME), entity, characteristic, since,
-                     until, json.dumps(list(kinds)), _clip(requested_by, 100), self.clock()))
+                cur = self._db.execute(sql, args)
             except sqlite3.Error as exc:
                 self.report_problem("store", f"cannot write {self.path}: {exc}")
-                raise StationStoreError(f"cannot record the log request: {exc}") from None
+                raise StationStoreError(f"cannot record {what}: {exc}") from None
             assert cur.lastrowid is not None
-            request = int(cur.lastrowid)
-        self._notify(frozenset({resource_id}), frozenset({"logs"}))
-        return request
+            row_id = int(cur.lastrowid)
+        self._notify(frozenset({resource_id}), frozenset({topic}))
+        return row_id
 
     def add_log_rows(self, request: int, first_seq: int, entries: Sequence[LogEntry]) -> None:
         rows = [(request, first_seq + i, e.id, e.time, _clip(e.kind, 40), e.entity,
@@ -1046,22 +1053,12 @@ class StationStore:
 
     def create_ibit_run(self, resource_id: int, robot_id: str, entity: str,
                         requested_by: str) -> int:
-        with self._write_lock:
-            if not self.flush(force=True):
-                raise StationStoreError("the station database cannot be written now")
-            try:
-                cur = self._db.execute(
-                    "INSERT INTO ibit_runs (resource_id, robot_id, entity, requested_by, "
-                    "created) VALUES (?,?,?,?,?)", (resource_id, _clip(robot_id, MAX_NAME),
-                                                   _clip(entity, MAX_NAME),
-                                                   _clip(requested_by, 100), self.clock()))
-            except sqlite3.Error as exc:
-                self.report_problem("store", f"cannot write {self.path}: {exc}")
-                raise StationStoreError(f"cannot record the IBIT request: {exc}") from None
-            assert cur.lastrowid is not None
-            run = int(cur.lastrowid)
-        self._notify(frozenset({resource_id}), frozenset({"ibit"}))
-        return run
+        return self._insert_now(
+            "INSERT INTO ibit_runs (resource_id, robot_id, entity, requested_by, created) "
+            "VALUES (?,?,?,?,?)", (resource_id, _clip(robot_id, MAX_NAME),
+                                   _clip(entity, MAX_NAME), _clip(requested_by, 100),
+                                   self.clock()),
+            resource_id, "ibit", "the IBIT request")
 
     def finish_ibit_run(self, run: int, resource_id: int, *, status: str,
                         health: str | None, observations: int, failed: int,
@@ -1308,21 +1305,29 @@ class StationStore:
             return int(db.execute("SELECT count(*) FROM events" + (
                 " WHERE " + " AND ".join(where) if where else ""), args).fetchone()[0])
 
-    def log_request(self, request: int) -> LogRequest | None:
+    def _row(self, select: str, row_id: int) -> Sequence[Any] | None:
         with self._read() as db:
-            row = db.execute(_LOG_SELECT + " WHERE id = ?", (request,)).fetchone()
-        return None if row is None else _log_request(row)
+            row: Sequence[Any] | None = db.execute(select + " WHERE id = ?",
+                                                   (row_id,)).fetchone()
+        return row
 
-    def log_requests(self, robot: RobotRef | None = None, limit: int = 50) -> list[LogRequest]:
-        """Log requests newest first."""
-        sql, args = _LOG_SELECT, list[Any]()
+    def _newest(self, select: str, robot: RobotRef | None, limit: int) -> list[Sequence[Any]]:
+        """Rows of ``select`` newest first, of one robot or of all; at most ``limit``."""
+        sql, args = select, list[Any]()
         if robot is not None:
             sql += " WHERE resource_id = ?"
             args.append(robot_resource(robot))
         with self._read() as db:
-            rows = db.execute(sql + " ORDER BY id DESC LIMIT ?",
+            return db.execute(sql + " ORDER BY id DESC LIMIT ?",
                               [*args, max(1, min(limit, MAX_PAGE))]).fetchall()
-        return [_log_request(r) for r in rows]
+
+    def log_request(self, request: int) -> LogRequest | None:
+        row = self._row(_LOG_SELECT, request)
+        return None if row is None else _log_request(row)
+
+    def log_requests(self, robot: RobotRef | None = None, limit: int = 50) -> list[LogRequest]:
+        """Log requests newest first."""
+        return [_log_request(r) for r in self._newest(_LOG_SELECT, robot, limit)]
 
     def log_entries(self, request: int, offset: int = 0,
                     limit: int = MAX_PAGE) -> list[LogEntry]:
@@ -1363,19 +1368,11 @@ class StationStore:
         return (write_jsonl if fmt == "jsonl" else write_csv)(entries, out)
 
     def ibit_run(self, run: int) -> IbitRun | None:
-        with self._read() as db:
-            row = db.execute(_IBIT_SELECT + " WHERE id = ?", (run,)).fetchone()
+        row = self._row(_IBIT_SELECT, run)
         return None if row is None else _ibit(row)
 
     def ibit_runs(self, robot: RobotRef | None = None, limit: int = 50) -> list[IbitRun]:
-        sql, args = _IBIT_SELECT, list[Any]()
-        if robot is not None:
-            sql += " WHERE resource_id = ?"
-            args.append(robot_resource(robot))
-        with self._read() as db:
-            rows = db.execute(sql + " ORDER BY id DESC LIMIT ?",
-                              [*args, max(1, min(limit, MAX_PAGE))]).fetchall()
-        return [_ibit(r) for r in rows]
+        return [_ibit(r) for r in self._newest(_IBIT_SELECT, robot, limit)]
 
 
 _EVENT_SELECT = ("SELECT e.id, e.resource_id, coalesce(r.robot_id, ''), e.time, e.kind, "

@@ -41,6 +41,7 @@ from blackbox.station.store import (
     StationStoreError,
     UnknownRobot,
 )
+from blackbox.timestamps import parse_timestamp
 
 HERE = Path(__file__).resolve().parent
 SESSION_COOKIE = "bb_session"
@@ -101,17 +102,10 @@ def parse_time(text: str | None) -> float | None:
         return None
     text = text.strip()
     try:
-        return float(text)
-    except ValueError:
-        pass
-    try:
-        dt = datetime.fromisoformat(text)
+        return parse_timestamp(text)
     except ValueError:
         raise HTTPException(400, f"not a time: {text[:40]!r} (use YYYY-MM-DDTHH:MM:SS, UTC)")\
             from None
-    if dt.tzinfo is None:
-        dt = dt.replace(tzinfo=UTC)
-    return dt.timestamp()
 
 
 class ChangeSignal:
@@ -227,6 +221,19 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
             raise HTTPException(403, f"this needs the {role.label} role; you are "
                                 f"{session.user.role.label}")
         return session, form, target
+
+    def operate(request: Request, session: Session, action: str, target: str,
+                start: Callable[[], int], detail: Callable[[int], str]) -> int:
+        """Start an operator's remote operation and audit it: refused (answered 400) when
+        it raises ValueError or LookupError, else ok with ``detail`` of its number."""
+        try:
+            number = start()
+        except (ValueError, LookupError) as exc:
+            auth.audit(session.user.name, action, target, "refused", address(request),
+                       str(exc))
+            raise HTTPException(400, str(exc)) from None
+        auth.audit(session.user.name, action, target, "ok", address(request), detail(number))
+        return number
 
     def page(request: Request, name: str, session: Session | None, status: int = 200,
              **context: Any) -> HTMLResponse:
@@ -397,18 +404,15 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         session, form, target = await change(request, "logs.request", Role.OPERATOR)
         robot_id = form.get("robot", "")
         since, until = parse_time(form.get("since")), parse_time(form.get("until"))
-        try:
+
+        def request_them() -> int:
             if not robot_id:
                 raise ValueError("choose a robot")
-            number = operations.request_logs(robot_id, entity=form.get("entity") or None,
-                                             since=since, until=until,
-                                             requested_by=session.user.name)
-        except (ValueError, LookupError) as exc:
-            auth.audit(session.user.name, "logs.request", target, "refused",
-                       address(request), str(exc))
-            raise HTTPException(400, str(exc)) from None
-        auth.audit(session.user.name, "logs.request", target, "ok", address(request),
-                   f"request={number} since={since} until={until}")
+            return operations.request_logs(robot_id, entity=form.get("entity") or None,
+                                           since=since, until=until,
+                                           requested_by=session.user.name)
+        number = operate(request, session, "logs.request", target, request_them,
+                         lambda n: f"request={n} since={since} until={until}")
         return RedirectResponse(f"/logs/{number}", status_code=303)
 
     @app.get("/logs/{number}")
@@ -446,15 +450,11 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
     @app.post("/ibit")
     async def ibit(request: Request) -> Response:
         session, form, target = await change(request, "ibit.run", Role.OPERATOR)
-        try:
-            number = operations.run_ibit(form.get("robot", ""), form.get("entity", ""),
-                                         requested_by=session.user.name)
-        except (ValueError, LookupError) as exc:
-            auth.audit(session.user.name, "ibit.run", target, "refused", address(request),
-                       str(exc))
-            raise HTTPException(400, str(exc)) from None
-        auth.audit(session.user.name, "ibit.run", target, "ok", address(request),
-                   f"run={number}")
+        number = operate(request, session, "ibit.run", target,
+                         lambda: operations.run_ibit(form.get("robot", ""),
+                                                     form.get("entity", ""),
+                                                     requested_by=session.user.name),
+                         lambda n: f"run={n}")
         return RedirectResponse(f"/ibit/{number}", status_code=303)
 
     @app.get("/ibit/{number}")
