@@ -5,20 +5,17 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from datetime import datetime
 from pathlib import Path
 from typing import Any
 
 from blackbox.cli.listen import add_bus_arguments, open_bus
+from blackbox.timestamps import parse_timestamp
 
 
 def _time(text: str) -> float:
+    """UTC unless the text says otherwise, as ``blackbox log`` and the station read it."""
     try:
-        return float(text)
-    except ValueError:
-        pass
-    try:
-        return datetime.fromisoformat(text).timestamp()
+        return parse_timestamp(text)
     except ValueError:
         raise argparse.ArgumentTypeError(
             f"expected seconds since the epoch or an ISO date-time, got {text!r}") from None
@@ -43,7 +40,7 @@ def register(sub: Any) -> None:
     p.add_argument("--robot", required=True, help="robot id (as in its configuration)")
     p.add_argument("--entity", help="node or topic (exact, or a glob with * ? [)")
     p.add_argument("--characteristic", help="observer type (exact or glob)")
-    p.add_argument("--since", type=_time, help="start time (epoch seconds or ISO date-time)")
+    p.add_argument("--since", type=_time, help="start time (epoch seconds or ISO date-time, UTC unless it says)")
     p.add_argument("--until", type=_time, help="end time (epoch seconds or ISO date-time)")
     p.add_argument("--kind", action="append", default=[], dest="kinds",
                    help="entry kind (repeatable): observation, exceedance, diagnosis, "
