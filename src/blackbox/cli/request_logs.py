@@ -40,7 +40,8 @@ def register(sub: Any) -> None:
     p.add_argument("--robot", required=True, help="robot id (as in its configuration)")
     p.add_argument("--entity", help="node or topic (exact, or a glob with * ? [)")
     p.add_argument("--characteristic", help="observer type (exact or glob)")
-    p.add_argument("--since", type=_time, help="start time (epoch seconds or ISO date-time, UTC unless it says)")
+    p.add_argument("--since", type=_time,
+                   help="start time (epoch seconds or ISO date-time, UTC unless it says)")
     p.add_argument("--until", type=_time, help="end time (epoch seconds or ISO date-time)")
     p.add_argument("--kind", action="append", default=[], dest="kinds",
                    help="entry kind (repeatable): observation, exceedance, diagnosis, "
