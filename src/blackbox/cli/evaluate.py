@@ -37,7 +37,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--config", type=Path, default=DEFAULT_CONFIG,
                    help="observer configuration (default: the thesis's ten observers)")
     p.add_argument("--source", default="sim:thesis",
-                   help="simulated robot: sim:thesis or sim:TOPOLOGY.yaml")
+                   help="simulated robot (sim:thesis or sim:TOPOLOGY.yaml), or ros1: the real "
+                        "demo robot under ROS 1 with faults injected on its processes")
     p.add_argument("--runs", type=int, default=10, help="number of runs (default 10)")
     p.add_argument("--duration", type=float, default=300.0, metavar="S",
                    help="simulated seconds per run (default 300)")
@@ -66,7 +67,8 @@ def evaluate_command(args: argparse.Namespace) -> int:
             diagnosis=not args.no_diagnosis)
         settings.check()
         progress = None if args.quiet else _progress(settings.runs, sys.stderr)
-        result = run_campaign(settings, progress)
+        tick = None if args.quiet else _tick(settings, sys.stderr)
+        result = run_campaign(settings, progress, tick)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -83,6 +85,13 @@ def _progress(runs: int, out: TextIO) -> Callable[[RunResult], None]:
         c = r.score.confusion
         print(f"run {r.index + 1}/{runs} (seed {r.seed}): {len(r.score.outcomes)} faults, "
               f"TP {c.tp} FN {c.fn} FP {c.fp}, {r.wall:.2f} s", file=out, flush=True)
+    return report
+
+
+def _tick(settings: CampaignSettings, out: TextIO) -> Callable[[int, float], None]:
+    def report(index: int, seconds: float) -> None:
+        print(f"run {index + 1}/{settings.runs}: {seconds:.0f} s of about "
+              f"{settings.duration + 5:.0f} s", file=out, flush=True)
     return report
 
 
@@ -124,6 +133,11 @@ def print_report(result: CampaignResult, out: TextIO) -> None:
     if diag and result.diagnosis is not None:
         line += f" {result.diagnosis.isolated:>4}/{result.diagnosis.faults:<4}"
     w(line + "\n\n")
+    use = result.resources
+    if use is not None:
+        w(f"black box process during the runs: CPU {use.cpu_percent:.1f} % of one core (mean "
+          f"over {use.seconds:.0f} s), RSS mean {use.rss_mean / 1e6:.0f} MB, max "
+          f"{use.rss_max / 1e6:.0f} MB\n\n")
 
     before, after = THESIS_BEFORE, THESIS_AFTER
     rows: list[tuple[str, ...]] = [
