@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import sys
 from collections import Counter
@@ -55,6 +56,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--json", type=Path, default=None, metavar="OUT",
                    help="write settings, totals, per-kind and per-fault results as JSON")
     p.add_argument("--quiet", action="store_true", help="no per-run progress on stderr")
+    p.add_argument("--report", type=Path, default=None, metavar="DIR",
+                   help="also run the thesis's filter experiments and write DIR/report.md "
+                        "with PNG figures")
+    p.add_argument("--fault-free", type=float, default=100.0, metavar="S",
+                   help="seconds of the fault-free run of the filter experiments (default 100)")
     p.set_defaults(func=evaluate_command)
 
 
@@ -73,6 +79,15 @@ def evaluate_command(args: argparse.Namespace) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     print_report(result, sys.stdout)
+    if args.report is not None:
+        from blackbox.evaluate.report import make_report
+
+        text = io.StringIO()
+        print_report(result, text)
+        say = None if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+        path = make_report(settings, result, args.report, text.getvalue(),
+                           fault_free=args.fault_free, progress=say)
+        print(f"\nwrote {path}")
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result.to_dict(), indent=1) + "\n", encoding="utf-8")
