@@ -96,7 +96,9 @@ def test_kinds_option() -> None:
     (CampaignSettings(duration=8.0), "--duration: a run must last more than 10 s"),
     (CampaignSettings(grace=-1.0), "--grace"),
     (CampaignSettings(mean_gap=0.0), "--mean-gap"),
-    (CampaignSettings(source="ros1"), "--source: campaigns need a simulated robot"),
+    (CampaignSettings(source="ros1://127.0.0.1:11311"),
+     "--source: a campaign starts its own demo robot"),
+    (CampaignSettings(source="nosuch:x"), "--source: unknown source"),
 ])
 def test_bad_settings_are_refused_by_name(settings: CampaignSettings, message: str) -> None:
     with pytest.raises(ValueError, match=message):
