@@ -130,7 +130,7 @@ def test_cli_prints_runs_totals_and_the_thesis_side_by_side(
 @pytest.mark.parametrize(("argv", "message"), [
     (["--kinds", "explode"], "error: --kinds: unknown fault kind"),
     (["--runs", "0"], "error: --runs"),
-    (["--source", "ros1"], "error: --source"),
+    (["--source", "ros1://127.0.0.1:1"], "error: --source"),
     (["--source", "sim:nowhere"], "error: --source"),
 ])
 def test_cli_bad_options_exit_2_with_one_line(
