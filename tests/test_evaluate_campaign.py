@@ -96,7 +96,9 @@ def test_kinds_option() -> None:
     (CampaignSettings(duration=8.0), "--duration: a run must last more than 10 s"),
     (CampaignSettings(grace=-1.0), "--grace"),
     (CampaignSettings(mean_gap=0.0), "--mean-gap"),
-    (CampaignSettings(source="ros1"), "--source: campaigns need a simulated robot"),
+    (CampaignSettings(source="ros1://127.0.0.1:11311"),
+     "--source: a campaign starts its own demo robot"),
+    (CampaignSettings(source="nosuch:x"), "--source: unknown source"),
 ])
 def test_bad_settings_are_refused_by_name(settings: CampaignSettings, message: str) -> None:
     with pytest.raises(ValueError, match=message):
@@ -128,7 +130,7 @@ def test_cli_prints_runs_totals_and_the_thesis_side_by_side(
 @pytest.mark.parametrize(("argv", "message"), [
     (["--kinds", "explode"], "error: --kinds: unknown fault kind"),
     (["--runs", "0"], "error: --runs"),
-    (["--source", "ros1"], "error: --source"),
+    (["--source", "ros1://127.0.0.1:1"], "error: --source"),
     (["--source", "sim:nowhere"], "error: --source"),
 ])
 def test_cli_bad_options_exit_2_with_one_line(

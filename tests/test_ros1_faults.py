@@ -78,9 +78,13 @@ def shared_robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ThesisRob
         r.stop()
 
 
+SUBSCRIBED = Ros1Settings(rates_from_counters=False)
+"""These tests are about the TCPROS subscription path; counters: test_ros1_bus_stats.py."""
+
+
 def _watch(robot: ThesisRobot, topics: set[str], decoded: set[str] = frozenset(),
            settings: Ros1Settings | None = None) -> Watch:
-    source = Ros1Source(robot.master_uri + "/", settings)
+    source = Ros1Source(robot.master_uri + "/", settings or SUBSCRIBED)
     source.start(Interest(topics=frozenset(topics), decoded=frozenset(decoded)))
     return Watch(source)
 
@@ -242,7 +246,7 @@ def test_garbage_publisher_is_survived_with_a_reason_and_retried_with_backoff(
     junk = f"/junk_{mode}"
     fake = FakePublisher(shared_robot.master_uri, junk, GARBAGE[mode], f"/garbage_{mode}")
     w = _watch(shared_robot, {junk, "/signal"}, {junk},
-               Ros1Settings(backoff_min=0.1, backoff_max=0.4))
+               Ros1Settings(backoff_min=0.1, backoff_max=0.4, rates_from_counters=False))
     try:
         assert w.until(lambda: fake.connections >= 3 and len(w.messages("/signal")) >= 15)
         reasons = [f.message for f in w.faults("connection_fault") if f.component == junk]
@@ -263,7 +267,7 @@ def test_garbage_publisher_is_survived_with_a_reason_and_retried_with_backoff(
 
 
 def test_oversized_messages_respect_the_per_topic_cap(shared_robot: ThesisRobot) -> None:
-    source = Ros1Source(shared_robot.master_uri + "/")
+    source = Ros1Source(shared_robot.master_uri + "/", SUBSCRIBED)
     source.start(Interest(topics=frozenset({IMAGE}), max_message_bytes={IMAGE: 100_000}))
     w = Watch(source)
     try:
@@ -281,7 +285,8 @@ def test_half_open_connection_is_closed_once_the_publisher_is_gone(
     fake = FakePublisher(shared_robot.master_uri, "/quiet",
                          lambda c: c.sendall(_float_header("/quiet") + struct.pack("<I", 8)
                                              + struct.pack("<d", 1.5)), "/silent")
-    w = _watch(shared_robot, {"/quiet"}, settings=Ros1Settings(idle_grace=1.0))
+    w = _watch(shared_robot, {"/quiet"},
+               settings=Ros1Settings(idle_grace=1.0, rates_from_counters=False))
     try:
         assert w.until(lambda: len(w.messages("/quiet")) == 1)
         fake.stop_api()

@@ -13,7 +13,7 @@ import pytest
 
 from blackbox.events import GraphSnapshot, Interest, MessageArrival, ResourceSample
 from blackbox.model import BlackBoxEvent
-from blackbox.sources.ros1 import Ros1Source
+from blackbox.sources.ros1 import Ros1Settings, Ros1Source
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros1_robot"))
 import itertools
@@ -60,7 +60,10 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ThesisRobot]:
 def watched(robot: ThesisRobot) -> Iterator[Watch]:
     """A source watching the thesis robot for three seconds, then kept open."""
     state_before = robot.master().getSystemState("/test")
-    source = Ros1Source.from_uri(f"ros1://127.0.0.1:{robot.port}")
+    # Subscriptions for every topic: these tests are about the TCPROS path (the counter
+    # path is tests/test_ros1_bus_stats.py).
+    source = Ros1Source.from_uri(f"ros1://127.0.0.1:{robot.port}",
+                                 Ros1Settings(rates_from_counters=False))
     source.start(THESIS_INTEREST)
     watch = Watch(source)
     watch.until(lambda ev: False, timeout=3.0)

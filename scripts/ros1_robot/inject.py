@@ -3,19 +3,31 @@
 
     inject.py --port 11411 --truth truth.jsonl [--duration 300] [--seed 1]
               [--kinds kill,stall,rate,offset,scale] [--mean-gap 20] [--length 5:15]
+    inject.py --port 11411 --truth truth.jsonl --schedule faults.json
 
-Starts ``roscore`` and the three thesis nodes (see ``robot.py``), then injects one fault
-at a time on the real processes, separated by random gaps:
+Starts ``roscore`` and the three thesis nodes (see ``robot.py``), then injects faults on
+the real processes. Without ``--schedule``: one fault at a time, separated by random gaps.
+With ``--schedule`` (a JSON list of ``{kind, component, start, end, params}``, times in
+seconds from a start instant; what ``blackbox evaluate --source ros1`` writes): prints
+``ready`` and the pids, reads the start instant (wall-clock seconds) from a line on stdin,
+then begins and ends every fault at its time; faults on different nodes may overlap.
 
 - ``kill`` (node): SIGKILL; the node is started again at the end of the fault.
 - ``stall`` (topic): SIGSTOP of the publishing node, SIGCONT at the end. A stopped process
   also stops answering its slave API, so it looks dead to anyone asking it.
 - ``rate`` (topic): the publisher's ``~rate`` parameter is set to ``hz``, then restored.
-- ``offset`` / ``scale`` (``/signal``): the signal generator's ``~offset``/``~scale``.
+  ``rate`` takes ``hz`` or ``factor`` (times the nominal rate).
+- ``offset`` / ``scale`` (``/signal``): the signal generator's ``~offset``/``~scale``
+  (parameters ``value`` / ``factor``); ``stuck``: ``~stuck`` freezes the value;
+  ``drift``: ``~drift`` adds ``rate`` units per second.
+- ``cpu_hog`` (node): ``~hog`` burns ``percent`` of one core in the node's own process;
+  ``memory_growth`` (node): ``~leak`` keeps ``rate`` more bytes every second.
 
 Ground truth is one JSON object per line in the simulator's format
 (``{start, end, kind, component, node, params}``), times in wall-clock seconds
-(``time.time()``, the ROS 1 source's clock), written when each fault ends.
+(``time.time()``, the ROS 1 source's clock), written as faults happen: a line with
+``end: null`` when a fault begins, and the same fault with its end when it ends (the last
+line of a fault is the one that counts; a fault with no end line lasted to the end).
 """
 
 from __future__ import annotations
@@ -26,6 +38,7 @@ import os
 import random
 import signal
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +46,12 @@ from typing import Any
 
 from robot import NODES, TOPICS, ThesisRobot
 
-KINDS = ("kill", "stall", "rate", "offset", "scale")
+KINDS = ("kill", "stall", "rate", "offset", "scale", "stuck", "drift", "cpu_hog",
+         "memory_growth")
+VALUE_PARAMS = {"offset": ("offset", "value", 0.0), "scale": ("scale", "factor", 1.0),
+                "stuck": ("stuck", None, 0.0), "drift": ("drift", "rate", 0.0)}
+"""Value fault kind -> (parameter of the signal generator, fault parameter, healthy value)."""
+NODE_PARAMS = {"cpu_hog": ("hog", "percent"), "memory_growth": ("leak", "rate")}
 DEFAULT_RATES = {"/usb_cam/image_raw": 15.0, "/audio": 33.333, "/signal": 15.0}
 
 
@@ -45,7 +63,7 @@ class ActiveFault:
     start: float
     params: dict[str, float] = field(default_factory=dict)
 
-    def record(self, end: float) -> dict[str, Any]:
+    def record(self, end: float | None) -> dict[str, Any]:
         return {"start": self.start, "end": end, "kind": self.kind,
                 "component": self.component, "node": self.node, "params": dict(self.params)}
 
@@ -57,6 +75,7 @@ class Injector:
         self.robot = robot
         self.truth = truth
         self.records: list[dict[str, Any]] = []
+        self._lock = threading.Lock()
 
     def begin(self, kind: str, component: str, **params: float) -> ActiveFault:
         if kind == "kill":
@@ -67,18 +86,25 @@ class Injector:
             os.kill(self.robot.pid(node), signal.SIGSTOP)
         elif kind == "rate":
             node = self._publisher(component)
-            self.robot.set_param(f"{node}/rate", float(params["hz"]))
-        elif kind in ("offset", "scale"):
+            hz = params["hz"] if "hz" in params else DEFAULT_RATES[component] * params["factor"]
+            self.robot.set_param(f"{node}/rate", float(hz))
+        elif kind in VALUE_PARAMS:
             if component != "/signal":
                 raise ValueError(f"{kind} acts on /signal, not {component}")
             node = TOPICS[component]
-            key = "value" if kind == "offset" else "factor"
-            self.robot.set_param(f"{node}/{kind}", float(params[key]))
+            name, key, _ = VALUE_PARAMS[kind]
+            self.robot.set_param(f"{node}/{name}", 1.0 if key is None else float(params[key]))
+        elif kind in NODE_PARAMS:
+            node = self._node(component)
+            name, key = NODE_PARAMS[kind]
+            self.robot.set_param(f"{node}/{name}", float(params[key]))
         else:
             raise ValueError(f"unknown fault kind {kind!r}; expected one of {', '.join(KINDS)}")
-        return ActiveFault(kind, component, node, time.time(), dict(params))
+        fault = ActiveFault(kind, component, node, time.time(), dict(params))
+        self._write(fault.record(None))
+        return fault
 
-    def end(self, fault: ActiveFault) -> dict[str, Any]:
+    def end(self, fault: ActiveFault, restart_wait: bool = True) -> dict[str, Any]:
         end = time.time()
         if fault.kind == "kill":
             self.robot.nodes[fault.node].wait(timeout=5)
@@ -87,16 +113,23 @@ class Injector:
             os.kill(self.robot.pid(fault.node), signal.SIGCONT)
         elif fault.kind == "rate":
             self.robot.set_param(f"{fault.node}/rate", DEFAULT_RATES[fault.component])
-        elif fault.kind == "offset":
-            self.robot.set_param(f"{fault.node}/offset", 0.0)
-        elif fault.kind == "scale":
-            self.robot.set_param(f"{fault.node}/scale", 1.0)
+        elif fault.kind in VALUE_PARAMS:
+            name, _, healthy = VALUE_PARAMS[fault.kind]
+            self.robot.set_param(f"{fault.node}/{name}", healthy)
+        elif fault.kind in NODE_PARAMS:
+            self.robot.set_param(f"{fault.node}/{NODE_PARAMS[fault.kind][0]}", 0.0)
         rec = fault.record(end)
         self.records.append(rec)
-        if self.truth is not None:
-            with self.truth.open("a", encoding="utf-8") as f:
-                f.write(json.dumps(rec, sort_keys=True) + "\n")
+        self._write(rec)
         return rec
+
+    def _write(self, rec: dict[str, Any]) -> None:
+        """Append one ground-truth line now, so a crash loses nothing already injected."""
+        if self.truth is None:
+            return
+        with self._lock, self.truth.open("a", encoding="utf-8") as f:
+            f.write(json.dumps(rec, sort_keys=True) + "\n")
+            f.flush()
 
     @staticmethod
     def _node(name: str) -> str:
@@ -123,7 +156,43 @@ def random_fault(rng: random.Random, kinds: list[str]) -> tuple[str, str, dict[s
         return kind, topic, {"hz": round(DEFAULT_RATES[topic] * factor, 3)}
     if kind == "offset":
         return kind, "/signal", {"value": rng.choice([-5.0, -3.0, 3.0, 5.0])}
-    return kind, "/signal", {"factor": rng.choice([0.5, 1.5])}
+    if kind == "scale":
+        return kind, "/signal", {"factor": rng.choice([0.5, 1.5])}
+    if kind == "stuck":
+        return kind, "/signal", {}
+    if kind == "drift":
+        return kind, "/signal", {"rate": rng.choice([-1.0, 1.0])}
+    if kind == "cpu_hog":
+        return kind, rng.choice(sorted(NODES)), {"percent": 90.0}
+    return kind, rng.choice(sorted(NODES)), {"rate": 10e6}
+
+
+def run_schedule(injector: Injector, schedule: list[dict[str, Any]], t0: float,
+                 stop: dict[str, bool]) -> None:
+    """Begin and end every fault of ``schedule`` at ``t0`` + its offsets (wall clock)."""
+    steps: list[tuple[float, int, int]] = []
+    for i, f in enumerate(schedule):
+        steps.append((t0 + float(f["start"]), 1, i))
+        if f.get("end") is not None:
+            steps.append((t0 + float(f["end"]), 0, i))
+    steps.sort()
+    active: dict[int, ActiveFault] = {}
+    try:
+        for at, begin, i in steps:
+            while not stop["now"] and time.time() < at:
+                time.sleep(min(0.05, max(0.0, at - time.time())))
+            if stop["now"]:
+                return
+            f = schedule[i]
+            if begin:
+                active[i] = injector.begin(f["kind"], f["component"], **f.get("params", {}))
+                print(f"{active[i].start:.3f} begin {f['kind']} {f['component']}", flush=True)
+            elif i in active:
+                rec = injector.end(active.pop(i))
+                print(f"{rec['end']:.3f} end {f['kind']} {f['component']}", flush=True)
+    finally:
+        for fault in active.values():
+            injector.end(fault)
 
 
 def _span(text: str) -> tuple[float, float]:
@@ -140,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--truth", type=Path, required=True, help="ground truth JSON lines")
     parser.add_argument("--duration", type=float, default=300.0, help="seconds of faults")
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--kinds", default=",".join(KINDS))
+    parser.add_argument("--kinds", default=",".join(KINDS[:5]))
     parser.add_argument("--mean-gap", type=float, default=20.0,
                         help="mean healthy seconds between faults")
     parser.add_argument("--length", type=_span, default=(5.0, 15.0),
@@ -148,6 +217,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=float, default=10.0,
                         help="healthy seconds before the first fault")
     parser.add_argument("--log-dir", type=Path)
+    parser.add_argument("--schedule", type=Path,
+                        help="inject these faults (JSON list) from a start instant read on stdin")
     args = parser.parse_args(argv)
     kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
     unknown = sorted(set(kinds) - set(KINDS))
@@ -169,6 +240,15 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         robot.start()
+        if args.schedule is not None:
+            schedule = json.loads(args.schedule.read_text(encoding="utf-8"))
+            print("ready " + json.dumps(robot.pids(), sort_keys=True), flush=True)
+            line = sys.stdin.readline()
+            if line.strip():
+                run_schedule(injector, schedule, float(line), stop)
+                while not stop["now"]:
+                    time.sleep(0.1)
+            return 0
         print(json.dumps(robot.pids(), sort_keys=True), flush=True)
         finish = time.monotonic() + args.duration
         sleep(args.warmup)

@@ -43,30 +43,32 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def ros_env(port: int, home: str) -> dict[str, str]:
+def ros_env(port: int, home: str, host: str = "127.0.0.1") -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}
-    env.update(ROS_MASTER_URI=f"http://127.0.0.1:{port}", ROS_IP="127.0.0.1",
-               ROS_HOSTNAME="127.0.0.1", ROS_HOME=home, PYTHONUNBUFFERED="1")
+    env.update(ROS_MASTER_URI=f"http://{host}:{port}", ROS_IP=host,
+               ROS_HOSTNAME=host, ROS_HOME=home, PYTHONUNBUFFERED="1")
     return env
 
 
 @dataclass
 class ThesisRobot:
-    """roscore plus the thesis nodes as real processes on 127.0.0.1:``port``."""
+    """roscore plus the thesis nodes as real processes on ``host``:``port`` (loopback by
+    default; tests on shaped links give an address inside a network namespace they made)."""
 
     port: int
     home: str = field(default_factory=lambda: tempfile.mkdtemp(prefix="ros1-robot-"))
     log_dir: Path | None = None
+    host: str = "127.0.0.1"
     core: subprocess.Popen[bytes] | None = None
     nodes: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
 
     @property
     def master_uri(self) -> str:
-        return f"http://127.0.0.1:{self.port}"
+        return f"http://{self.host}:{self.port}"
 
     @property
     def env(self) -> dict[str, str]:
-        return ros_env(self.port, self.home)
+        return ros_env(self.port, self.home, self.host)
 
     def _log(self, name: str) -> int | None:
         directory = self.log_dir or Path(self.home)
@@ -207,8 +209,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--port", type=int, default=11311, help="ROS master port")
     parser.add_argument("--pids", type=Path, help="also write the pids as JSON here")
     parser.add_argument("--log-dir", type=Path, help="node logs (default: a temporary ROS_HOME)")
+    parser.add_argument("--host", default="127.0.0.1",
+                        help="address the master and nodes advertise (default 127.0.0.1)")
     args = parser.parse_args(argv)
-    robot = ThesisRobot(args.port, log_dir=args.log_dir)
+    robot = ThesisRobot(args.port, log_dir=args.log_dir, host=args.host)
     stop = {"now": False}
 
     def on_signal(signum: int, frame: object) -> None:

@@ -4,9 +4,15 @@
     thesis_node.py camera|audio|signal [--rate HZ]
 
 Runs under Debian's ``/usr/bin/python3`` (where rospy lives). Each node reads its private
-parameters ``~rate`` (Hz), ``~offset`` and ``~scale`` (signal only) through rospy's parameter
-cache on every cycle, so the fault injector changes them at run time with a plain
-``setParam`` on the master; the node hears about it through a parameter subscription.
+parameters through rospy's parameter cache on every cycle, so the fault injector changes
+them at run time with a plain ``setParam`` on the master; the node hears about it through a
+parameter subscription:
+
+- ``~rate`` (Hz; 0 publishes nothing while the node stays alive)
+- ``~hog`` (percent of one core burnt by a busy thread, 0 = off) and ``~leak`` (bytes per
+  second the node allocates and keeps; back to 0 frees it), on every node
+- signal only: ``~offset``, ``~scale``, ``~stuck`` (1 freezes the value at the last one
+  sent) and ``~drift`` (units per second added since the drift was set)
 
 - camera: ``/usb_cam`` publishes ``/usb_cam/image_raw`` (sensor_msgs/Image 640x480 rgb8) at 15 Hz
 - audio: ``/audio_capture`` publishes ``/audio`` (std_msgs/UInt8MultiArray, 480 bytes) at 33.3 Hz
@@ -17,6 +23,7 @@ cache on every cycle, so the fault injector changes them at run time with a plai
 import argparse
 import contextlib
 import random
+import threading
 import time
 
 import rospy
@@ -54,6 +61,27 @@ def _loop(make, publisher, rate):
             next_t = time.monotonic()
 
 
+def _trouble():
+    """Burn ``~hog`` percent of one core and keep ``~leak`` bytes per second, from a thread
+    of this process (so the node's own pid shows it, as a real CPU or memory fault would)."""
+    kept = []
+    period = 0.02
+    while not rospy.is_shutdown():
+        hog = min(max(_param("~hog", 0.0), 0.0), 100.0)
+        leak = max(_param("~leak", 0.0), 0.0)
+        if leak > 0:
+            kept.append(bytearray(b"\x01") * int(leak * period))
+        elif kept:
+            kept.clear()
+        if hog > 0:
+            end = time.monotonic() + period * hog / 100.0
+            while time.monotonic() < end:
+                pass
+            time.sleep(period * (1.0 - hog / 100.0))
+        else:
+            time.sleep(period)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("role", choices=sorted(ROLES))
@@ -63,6 +91,9 @@ def main():
     rate = default_rate if args.rate is None else args.rate
     rospy.init_node(name, anonymous=False, disable_signals=False)
     rospy.set_param("~rate", rate)
+    rospy.set_param("~hog", 0.0)
+    rospy.set_param("~leak", 0.0)
+    threading.Thread(target=_trouble, daemon=True).start()
     if args.role == "camera":
         pub = rospy.Publisher("/usb_cam/image_raw", Image, queue_size=2)
         msg = Image(height=480, width=640, encoding="rgb8", is_bigendian=0, step=640 * 3,
@@ -80,8 +111,9 @@ def main():
         chunk = UInt8MultiArray(data=bytes(480))
         _loop(lambda: chunk, pub, rate)
     else:
-        rospy.set_param("~offset", 0.0)
-        rospy.set_param("~scale", 1.0)
+        for name, default in (("~offset", 0.0), ("~scale", 1.0), ("~stuck", 0.0),
+                              ("~drift", 0.0)):
+            rospy.set_param(name, default)
         counts = {"image": 0, "audio": 0}
         rospy.Subscriber("/usb_cam/image_raw", Image,
                          lambda m: counts.__setitem__("image", counts["image"] + 1),
@@ -91,9 +123,22 @@ def main():
                          queue_size=5)
         pub = rospy.Publisher("/signal", Float64, queue_size=5)
 
+        last = {"value": 15.0, "drift_since": None}
+
         def value():
+            if _param("~stuck", 0.0):
+                return Float64(last["value"])
+            drift = _param("~drift", 0.0)
+            if drift and last["drift_since"] is None:
+                last["drift_since"] = time.monotonic()
+            elif not drift:
+                last["drift_since"] = None
+            since = last["drift_since"]
+            extra = drift * (time.monotonic() - since) if since is not None else 0.0
             base = 15.0 + random.uniform(-0.5, 0.5)
-            return Float64(_param("~offset", 0.0) + _param("~scale", 1.0) * base)
+            out = _param("~offset", 0.0) + _param("~scale", 1.0) * base + extra
+            last["value"] = out
+            return Float64(out)
 
         _loop(value, pub, rate)
 

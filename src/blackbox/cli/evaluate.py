@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import sys
 from collections import Counter
@@ -37,7 +38,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--config", type=Path, default=DEFAULT_CONFIG,
                    help="observer configuration (default: the thesis's ten observers)")
     p.add_argument("--source", default="sim:thesis",
-                   help="simulated robot: sim:thesis or sim:TOPOLOGY.yaml")
+                   help="simulated robot (sim:thesis or sim:TOPOLOGY.yaml), or ros1: the real "
+                        "demo robot under ROS 1 with faults injected on its processes")
     p.add_argument("--runs", type=int, default=10, help="number of runs (default 10)")
     p.add_argument("--duration", type=float, default=300.0, metavar="S",
                    help="simulated seconds per run (default 300)")
@@ -57,6 +59,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--json", type=Path, default=None, metavar="OUT",
                    help="write settings, totals, per-kind and per-fault results as JSON")
     p.add_argument("--quiet", action="store_true", help="no per-run progress on stderr")
+    p.add_argument("--report", type=Path, default=None, metavar="DIR",
+                   help="also run the thesis's filter experiments and write DIR/report.md "
+                        "with PNG figures")
+    p.add_argument("--fault-free", type=float, default=100.0, metavar="S",
+                   help="seconds of the fault-free run of the filter experiments (default 100)")
     p.set_defaults(func=evaluate_command)
 
 
@@ -69,12 +76,22 @@ def evaluate_command(args: argparse.Namespace) -> int:
             diagnosis=not args.no_diagnosis, engine=args.engine)
         settings.check()
         progress = None if args.quiet else _progress(settings.runs, sys.stderr)
-        result = run_campaign(settings, progress)
+        tick = None if args.quiet else _tick(settings, sys.stderr)
+        result = run_campaign(settings, progress, tick)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     print_report(result, sys.stdout)
     print_engine(result, sys.stdout)
+    if args.report is not None:
+        from blackbox.evaluate.report import make_report
+
+        text = io.StringIO()
+        print_report(result, text)
+        say = None if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+        path = make_report(settings, result, args.report, text.getvalue(),
+                           fault_free=args.fault_free, progress=say)
+        print(f"\nwrote {path}")
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result.to_dict(), indent=1) + "\n", encoding="utf-8")
@@ -87,6 +104,13 @@ def _progress(runs: int, out: TextIO) -> Callable[[RunResult], None]:
         c = r.score.confusion
         print(f"run {r.index + 1}/{runs} (seed {r.seed}): {len(r.score.outcomes)} faults, "
               f"TP {c.tp} FN {c.fn} FP {c.fp}, {r.wall:.2f} s", file=out, flush=True)
+    return report
+
+
+def _tick(settings: CampaignSettings, out: TextIO) -> Callable[[int, float], None]:
+    def report(index: int, seconds: float) -> None:
+        print(f"run {index + 1}/{settings.runs}: {seconds:.0f} s of about "
+              f"{settings.duration + 5:.0f} s", file=out, flush=True)
     return report
 
 
@@ -128,6 +152,11 @@ def print_report(result: CampaignResult, out: TextIO) -> None:
     if diag and result.diagnosis is not None:
         line += f" {result.diagnosis.isolated:>4}/{result.diagnosis.faults:<4}"
     w(line + "\n\n")
+    use = result.resources
+    if use is not None:
+        w(f"black box process during the runs: CPU {use.cpu_percent:.1f} % of one core (mean "
+          f"over {use.seconds:.0f} s), RSS mean {use.rss_mean / 1e6:.0f} MB, max "
+          f"{use.rss_max / 1e6:.0f} MB\n\n")
 
     before, after = THESIS_BEFORE, THESIS_AFTER
     rows: list[tuple[str, ...]] = [

@@ -4,6 +4,9 @@ The experiment of thesis section 6.2.1.2 (ten runs of five minutes with random f
 repeated on the simulated robot: each run draws a random campaign, runs the configured
 observers and the diagnosis over the simulator's clock (five minutes take well under a
 second) and scores the observations and diagnoses against the simulator's ground truth.
+A source without a simulated clock but with a registered robot harness (``ros1``: the real
+demo robot) runs the same campaign on real processes in real time
+(:mod:`blackbox.evaluate.real_campaign`).
 """
 
 from __future__ import annotations
@@ -31,6 +34,13 @@ from blackbox.evaluate.metrics import (
     percentile,
     score_run,
 )
+from blackbox.evaluate.real_campaign import (
+    ROBOT_HARNESSES,
+    RealRun,
+    ResourceUse,
+    RobotHarness,
+    run_real,
+)
 from blackbox.model import Diagnosis, Observation
 from blackbox.pipeline import RunStats
 from blackbox.sinks import SinkBase
@@ -38,6 +48,7 @@ from blackbox.sources.base import (
     Capabilities,
     GroundTruthSource,
     RandomFaults,
+    scheme_of,
     source_kind,
 )
 from blackbox.sources.sim import FAULT_KINDS, THESIS_FAULT_KINDS
@@ -101,9 +112,14 @@ class CampaignSettings:
                              f"{self.warmup + self.tail:g} s ({self.warmup:g} s warm-up + "
                              f"{self.tail:g} s without new faults at the end)")
         caps = source_capabilities(self.source)
-        if not (caps.fault_injection and caps.ground_truth and caps.simulated_clock):
-            raise ValueError("--source: campaigns need a simulated robot (sim:...) for its "
-                             "ground truth")
+        simulated = caps.fault_injection and caps.ground_truth and caps.simulated_clock
+        if not simulated and self.harness() is not None and self.source != scheme_of(self.source):
+            raise ValueError(f"--source: a campaign starts its own demo robot; give "
+                             f"{scheme_of(self.source)} alone, not {self.source!r}")
+        if not simulated and self.harness() is None:
+            raise ValueError("--source: campaigns need a simulated robot (sim:...) or a source "
+                             "with a demo robot and fault injector (" +
+                             ", ".join(ROBOT_HARNESSES) + ")")
         if not self.kinds:
             raise ValueError("--kinds: no fault kinds")
         if self.engine is not None and self.engine not in ("cbd", "sfdd", "hybrid"):
@@ -111,6 +127,12 @@ class CampaignSettings:
         unknown = [k for k in self.kinds if k not in FAULT_KINDS]
         if unknown:
             raise ValueError(f"--kinds: unknown fault kind {unknown[0]!r}")
+
+    def harness(self) -> RobotHarness | None:
+        """The demo robot harness for a real-time source (``None`` for a simulated one)."""
+        if source_capabilities(self.source).simulated_clock:
+            return None
+        return ROBOT_HARNESSES.get(scheme_of(self.source))
 
     def to_dict(self) -> dict[str, Any]:
         return {"config": str(self.config), "source": self.source, "runs": self.runs,
@@ -146,17 +168,26 @@ class RunResult:
     engine_cpu: float | None = None
     """CPU seconds of the diagnosis engine (and SFDD's signal tap) over the run; like
     ``wall`` it varies between identical runs, so it is printed, not in :meth:`to_dict`."""
+    real: RealRun | None = None
+    """The recorded real run (events, ground truth, resource use) on real middleware."""
+
+    @property
+    def resources(self) -> ResourceUse | None:
+        return None if self.real is None else self.real.resources
 
     def to_dict(self) -> dict[str, Any]:
-        return {"index": self.index, "seed": self.seed, **self.score.to_dict(),
-                "engine_score": None if self.engine_score is None else {
-                    "confusion": self.engine_score.confusion.to_dict(),
-                    "diagnosis": None if self.engine_score.diagnosis is None
-                    else self.engine_score.diagnosis.to_dict()},
-
-                "messages": self.stats.messages, "observations": self.stats.observations,
-                "faulty_observations": self.stats.faulty_observations,
-                "diagnoses": self.stats.diagnoses, "errors": self.stats.errors}
+        out = {"index": self.index, "seed": self.seed, **self.score.to_dict(),
+               "messages": self.stats.messages, "observations": self.stats.observations,
+               "faulty_observations": self.stats.faulty_observations,
+               "diagnoses": self.stats.diagnoses, "errors": self.stats.errors}
+        if self.engine_score is not None:
+            out["engine_score"] = {
+                "confusion": self.engine_score.confusion.to_dict(),
+                "diagnosis": None if self.engine_score.diagnosis is None
+                else self.engine_score.diagnosis.to_dict()}
+        if self.resources is not None:
+            out["blackbox_resources"] = self.resources.to_dict()
+        return out
 
 
 @dataclass(frozen=True)
@@ -205,6 +236,17 @@ class CampaignResult:
         delays = sorted(d for s in scores for d in s.delays())
         return confusion, iso, delays, sum(r.engine_cpu or 0.0 for r in self.runs)
 
+    @property
+    def resources(self) -> ResourceUse | None:
+        """The black box's CPU and RSS over every real run (``None`` on the simulator)."""
+        uses = [r.resources for r in self.runs if r.resources is not None]
+        if not uses:
+            return None
+        seconds = sum(u.seconds for u in uses)
+        return ResourceUse(sum(u.cpu_percent * u.seconds for u in uses) / seconds,
+                           sum(u.rss_mean * u.seconds for u in uses) / seconds,
+                           max(u.rss_max for u in uses), seconds)
+
     def to_dict(self) -> dict[str, Any]:
         delays = self.delays()
         iso = [o.isolation_delay for o in self.outcomes if o.isolation_delay is not None]
@@ -224,6 +266,7 @@ class CampaignResult:
                                     "recall": t.recall, "f1": t.f1}}
                        for t in (THESIS_BEFORE, THESIS_AFTER)],
             "runs": [r.to_dict() for r in self.runs],
+            "blackbox_resources": None if self.resources is None else self.resources.to_dict(),
         }
 
 
@@ -240,11 +283,24 @@ def source_capabilities(spec: str) -> Capabilities:
         raise ValueError(f"--source: {exc.message}") from None
 
 
-def run_one(settings: CampaignSettings, index: int) -> RunResult:
+def run_one(settings: CampaignSettings, index: int,
+            tick: Callable[[float], None] | None = None) -> RunResult:
     """Run and score run ``index`` of a campaign. Raises ``ValueError`` for a bad option or
     source and :class:`ConfigError` for a bad configuration file."""
     started = time.perf_counter()
     seed = settings.seed + index
+    harness = settings.harness()
+    if harness is not None:
+        real = run_real(harness, config=Path(settings.config), duration=settings.duration,
+                        tail=settings.tail, seed=seed, kinds=settings.kinds,
+                        mean_gap=settings.mean_gap, warmup=settings.warmup,
+                        separation=settings.separation, diagnosis=settings.diagnosis,
+                        tick=tick)
+        score = score_run(real.truth, real.observations, real.publishers, start=real.start,
+                          end=real.end, grace=settings.grace,
+                          diagnoses=real.diagnoses if settings.diagnosis else None)
+        return RunResult(index, seed, score, real.stats, time.perf_counter() - started,
+                         real=real)
     faults = RandomFaults(settings.duration - settings.tail, settings.kinds,
                           mean_gap=settings.mean_gap, warmup=settings.warmup,
                           min_separation=settings.separation)
@@ -279,13 +335,20 @@ def run_one(settings: CampaignSettings, index: int) -> RunResult:
 
 
 def run_campaign(settings: CampaignSettings,
-                 progress: Callable[[RunResult], None] | None = None) -> CampaignResult:
-    """Run every run of ``settings`` in turn, calling ``progress`` after each."""
+                 progress: Callable[[RunResult], None] | None = None,
+                 tick: Callable[[int, float], None] | None = None) -> CampaignResult:
+    """Run every run of ``settings`` in turn, calling ``progress`` after each and, on a real
+    robot, ``tick(run index, seconds so far)`` every ten seconds while a run is under way."""
     settings.check()
     results = []
     for i in range(settings.runs):
-        result = run_one(settings, i)
+        run_tick = None if tick is None else _bind(tick, i)
+        result = run_one(settings, i, run_tick)
         results.append(result)
         if progress is not None:
             progress(result)
     return CampaignResult(settings, tuple(results))
+
+
+def _bind(tick: Callable[[int, float], None], index: int) -> Callable[[float], None]:
+    return lambda seconds: tick(index, seconds)

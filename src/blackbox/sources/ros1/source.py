@@ -35,10 +35,15 @@ from blackbox.events import (
 )
 from blackbox.model import BlackBoxEvent
 from blackbox.sources.base import SOURCES, Capabilities, SourceKind, SourceOptions
+from blackbox.sources.ros1.busstats import BusStatsRates, TopicCounts
 from blackbox.sources.ros1.callerid import DEFAULT_PREFIX, unique_caller_id, valid_caller_id
 from blackbox.sources.ros1.master import GraphPoller
 from blackbox.sources.ros1.resources import ResourceSampler
-from blackbox.sources.ros1.tcpros import DEFAULT_MAX_MESSAGE_BYTES, TcprosSubscriber
+from blackbox.sources.ros1.tcpros import (
+    DEFAULT_MAX_MESSAGE_BYTES,
+    StreamKey,
+    TcprosSubscriber,
+)
 
 log = logging.getLogger("blackbox.sources.ros1")
 
@@ -110,6 +115,15 @@ class Ros1Settings:
     default_max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES
     caller_id: str | None = None
     caller_id_prefix: str = DEFAULT_PREFIX
+    rates_from_counters: bool = True
+    """Rates of topics a live robot node subscribes to come from the publisher's counters
+    (``getBusStats``) instead of a subscription, unless their values are observed. The
+    counters also tell, either way, when a subscribed topic arrives slower than the robot
+    sends it (``ros1_behind``)."""
+    behind_tolerance: float = 0.1
+    """Fraction of a subscribed topic's messages the black box may miss (against an
+    on-robot subscriber, over ``behind_window`` s) before it says it cannot keep up."""
+    behind_window: float = 5.0
 
 
 class Ros1Source:
@@ -140,6 +154,12 @@ class Ros1Source:
         self._thread: threading.Thread | None = None
         self._interest = Interest()
         self.caller_id = settings.caller_id or unique_caller_id(settings.caller_id_prefix)
+        self._bus = BusStatsRates(settings.probe_timeout, caller_id=self.caller_id)
+        self.counted: set[tuple[str, str]] = set()
+        """(topic, publisher) pairs whose rate currently comes from the publisher's counters."""
+        self.behind: set[str] = set()
+        """Subscribed topics the black box currently cannot keep up with."""
+        self._behind_counts: dict[str, deque[tuple[float, int, int]]] = {}
 
     @classmethod
     def from_uri(cls, spec: str, settings: Ros1Settings | None = None) -> Ros1Source:
@@ -201,6 +221,7 @@ class Ros1Source:
             self._thread.join(timeout=3.0)
         if self._subscriber is not None:
             self._subscriber.close()
+        self._bus.close()
         self._poller.close()
 
     # ---- background ------------------------------------------------------------------------
@@ -247,8 +268,13 @@ class Ros1Source:
             try:
                 self._poller.refresh()
                 self._push(self._poller.snapshot)
-                subscriber.sync(self._poller.state.publishers, self._poller.uri_of)
                 dead = {n for n, st in self._poller.nodes.items() if not st.alive}
+                publishers = self._poller.state.publishers
+                self._count_rates(started, publishers, dead)
+                if self.counted:
+                    publishers = {t: tuple(n for n in nodes if (t, n) not in self.counted)
+                                  for t, nodes in publishers.items()}
+                subscriber.sync(publishers, self._poller.uri_of)
                 subscriber.drop_half_open(dead, self._idle_grace)
                 if started >= next_resources:
                     next_resources = started + self._resource_period
@@ -262,6 +288,70 @@ class Ros1Source:
                 log.exception("graph round failed")
                 self._report("graph_error", self.master_uri, f"graph round failed: {exc!r}")
             self._stop.wait(max(0.0, self._graph_period - (time.time() - started)))
+
+    def _count_rates(self, now: float, publishers: dict[str, tuple[str, ...]],
+                     dead: set[str]) -> None:
+        """Arrivals from the publishers' counters for topics a live robot node subscribes
+        to (their subscriptions are released); a subscribed topic the black box receives
+        less of than an on-robot subscriber is reported as one it cannot keep up with."""
+        assert self._subscriber is not None
+        interest = self._interest
+        rate_only = (interest.topics - interest.decoded if self.settings.rates_from_counters
+                     else frozenset())
+        results = self._bus.poll(now, interest.topics | interest.decoded, publishers,
+                                 self._poller.uri_of, dead)
+        counted: set[tuple[str, str]] = set()
+        for r in results:
+            key = (r.topic, r.publisher)
+            if r.topic in rate_only and r.on_robot:
+                counted.add(key)
+                if key not in self.counted:
+                    self._subscriber.release(StreamKey(r.topic, r.publisher),
+                                             "rate from the publisher's counters")
+                    self._report("rate_from_counters", r.topic,
+                                 f"{r.topic} from {r.publisher}: rate from the publisher's "
+                                 "own counters (getBusStats); not subscribed")
+                self._push_counted(now, r.arrivals)
+            else:
+                self._check_behind(now, r)
+        for topic, node in self.counted - counted:
+            self._report("rate_from_subscription", topic,
+                         f"{topic} from {node}: no live subscriber on the robot; subscribing "
+                         "to measure its rate")
+        self.counted = counted
+
+    def _check_behind(self, now: float, r: TopicCounts) -> None:
+        if r.robot_sent is None or r.own_sent is None:
+            return
+        window = self._behind_counts.setdefault(r.topic, deque())
+        window.append((now, r.robot_sent, r.own_sent))
+        while window and window[0][0] < now - self.settings.behind_window:
+            window.popleft()
+        sent = sum(w[1] for w in window)
+        got = sum(w[2] for w in window)
+        behind = sent > 10 and got < (1.0 - self.settings.behind_tolerance) * sent
+        if behind and r.topic not in self.behind:
+            self.behind.add(r.topic)
+            self._report("behind", r.topic,
+                         f"cannot keep up with {r.topic}: the black box got {got} of the "
+                         f"{sent} messages {r.publisher} sent an on-robot subscriber in the "
+                         f"last {self.settings.behind_window:g} s; its rate as seen here is "
+                         "the link's, not the robot's")
+        elif not behind and r.topic in self.behind and got >= sent:
+            self.behind.discard(r.topic)
+            self._report("keeping_up", r.topic, f"keeping up with {r.topic} again")
+
+    def _push_counted(self, round_start: float, arrivals: list[MessageArrival]) -> None:
+        """Queue counted arrivals (stamped from ``round_start`` on) shifted to start at the
+        instant they are queued, so nothing lands before an earlier ``poll`` horizon."""
+        with self._lock:
+            shift = time.time() - round_start
+            for msg in arrivals:
+                if len(self._queue) < self._queue_limit:
+                    msg.time += shift
+                    self._queue.append(msg)
+                else:
+                    self._dropped += 1
 
     def _sample_network(self, now: float) -> None:
         for iface, c in psutil.net_io_counters(pernic=True).items():
@@ -278,8 +368,18 @@ def _time_of(event: Event | BlackBoxEvent) -> float:
 
 
 def open_ros1_source(spec: str, options: SourceOptions) -> Ros1Source:
-    return Ros1Source.from_uri(spec)
+    """``ros1[://HOST:PORT][?counters=0]``: ``counters=0`` measures every rate through a
+    subscription (as the thesis's black box did) instead of the publishers' counters."""
+    base, _, query = spec.partition("?")
+    settings = Ros1Settings()
+    for item in filter(None, query.split("&")):
+        key, _, value = item.partition("=")
+        if key != "counters" or value not in ("0", "1"):
+            raise ConfigError(f"bad ROS 1 source option {item!r} in {spec!r}; expected "
+                              "counters=0 or counters=1", "--source")
+        settings = dataclasses.replace(settings, rates_from_counters=value == "1")
+    return Ros1Source.from_uri(base, settings)
 
 
 SOURCES.add("ros1", SourceKind("ros1", open_ros1_source, ROS1_CAPABILITIES,
-                               "ros1 or ros1://HOST:PORT"))
+                               "ros1 or ros1://HOST:PORT[?counters=0]"))

@@ -512,6 +512,7 @@ class TcprosSubscriber:
         self._active: set[StreamKey] = set()
         self._connecting: set[StreamKey] = set()
         self._backoff: dict[StreamKey, _Backoff] = {}
+        self._released: set[StreamKey] = set()
         self.schemas: dict[str, TopicSchema] = {}
         self._closing = False
 
@@ -599,9 +600,21 @@ class TcprosSubscriber:
             self._report("subscribed", key.topic,
                          f"receiving {key.topic} from {key.publisher} again")
 
+    def release(self, key: StreamKey, reason: str) -> None:
+        """Close ``key``'s connection on purpose (its rate now comes from elsewhere): no
+        fault is reported and no reconnection is scheduled; ``sync`` may open it again."""
+        with self._lock:
+            if key not in self._active:
+                return
+            self._released.add(key)
+        self.reader.drop(key, reason)
+
     def _closed(self, key: StreamKey, reason: str, messages: int) -> None:
         with self._lock:
             self._active.discard(key)
+            if key in self._released:
+                self._released.discard(key)
+                return
             if messages:
                 self._backoff.pop(key, None)
         self._failed(key, f"lost {key.topic} from {key.publisher}: {reason}")
