@@ -321,8 +321,10 @@ class Store:
         return cid
 
     def append(self, rows: Sequence[RowTuple],
-               meta: Mapping[str, str] | None = None) -> list[int]:
-        """Write ``rows`` (and ``meta`` keys) in one transaction; returns their ids.
+               meta: Mapping[str, str] | None = None,
+               snapshots: Sequence[tuple[str, float]] = ()) -> list[int]:
+        """Write ``rows`` (and ``meta`` keys, and ``(name, created)`` snapshot files for
+        the manifest, see :meth:`register_snapshot`) in one transaction; returns the ids.
 
         All or nothing. Configuration rows whose payload ``version`` is ``None`` get the
         next version number inside the transaction, so concurrent writers never share a
@@ -335,6 +337,8 @@ class Store:
             ids = self._insert(rows, numbered)
             if meta:
                 db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", meta.items())
+            if snapshots:
+                db.executemany("INSERT OR IGNORE INTO snapshot_files VALUES (?, ?)", snapshots)
             db.execute("COMMIT")
         except BaseException:
             self._rollback()
