@@ -81,6 +81,7 @@ class LogWriter:
         self._backlog: list[RowTuple] = []
         self._backlog_wall = 0.0  # the newest hand-over in the backlog
         self._complete_wall = 0.0  # the backlog holds every hand-over before this time
+        self._newest_time: float | None = None  # of the rows written so far
         self._handed = 0  # rows of the backlog that came through the hand-over
         self._dropped_logged = 0
         self._store: Store | None = None
@@ -225,9 +226,9 @@ class LogWriter:
             extra.append(own_event(self.clock(), {"event": "records_dropped", "total": total,
                                                   "by_kind": dropped}))
         rows = self._backlog + extra
+        self._newest_time = max((r[0] for r in self._backlog), default=self._newest_time)
         progress = dumps({"wall": self._complete_wall, "handed": self._backlog_wall,
-                          "pid": os.getpid(),
-                          "time": max((r[0] for r in self._backlog), default=None)})
+                          "pid": os.getpid(), "time": self._newest_time})
         created = _time.time()
         try:
             store.append(rows, meta={"progress": progress},
