@@ -15,9 +15,13 @@ what is bounded, with one of two policies (see docs/recorder.md, "Under load"):
     counted by kind, and the counts are written into the log itself
     (``blackbox_event`` ``records_dropped``).
 
-Every batch carries the wall-clock time it was handed over at; the writer stores the
-newest committed one as the log's progress marker (``meta`` key ``progress``), which is
-how the crash test measures how far the durable record lags the pipeline.
+Every batch carries the wall-clock time it was handed over at (stamped under the lock).
+:meth:`Handoff.take` returns, with the batches, the wall-clock time it took them at, under
+the same lock: every batch handed over before that time is among them. The writer stores
+that time as the log's progress marker (``meta`` key ``progress``, ``wall``) in the same
+transaction as the rows, so after a crash the log holds everything the pipeline handed
+over before ``progress.wall``; that is how the crash test measures how far the durable
+record lags the pipeline.
 """
 
 from __future__ import annotations
@@ -77,7 +81,8 @@ class Handoff:
             return self.pending >= self.block_above
 
     def put_capture(self, capture: Capture) -> None:
-        self.items.append(capture)
+        with self._cond:
+            self.items.append(capture)
 
     def _admit(self, rows: list[Pending]) -> list[Pending]:
         if self.pending + len(rows) <= (self.block_above if self.policy == "block"
@@ -115,12 +120,13 @@ class Handoff:
             self.pending = max(0, self.pending - n)
             self._cond.notify_all()
 
-    def take(self) -> list[tuple[float, list[Pending]] | Capture]:
-        """Everything handed over so far (writer thread)."""
-        items = []
-        while self.items:
-            items.append(self.items.popleft())
-        return items
+    def take(self) -> tuple[list[tuple[float, list[Pending]] | Capture], float]:
+        """Everything handed over so far, and the wall-clock time it was taken at: every
+        batch handed over before that time is in the list (writer thread)."""
+        with self._cond:
+            items = list(self.items)
+            self.items.clear()
+            return items, time.time()
 
     def committed(self, n: int) -> None:
         """``n`` rows are durable now: make room for the pipeline."""

@@ -2,10 +2,13 @@
 
 It takes what the pipeline handed over (:class:`~blackbox.record.handoff.Handoff`),
 encodes it and commits it every ``commit_interval`` seconds in one transaction (so a crash
-loses at most that interval), or as soon as ``commit_rows`` rows wait. Rows are always
-committed before anything else is done with the disk: snapshot files go to their own
-thread (:class:`~blackbox.record.capture_writer.CaptureWriter`) after being noted in the
-log's manifest, and retention runs after the commit.
+loses at most that interval), or as soon as ``commit_rows`` rows wait. Every scheduled
+commit happens, even with nothing new to write: it moves the progress marker ("the log
+holds everything handed over before this wall time"), so a pipeline with nothing to hand
+over is not mistaken for a writer falling behind. One transaction (one fsync) per commit:
+new snapshot files are noted in the log's manifest in the same transaction as the rows,
+then handed to their own thread (:class:`~blackbox.record.capture_writer.CaptureWriter`);
+retention runs after the commit.
 
 When writing fails (disk full, I/O error, corrupt file) the rows stay in a bounded
 backlog, the failure is reported as a self-event, and the store is reopened every
@@ -76,7 +79,9 @@ class LogWriter:
         self.error: str | None = None
         self._error_since: float | None = None
         self._backlog: list[RowTuple] = []
-        self._backlog_wall = 0.0
+        self._backlog_wall = 0.0  # the newest hand-over in the backlog
+        self._complete_wall = 0.0  # the backlog holds every hand-over before this time
+        self._newest_time: float | None = None  # of the rows written so far
         self._handed = 0  # rows of the backlog that came through the hand-over
         self._dropped_logged = 0
         self._store: Store | None = None
@@ -119,10 +124,11 @@ class LogWriter:
             self.wake.clear()
             stopping = self._stop.is_set()
             now = _time.monotonic()
-            if now >= next_commit:  # else woken early by commit_rows: the deadline stays
+            due = now >= next_commit  # else woken early (commit_rows, a snapshot row)
+            if due:
                 next_commit = max(next_commit + commit_interval, now)
             try:
-                self._write_pending()
+                self._write_pending(due or stopping)
                 now = _time.monotonic()
                 if self._store is not None and (now >= next_retention or stopping):
                     next_retention = now + self.settings.retention_interval
@@ -133,10 +139,10 @@ class LogWriter:
                 if self.captures is not None:
                     self.captures.close(timeout=20.0)
                     with contextlib.suppress(Exception):
-                        self._write_pending()  # the snapshot rows of the last captures
+                        self._write_pending(True)  # the snapshot rows of the last captures
                         if self._store is not None:
                             self._enforce_budget()
-                            self._write_pending()
+                            self._write_pending(True)
                 break
         if self._store is not None:
             with contextlib.suppress(Exception):
@@ -146,7 +152,8 @@ class LogWriter:
     def _take(self) -> list[Capture]:
         captures: list[Capture] = []
         backlog = self._backlog
-        for item in self.handoff.take():
+        items, self._complete_wall = self.handoff.take()
+        for item in items:
             if isinstance(item, Capture):
                 captures.append(item)
                 continue
@@ -185,7 +192,9 @@ class LogWriter:
         self._handed = max(0, self._handed - sum(by_kind.values()))
         self._backlog = kept
 
-    def _write_pending(self) -> None:
+    def _write_pending(self, due: bool) -> None:
+        """Commit what waits; with ``due`` (the commit interval is up) also when only the
+        progress marker moves."""
         captures = self._unregistered + self._take()
         self._unregistered = []
         store = self._store
@@ -195,14 +204,21 @@ class LogWriter:
                 return
             store = self._store
             assert store is not None
-        if self._backlog or self.handoff.dropped_total != self._dropped_logged:
-            self._commit(store)
-        if captures and self._store is not None:
-            self._register(self._store, captures)
+        if due or captures or self._backlog or \
+                self.handoff.dropped_total != self._dropped_logged:
+            if not self._commit(store, captures):
+                self._unregistered = captures
+                return
+            if captures:
+                assert self.captures is not None
+                for capture in captures:
+                    self.captures.put(capture)
         if self._store is not None:
             self._poll_imports(self._store)
 
-    def _commit(self, store: Store) -> None:
+    def _commit(self, store: Store, captures: list[Capture]) -> bool:
+        """One transaction: the rows, the progress marker and the new snapshot files in
+        the manifest (noted before they exist, so retention may delete them)."""
         dropped = self.handoff.dropped_by_kind()
         total = sum(dropped.values())
         extra: list[RowTuple] = []
@@ -210,13 +226,16 @@ class LogWriter:
             extra.append(own_event(self.clock(), {"event": "records_dropped", "total": total,
                                                   "by_kind": dropped}))
         rows = self._backlog + extra
-        progress = dumps({"wall": self._backlog_wall, "pid": os.getpid(),
-                          "time": max((r[0] for r in self._backlog), default=None)})
+        self._newest_time = max((r[0] for r in self._backlog), default=self._newest_time)
+        progress = dumps({"wall": self._complete_wall, "handed": self._backlog_wall,
+                          "pid": os.getpid(), "time": self._newest_time})
+        created = _time.time()
         try:
-            store.append(rows, meta={"progress": progress})
+            store.append(rows, meta={"progress": progress},
+                         snapshots=[(c.name, created) for c in captures])
         except (sqlite3.Error, OSError) as exc:
             self._storage_trouble(exc)
-            return
+            return False
         self.written += len(rows)
         self.handoff.committed(self._handed)
         self._handed = 0
@@ -224,19 +243,7 @@ class LogWriter:
         self._backlog = []
         if self.error is not None:
             self._recovered()
-
-    def _register(self, store: Store, captures: list[Capture]) -> None:
-        """Note the files in the manifest (committed) before they exist, then write them."""
-        try:
-            for capture in captures:
-                store.register_snapshot(capture.name, _time.time())
-        except (sqlite3.Error, OSError) as exc:
-            self._unregistered = captures
-            self._storage_trouble(exc)
-            return
-        assert self.captures is not None
-        for capture in captures:
-            self.captures.put(capture)
+        return True
 
     def _snapshot_done(self, row: Row, error: str | None) -> None:
         # Called on the snapshot thread: rows go through the hand-over like any other.
