@@ -216,3 +216,24 @@ def test_rospy_sees_ok_then_error_after_a_node_is_killed(tmp_path: Path) -> None
         listener.terminate()
         listener.wait(timeout=5)
         robot.stop()
+
+
+@pytest.mark.ros1
+@pytest.mark.skipif(shutil.which("roscore") is None, reason="needs Debian's ROS 1")
+def test_registers_again_after_a_master_restart_and_rosnode_kill_stops_only_publishing(
+        tmp_path: Path) -> None:
+    robot = ThesisRobot(free_port(), log_dir=tmp_path / "logs")
+    robot.start_master()
+    sink = Ros1DiagnosticsSink("r1", robot.master_uri)
+    try:
+        assert wait_for(lambda: "/diagnostics" in _topics(robot), 8)
+        robot.stop_master()
+        robot.start_master()
+        assert wait_for(lambda: "/diagnostics" in _topics(robot), 8)
+        subprocess.run(["rosnode", "kill", sink.publisher.caller_id], env=robot.env,
+                       capture_output=True, timeout=10, check=True)
+        assert wait_for(lambda: "/diagnostics" not in _topics(robot), 5)
+        sink.publisher.publish(sink.serialize(1.0, _statuses(0)))  # harmless after a kill
+    finally:
+        sink.close()
+        robot.stop()

@@ -237,18 +237,23 @@ class Ros1TopicPublisher:
         api = RosApi(self.master_uri, self.master_timeout)
         while not self._stop.is_set():
             try:
-                if self.registered:
-                    # a restarted master forgets us: ask it, register again if so
-                    api.call("lookupNode", self.caller_id, self.caller_id)
-                else:
-                    self._register(api)
-            except RosApiError as exc:
-                if self.registered and "error" in str(exc):
+                if self.registered and not self._listed(api.call("getSystemState",
+                                                                 self.caller_id)):
+                    log.warning("the master at %s forgot %s (restarted?): registering again",
+                                self.master_uri, self.caller_id)
                     self.registered = False
-                    continue  # the master answered but does not know us: register now
                 if not self.registered:
-                    log.debug("registering %s: %s", self.topic, exc)
+                    self._register(api)
+            except RosApiError as exc:  # master unreachable: try again next round
+                log.debug("registering %s: %s", self.topic, exc)
             self._stop.wait(self.register_period)
+
+    def _listed(self, state: Any) -> bool:
+        """Whether a ``getSystemState`` value lists us as a publisher of the topic."""
+        publishers = state[0] if isinstance(state, list) and state else []
+        return any(isinstance(entry, list) and len(entry) == 2 and entry[0] == self.topic
+                   and isinstance(entry[1], list) and self.caller_id in entry[1]
+                   for entry in publishers)
 
     def _register(self, api: RosApi) -> None:
         api.call("registerPublisher", self.caller_id, self.topic, self.msg_type, self.uri)
