@@ -28,7 +28,7 @@ import socketserver
 import struct
 import threading
 import xmlrpc.server
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from blackbox.sources.ros1.master import RosApi, RosApiError
@@ -49,6 +49,8 @@ class _Connection:
     caller_id: str
     bytes_sent: int = 0
     messages: int = 0
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    """Held while writing, so frames from two threads never interleave."""
 
 
 class _XmlRpcServer(socketserver.ThreadingMixIn, xmlrpc.server.SimpleXMLRPCServer):
@@ -163,9 +165,13 @@ class Ros1TopicPublisher:
             for conn in connections:
                 self._send(conn, frame)
 
-    def _send(self, conn: _Connection, frame: bytes) -> bool:
+    def _send(self, conn: _Connection, frame: bytes, locked: bool = False) -> bool:
         try:
-            conn.sock.sendall(frame)
+            if locked:
+                conn.sock.sendall(frame)
+            else:
+                with conn.lock:
+                    conn.sock.sendall(frame)
         except OSError as exc:  # gone, reset or too slow: drop it, keep publishing
             with self._lock:
                 if self._connections.pop(conn.id, None) is not None:
@@ -218,9 +224,15 @@ class Ros1TopicPublisher:
             conn = _Connection(self._next_id, sock, fields.get("callerid", "?"))
             self._next_id += 1
             self._connections[conn.id] = conn
-            latched = self._latched
-        if latched is not None:  # a late joiner gets the last array at once
-            self._send(conn, _LEN.pack(len(latched)) + latched)
+            # a late joiner gets the last array at once, unless the writer is about to send
+            # it anyway; holding its lock keeps the writer's next frame behind this one
+            latched = self._latched if self._pending is None else None
+            conn.lock.acquire()
+        try:
+            if latched is not None:
+                self._send(conn, _LEN.pack(len(latched)) + latched, locked=True)
+        finally:
+            conn.lock.release()
 
     def _check(self, fields: dict[str, str]) -> str | None:
         if fields.get("topic") != self.topic:
