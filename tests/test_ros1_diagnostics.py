@@ -193,6 +193,10 @@ def test_rospy_sees_ok_then_error_after_a_node_is_killed(tmp_path: Path) -> None
         with black_box_running(RunOptions(config=config, source=source, live=False)):
             time.sleep(1.5)
             assert "/diagnostics" not in _topics(robot)
+            nodes = subprocess.run(["rosnode", "list"], env=robot.env, capture_output=True,
+                                   text=True, timeout=10, check=True).stdout.split()
+            assert "/audio_capture" in nodes
+            assert not [n for n in nodes if n.startswith("/blackbox")], nodes
         with black_box_running(RunOptions(config=config, source=source, live=False,
                                           publish_diagnostics=True)):
             name = "blackbox/thesis-robot/audio_capture"

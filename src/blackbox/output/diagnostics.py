@@ -141,14 +141,16 @@ class DiagnosticsSinkBase(SinkBase):
             return
         self._levels = levels
         self._next = now + self.period
-        if self._write(now, self.statuses(levels)):
+        written = self._write(now, self.statuses(levels))
+        if written:
             self.published += 1
-        else:
+        elif written is not None:
             self.write_errors += 1
 
     @abstractmethod
-    def _write(self, now: float, statuses: list[DiagnosticStatusEntry]) -> bool:
-        """Send one ``DiagnosticArray`` stamped ``now``; ``False`` when it failed."""
+    def _write(self, now: float, statuses: list[DiagnosticStatusEntry]) -> bool | None:
+        """Send one ``DiagnosticArray`` stamped ``now``; ``False`` when it failed, ``None``
+        when nothing was sent (closed)."""
 
 
 class RosDiagnosticsSink(DiagnosticsSinkBase):
@@ -187,9 +189,9 @@ class RosDiagnosticsSink(DiagnosticsSinkBase):
                 participant.__del__()
             self._domain = None
 
-    def _write(self, now: float, statuses: list[DiagnosticStatusEntry]) -> bool:
+    def _write(self, now: float, statuses: list[DiagnosticStatusEntry]) -> bool | None:
         if self._participant is None:
-            return True
+            return None
         sec = int(now)
         header = self._header(stamp=self._stamp(sec=sec, nanosec=int((now - sec) * 1e9)),
                               frame_id="")
