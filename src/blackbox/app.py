@@ -72,7 +72,8 @@ class RunOptions:
     engine: str | None = None
     """Diagnosis engine (``cbd``, ``sfdd``, ``hybrid``); ``None``: the configuration's."""
     publish_diagnostics: bool = False
-    """Publish the verdicts on ROS 2 ``/diagnostics`` (see ``docs/ros2.md``)."""
+    """Publish the verdicts on ``/diagnostics`` of the watched ROS 1 master or ROS 2 domain
+    (see ``docs/ros1.md``, ``docs/ros2.md``)."""
     extra_sinks: list[Sink] = field(default_factory=list)
 
 
@@ -138,7 +139,7 @@ def build(options: RunOptions) -> BlackBox:
     sinks.extend(options.extra_sinks)
     source = open_robot(options)
     if options.publish_diagnostics:
-        sinks.append(open_ros_diagnostics(options, config))
+        sinks.append(open_ros_diagnostics(options, config, source))
     recorder = None
     if options.record is not None or "recorder" in config.sections:
         recorder = open_recorder(options, config, source)
@@ -203,18 +204,31 @@ def open_dds(options: RunOptions, config: LoadedConfig, recorder: Recorder | Non
     return DdsHealthSink(config.robot_id, descriptions=descriptions, on_ibit=on_ibit, **kwargs)
 
 
-def open_ros_diagnostics(options: RunOptions, config: LoadedConfig) -> Sink:
-    """The ``/diagnostics`` publisher, on the watched ROS 2 domain (else ROS_DOMAIN_ID)."""
+def open_ros_diagnostics(options: RunOptions, config: LoadedConfig, source: Source) -> Sink:
+    """The ``/diagnostics`` publisher on the middleware the source declares
+    (``capabilities.diagnostics_bridge``): the watched ROS 1 master, the watched ROS 2
+    domain, else ROS 2 on ``$ROS_DOMAIN_ID``."""
     import os
 
     from blackbox.health.describe import describe_observer
+
+    descriptions = [describe_observer(e) for e in config.observers]
+    bridge = source.capabilities.diagnostics_bridge
+    if bridge == "ros1":
+        from blackbox.output.ros1_diagnostics import Ros1DiagnosticsSink
+        from blackbox.sources.ros1.source import Ros1Source
+
+        if not isinstance(source, Ros1Source):
+            raise ConfigError(f"{options.source} declares a ROS 1 diagnostics bridge but is "
+                              "not a ROS 1 source", "--publish-diagnostics")
+        return Ros1DiagnosticsSink(config.robot_id, source.master_uri,
+                                   descriptions=descriptions)
     from blackbox.output.diagnostics import RosDiagnosticsSink
     from blackbox.sources.ros2 import domain_id_from_spec
 
-    spec = options.source if options.source.split(":", 1)[0] == "ros2" else "ros2"
+    spec = options.source if bridge == "ros2" else "ros2"
     domain = domain_id_from_spec(spec, os.environ)
-    return RosDiagnosticsSink(config.robot_id, domain_id=domain,
-                              descriptions=[describe_observer(e) for e in config.observers])
+    return RosDiagnosticsSink(config.robot_id, domain_id=domain, descriptions=descriptions)
 
 
 def open_recorder(options: RunOptions, config: LoadedConfig, source: Source) -> Recorder:

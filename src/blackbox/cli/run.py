@@ -77,9 +77,10 @@ def add_run_arguments(p: argparse.ArgumentParser, default_config: Path = DEFAULT
     p.add_argument("--domain", type=domain_id, default=None, metavar="ID",
                    help="DDS domain id (default: transport.domain_id, else 0)")
     p.add_argument("--publish-diagnostics", action="store_true",
-                   help="also publish the verdicts as diagnostic_msgs/DiagnosticArray on ROS 2 "
-                        "/diagnostics (domain of --source ros2:N, else $ROS_DOMAIN_ID; "
-                        "docs/ros2.md)")
+                   help="also publish the verdicts as diagnostic_msgs/DiagnosticArray on "
+                        "/diagnostics: with --source ros1 registers with that ROS 1 master "
+                        "(docs/ros1.md), else ROS 2 on the domain of --source ros2:N or "
+                        "$ROS_DOMAIN_ID (docs/ros2.md)")
     p.add_argument("--quiet", action="store_true", help="no live status view")
 
 

@@ -27,7 +27,9 @@ from __future__ import annotations
 
 import threading
 import time
+from abc import abstractmethod
 from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from cyclonedds.core import DDSException
@@ -45,7 +47,8 @@ from blackbox.sinks import SinkBase
 from blackbox.sources.ros2.idl import IdlTypes
 from blackbox.sources.ros2.source import cyclone_config_for_ros2
 
-__all__ = ["LEVEL_OF_HEALTH", "RosDiagnosticsSink"]
+__all__ = ["LEVEL_OF_HEALTH", "DiagnosticStatusEntry", "DiagnosticsSinkBase",
+           "RosDiagnosticsSink"]
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 
@@ -60,14 +63,27 @@ _MESSAGES = {OK: "operational", WARN: "degraded", ERROR: "not operational",
              STALE: "no verdict"}
 
 
-class RosDiagnosticsSink(SinkBase):
-    """Publishes one robot's health as ``diagnostic_msgs/DiagnosticArray`` on ROS 2
-    ``/diagnostics`` of DDS domain ``domain_id``."""
+@dataclass(frozen=True, slots=True)
+class DiagnosticStatusEntry:
+    """One ``diagnostic_msgs/DiagnosticStatus``, independent of the ROS version."""
 
-    def __init__(self, robot_id: str, *, domain_id: int = 0,
-                 descriptions: Iterable[ObserverDescription] = (),
+    level: int
+    name: str
+    message: str
+    hardware_id: str
+    values: tuple[tuple[str, str], ...]
+
+
+class DiagnosticsSinkBase(SinkBase):
+    """The verdict -> ``DiagnosticStatus`` logic shared by the ROS 1 and ROS 2 publishers.
+
+    Keeps each entity's UCMS health (:class:`HealthMapper`) and each characteristic's latest
+    verdict; hands a transport the statuses once every ``period`` and at once when a level
+    changes. A transport implements :meth:`_write`.
+    """
+
+    def __init__(self, robot_id: str, *, descriptions: Iterable[ObserverDescription] = (),
                  hysteresis: Hysteresis | None = None, period: float = 1.0,
-                 cyclone_config: str | None = None,
                  clock: Callable[[], float] = time.time) -> None:
         self.robot_id = robot_id
         self.period = period
@@ -79,23 +95,6 @@ class RosDiagnosticsSink(SinkBase):
         self._levels: dict[str, int] = {}
         self._next = 0.0
         self._lock = threading.Lock()
-        types = IdlTypes()
-        self._array: Any = types.struct("diagnostic_msgs/msg/DiagnosticArray")
-        self._status: Any = types.struct("diagnostic_msgs/msg/DiagnosticStatus")
-        self._key_value: Any = types.struct("diagnostic_msgs/msg/KeyValue")
-        self._header: Any = types.struct("std_msgs/msg/Header")
-        self._stamp: Any = types.struct("builtin_interfaces/msg/Time")
-        self._domain: Domain | None = None
-        try:
-            self._domain = Domain(domain_id, cyclone_config_for_ros2(cyclone_config))
-        except DDSException:
-            self._domain = None  # this process already runs the domain
-        self._participant: DomainParticipant | None = DomainParticipant(domain_id)
-        topic = Topic(self._participant, "rt/diagnostics", self._array)
-        self._writer: DataWriter[Any] = DataWriter(
-            self._participant, topic,
-            Qos(Policy.Reliability.Reliable(duration(milliseconds=100)),
-                Policy.Durability.Volatile, Policy.History.KeepLast(10)))
         self.mapper.start(clock())
 
     # ---- sink --------------------------------------------------------------------------------
@@ -117,18 +116,24 @@ class RosDiagnosticsSink(SinkBase):
             self.mapper.diagnosis(diagnosis)
             self._maybe_publish(diagnosis.time)
 
-    def close(self) -> None:
-        with self._lock:
-            participant, self._participant = self._participant, None
-            if participant is not None:
-                participant.__del__()
-            self._domain = None
-
     # ---- publishing --------------------------------------------------------------------------
 
     def levels(self) -> dict[str, int]:
         """Each entity's current ``DiagnosticStatus`` level (``""`` is the robot)."""
         return {name: LEVEL_OF_HEALTH[h] for name, h in self.mapper.entities().items()}
+
+    def statuses(self, levels: dict[str, int]) -> list[DiagnosticStatusEntry]:
+        """One status per entity, named ``blackbox/<robot id>/<entity>``."""
+        out = []
+        for entity, level in sorted(levels.items()):
+            verdicts = self._verdicts.get(entity, {})
+            failing = [f"{k}: {v}" for k, v in sorted(verdicts.items()) if v != "ok"]
+            message = _MESSAGES[level] + (f" ({'; '.join(failing)})" if failing else "")
+            out.append(DiagnosticStatusEntry(
+                level=level, name=f"blackbox/{self.robot_id}/{entity.strip('/') or 'robot'}",
+                message=message[:1024], hardware_id=self.robot_id,
+                values=tuple((k, v[:512]) for k, v in sorted(verdicts.items()))))
+        return out
 
     def _maybe_publish(self, now: float) -> None:
         levels = self.levels()
@@ -136,26 +141,67 @@ class RosDiagnosticsSink(SinkBase):
             return
         self._levels = levels
         self._next = now + self.period
-        self._publish(now, levels)
+        written = self._write(now, self.statuses(levels))
+        if written:
+            self.published += 1
+        elif written is not None:
+            self.write_errors += 1
 
-    def _publish(self, now: float, levels: dict[str, int]) -> None:
+    @abstractmethod
+    def _write(self, now: float, statuses: list[DiagnosticStatusEntry]) -> bool | None:
+        """Send one ``DiagnosticArray`` stamped ``now``; ``False`` when it failed, ``None``
+        when nothing was sent (closed)."""
+
+
+class RosDiagnosticsSink(DiagnosticsSinkBase):
+    """Publishes one robot's health as ``diagnostic_msgs/DiagnosticArray`` on ROS 2
+    ``/diagnostics`` of DDS domain ``domain_id``."""
+
+    def __init__(self, robot_id: str, *, domain_id: int = 0,
+                 descriptions: Iterable[ObserverDescription] = (),
+                 hysteresis: Hysteresis | None = None, period: float = 1.0,
+                 cyclone_config: str | None = None,
+                 clock: Callable[[], float] = time.time) -> None:
+        types = IdlTypes()
+        self._array: Any = types.struct("diagnostic_msgs/msg/DiagnosticArray")
+        self._status: Any = types.struct("diagnostic_msgs/msg/DiagnosticStatus")
+        self._key_value: Any = types.struct("diagnostic_msgs/msg/KeyValue")
+        self._header: Any = types.struct("std_msgs/msg/Header")
+        self._stamp: Any = types.struct("builtin_interfaces/msg/Time")
+        self._domain: Domain | None = None
+        try:
+            self._domain = Domain(domain_id, cyclone_config_for_ros2(cyclone_config))
+        except DDSException:
+            self._domain = None  # this process already runs the domain
+        self._participant: DomainParticipant | None = DomainParticipant(domain_id)
+        topic = Topic(self._participant, "rt/diagnostics", self._array)
+        self._writer: DataWriter[Any] = DataWriter(
+            self._participant, topic,
+            Qos(Policy.Reliability.Reliable(duration(milliseconds=100)),
+                Policy.Durability.Volatile, Policy.History.KeepLast(10)))
+        super().__init__(robot_id, descriptions=descriptions, hysteresis=hysteresis,
+                         period=period, clock=clock)
+
+    def close(self) -> None:
+        with self._lock:
+            participant, self._participant = self._participant, None
+            if participant is not None:
+                participant.__del__()
+            self._domain = None
+
+    def _write(self, now: float, statuses: list[DiagnosticStatusEntry]) -> bool | None:
         if self._participant is None:
-            return
-        statuses = []
-        for entity, level in sorted(levels.items()):
-            verdicts = self._verdicts.get(entity, {})
-            failing = [f"{k}: {v}" for k, v in sorted(verdicts.items()) if v != "ok"]
-            message = _MESSAGES[level] + (f" ({'; '.join(failing)})" if failing else "")
-            statuses.append(self._status(
-                level=level, name=f"blackbox/{self.robot_id}/{entity.strip('/') or 'robot'}",
-                message=message[:1024], hardware_id=self.robot_id,
-                values=[self._key_value(key=k, value=v[:512])
-                        for k, v in sorted(verdicts.items())]))
+            return None
         sec = int(now)
         header = self._header(stamp=self._stamp(sec=sec, nanosec=int((now - sec) * 1e9)),
                               frame_id="")
+        array = self._array(header=header, status=[
+            self._status(level=s.level, name=s.name, message=s.message,
+                         hardware_id=s.hardware_id,
+                         values=[self._key_value(key=k, value=v) for k, v in s.values])
+            for s in statuses])
         try:
-            self._writer.write(self._array(header=header, status=statuses))
-            self.published += 1
+            self._writer.write(array)
         except DDSException:
-            self.write_errors += 1
+            return False
+        return True

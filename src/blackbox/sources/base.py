@@ -63,7 +63,9 @@ class Capabilities:
     faults it injected (see :class:`GroundTruthSource`). ``replay``: it is a recording
     that ends by itself (see :class:`ReplaySource`) and plays in real time at
     ``SourceOptions.rate``. ``snapshot_format``: the format the recorder writes its raw
-    messages in (``ros1`` bags or ``mcap``).
+    messages in (``ros1`` bags or ``mcap``). ``diagnostics_bridge``: the middleware whose
+    ``/diagnostics`` ``--publish-diagnostics`` publishes on when watching this source
+    (``None``: ROS 2 on ``$ROS_DOMAIN_ID``).
     """
 
     simulated_clock: bool = False
@@ -71,6 +73,7 @@ class Capabilities:
     ground_truth: bool = False
     replay: bool = False
     snapshot_format: Literal["ros1", "mcap"] = "mcap"
+    diagnostics_bridge: Literal["ros1", "ros2"] | None = None
 
 
 @dataclass(frozen=True, slots=True)

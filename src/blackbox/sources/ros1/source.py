@@ -91,7 +91,7 @@ def split_caller_id(spec: str) -> tuple[str, str | None]:
     return base, values[0]
 
 
-ROS1_CAPABILITIES = Capabilities(snapshot_format="ros1")
+ROS1_CAPABILITIES = Capabilities(snapshot_format="ros1", diagnostics_bridge="ros1")
 
 
 @dataclasses.dataclass(frozen=True, slots=True)

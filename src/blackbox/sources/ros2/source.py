@@ -67,7 +67,7 @@ _ANY = SampleState.Any | ViewState.Any | InstanceState.Any
 _TAKE_BATCH = 256
 _NS = 1_000_000_000
 
-ROS2_CAPABILITIES = Capabilities(snapshot_format="mcap")
+ROS2_CAPABILITIES = Capabilities(snapshot_format="mcap", diagnostics_bridge="ros2")
 
 
 def domain_id_from_spec(spec: str, environ: dict[str, str] | os._Environ[str] = os.environ
