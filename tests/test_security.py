@@ -20,7 +20,8 @@ from blackbox.transport.auth import (
     StationAccess,
 )
 from blackbox.transport.logservice import check_request, request_fields
-from test_dds_health import BlackBox, _env, fresh_domain, station_key
+from station_support import dds_env
+from test_dds_health import BlackBox, fresh_domain, station_key
 
 ROBOT = "thesis"
 
@@ -160,7 +161,7 @@ def test_request_logs_refuses_a_negative_maximum() -> None:
 def request_logs(domain: int, *extra: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "blackbox", "request-logs", "--domain",
                            str(domain), "--robot", ROBOT, "--kind", "failure", "--timeout", "10",
-                           *extra], capture_output=True, text=True, env=_env(), timeout=60)
+                           *extra], capture_output=True, text=True, env=dds_env(), timeout=60)
 
 
 @pytest.mark.dds

@@ -13,7 +13,8 @@ from pathlib import Path
 import psutil
 import pytest
 
-from test_dds_health import BlackBox, _env, fresh_domain
+from station_support import dds_env
+from test_dds_health import BlackBox, fresh_domain
 
 pytestmark = pytest.mark.dds
 
@@ -51,7 +52,7 @@ def test_a_flood_of_malformed_datagrams_gives_a_few_log_lines() -> None:
     domain = fresh_domain()
     listener = subprocess.Popen([sys.executable, "-m", "blackbox", "listen", "--domain",
                                  str(domain), "--json", "--duration", "6", "--backfill", "0"],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=_env())
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=dds_env())
     try:
         wait_for_sockets(listener.pid)
         ports = {c.laddr.port for c in psutil.Process(listener.pid).net_connections(kind="udp")}
