@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from blackbox.events import MessageArrival
-from blackbox.sources.ros1.callerid import DEFAULT_PREFIX
+from blackbox.sources.ros1.callerid import is_black_box
 from blackbox.sources.ros1.master import CALLER_ID, RosApi, RosApiError
 
 
@@ -67,12 +67,6 @@ def parse_bus_info(info: Any) -> dict[int, str]:
                 and isinstance(c[1], str) and c[2] in ("o", "b")):
             out[c[0]] = c[1]
     return out
-
-
-def is_black_box(caller: str) -> bool:
-    """A black box's connection (this one's or another's) may go at any time: it is no
-    on-robot subscriber whose counters can stand for a subscription."""
-    return caller == DEFAULT_PREFIX or caller.startswith(DEFAULT_PREFIX + "_")
 
 
 def node_name(caller: str) -> str:

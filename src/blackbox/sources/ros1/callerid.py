@@ -21,6 +21,12 @@ _counter = itertools.count(1)
 _NOT_NAME = re.compile(r"[^A-Za-z0-9_]")
 
 
+def is_black_box(caller: str) -> bool:
+    """A black box's own node or connection (this one's or another's, including the
+    ``--publish-diagnostics`` publisher): no part of the robot it watches."""
+    return caller == DEFAULT_PREFIX or caller.startswith(DEFAULT_PREFIX + "_")
+
+
 def valid_caller_id(name: str) -> bool:
     """A global ROS graph name: ``/`` then segments of letters, digits and ``_``."""
     return re.fullmatch(r"(/[A-Za-z][A-Za-z0-9_]*)+", name) is not None

@@ -22,6 +22,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from blackbox.events import GraphSnapshot, NodeInfo, TopicInfo
+from blackbox.sources.ros1.callerid import is_black_box
 
 CALLER_ID = "/blackbox"
 """The caller id the black box gives in XML-RPC calls; it is never registered."""
@@ -204,7 +205,7 @@ class GraphPoller:
             self._next_master = now + self._master_period
             fresh = self._refresh_master()
         if fresh is not None:
-            self._registered = fresh.node_names()
+            self._registered = {n for n in fresh.node_names() if not is_black_box(n)}
         for name in self._registered - self.nodes.keys():
             self.nodes[name] = NodeState(name)
         for name, st in self.nodes.items():
@@ -224,13 +225,17 @@ class GraphPoller:
         self.state = fresh
 
     def snapshot(self, now: float) -> GraphSnapshot:
+        """The robot's graph; black boxes (this one's ``/diagnostics`` publisher, other
+        black boxes) are left out: they are not part of the robot."""
         nodes = {n: NodeInfo(n, st.alive, st.pid if st.alive else None,
                              host_of(st.uri) if st.uri else None)
-                 for n, st in sorted(self.nodes.items())}
-        names = sorted(self.state.publishers.keys() | self.state.subscribers.keys())
-        topics = {t: TopicInfo(t, self.types.get(t, ""), self.state.publishers.get(t, ()),
-                               self.state.subscribers.get(t, ()))
-                  for t in names}
+                 for n, st in sorted(self.nodes.items()) if not is_black_box(n)}
+        topics: dict[str, TopicInfo] = {}
+        for t in sorted(self.state.publishers.keys() | self.state.subscribers.keys()):
+            pubs = tuple(n for n in self.state.publishers.get(t, ()) if not is_black_box(n))
+            subs = tuple(n for n in self.state.subscribers.get(t, ()) if not is_black_box(n))
+            if pubs or subs:
+                topics[t] = TopicInfo(t, self.types.get(t, ""), pubs, subs)
         return GraphSnapshot(now, nodes, topics)
 
     def _refresh_master(self) -> SystemState | None:
