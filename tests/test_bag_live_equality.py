@@ -101,7 +101,7 @@ def record_live(tmp: Path, config: Path) -> tuple[Path, float, float]:
             time.sleep(0.1)
         assert (tmp / "live.bag.active").exists(), "rosbag record did not start"
         time.sleep(2.0)  # its subscriptions connect
-        box = build(RunOptions(config=config, source=f"ros1://127.0.0.1:{robot.port}",
+        box = build(RunOptions(config=config, source=f"ros1://127.0.0.1:{robot.port}?counters=0",
                                observations=tmp / "live.obs.jsonl",
                                diagnoses=tmp / "live.diag.jsonl", live=False))
         stop = threading.Event()

@@ -207,7 +207,7 @@ def test_remote_and_dead_nodes_have_no_resource_numbers_but_a_reason() -> None:
 
 def test_caller_ids_are_unique_per_source_and_ros_names() -> None:
     from blackbox.sources.ros1.callerid import unique_caller_id, valid_caller_id
-    from blackbox.sources.ros1.source import split_caller_id
+    from blackbox.sources.ros1.source import Ros1Settings, parse_source_spec
 
     a, b = unique_caller_id(host="my-pi.local", pid=42), unique_caller_id(host="my-pi.local",
                                                                           pid=42)
@@ -215,10 +215,14 @@ def test_caller_ids_are_unique_per_source_and_ros_names() -> None:
     assert valid_caller_id(a) and valid_caller_id(b)
     with pytest.raises(ValueError):
         unique_caller_id("blackbox")
-    assert split_caller_id("ros1://h:1?caller_id=/bb_front") == ("ros1://h:1", "/bb_front")
-    for bad in ("ros1://h:1?caller_id=bb", "ros1://h:1?callerid=/bb", "ros1://h:1?caller_id="):
+    base, settings = parse_source_spec("ros1://h:1?caller_id=/bb_front&counters=0",
+                                       Ros1Settings())
+    assert (base, settings.caller_id, settings.rates_from_counters) == (
+        "ros1://h:1", "/bb_front", False)
+    for bad in ("ros1://h:1?caller_id=bb", "ros1://h:1?callerid=/bb", "ros1://h:1?caller_id=",
+                "ros1://h:1?counters=2"):
         with pytest.raises(ConfigError):
-            split_caller_id(bad)
+            parse_source_spec(bad, Ros1Settings())
 
 
 def test_arrival_time_is_when_the_bytes_reached_the_socket_not_when_they_were_read() -> None:

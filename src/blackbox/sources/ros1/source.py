@@ -74,21 +74,32 @@ def master_uri_from_spec(spec: str, environ: dict[str, str] | os._Environ[str] =
     return f"http://{parts.hostname}:{port}/"
 
 
-def split_caller_id(spec: str) -> tuple[str, str | None]:
-    """``ros1://h:p?caller_id=/bb_front`` -> (``ros1://h:p``, ``/bb_front``)."""
+def parse_source_spec(spec: str, settings: Ros1Settings) -> tuple[str, Ros1Settings]:
+    """``ros1[://HOST:PORT][?caller_id=/NAME][&counters=0|1]`` -> (the spec without its
+    options, ``settings`` with them). ``caller_id`` fixes the black box's name on the
+    publishers' connections; ``counters=0`` measures every rate through a subscription (as
+    the thesis's black box did) instead of the publishers' counters."""
     base, sep, query = spec.partition("?")
     if not sep:
-        return spec, None
+        return spec, settings
     params = parse_qs(query, keep_blank_values=True)
-    unknown = sorted(set(params) - {"caller_id"})
+    unknown = sorted(set(params) - {"caller_id", "counters"})
     if unknown:
         raise ConfigError(f"unknown ROS 1 source option {unknown[0]!r} in {spec!r}; "
-                          "only caller_id is known", "--source")
-    values = params.get("caller_id", [])
-    if len(values) != 1 or not valid_caller_id(values[0]):
-        raise ConfigError(f"bad caller_id in {spec!r}: expected one global ROS name such "
-                          "as /blackbox_front", "--source")
-    return base, values[0]
+                          "known: caller_id, counters", "--source")
+    if "caller_id" in params:
+        values = params["caller_id"]
+        if len(values) != 1 or not valid_caller_id(values[0]):
+            raise ConfigError(f"bad caller_id in {spec!r}: expected one global ROS name such "
+                              "as /blackbox_front", "--source")
+        settings = dataclasses.replace(settings, caller_id=values[0])
+    if "counters" in params:
+        values = params["counters"]
+        if len(values) != 1 or values[0] not in ("0", "1"):
+            raise ConfigError(f"bad counters in {spec!r}: expected counters=0 or counters=1",
+                              "--source")
+        settings = dataclasses.replace(settings, rates_from_counters=values[0] == "1")
+    return base, settings
 
 
 ROS1_CAPABILITIES = Capabilities(snapshot_format="ros1", diagnostics_bridge="ros1")
@@ -163,11 +174,8 @@ class Ros1Source:
 
     @classmethod
     def from_uri(cls, spec: str, settings: Ros1Settings | None = None) -> Ros1Source:
-        """``ros1://HOST:PORT`` or ``ros1``, optionally ``?caller_id=/NAME`` to fix the id."""
-        spec, caller_id = split_caller_id(spec)
-        settings = settings or Ros1Settings()
-        if caller_id is not None:
-            settings = dataclasses.replace(settings, caller_id=caller_id)
+        """``ros1://HOST:PORT`` or ``ros1``, with the options of :func:`parse_source_spec`."""
+        spec, settings = parse_source_spec(spec, settings or Ros1Settings())
         return cls(master_uri_from_spec(spec), settings)
 
     # ---- Source protocol -------------------------------------------------------------------
@@ -368,18 +376,8 @@ def _time_of(event: Event | BlackBoxEvent) -> float:
 
 
 def open_ros1_source(spec: str, options: SourceOptions) -> Ros1Source:
-    """``ros1[://HOST:PORT][?counters=0]``: ``counters=0`` measures every rate through a
-    subscription (as the thesis's black box did) instead of the publishers' counters."""
-    base, _, query = spec.partition("?")
-    settings = Ros1Settings()
-    for item in filter(None, query.split("&")):
-        key, _, value = item.partition("=")
-        if key != "counters" or value not in ("0", "1"):
-            raise ConfigError(f"bad ROS 1 source option {item!r} in {spec!r}; expected "
-                              "counters=0 or counters=1", "--source")
-        settings = dataclasses.replace(settings, rates_from_counters=value == "1")
-    return Ros1Source.from_uri(base, settings)
+    return Ros1Source.from_uri(spec)
 
 
 SOURCES.add("ros1", SourceKind("ros1", open_ros1_source, ROS1_CAPABILITIES,
-                               "ros1 or ros1://HOST:PORT[?counters=0]"))
+                               "ros1 or ros1://HOST:PORT[?caller_id=/NAME&counters=0]"))
