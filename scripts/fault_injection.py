@@ -1,5 +1,5 @@
 """What the ROS 1 and ROS 2 fault injectors (``scripts/ros*_robot/inject.py``) share: the
-fault record, the random draws of a campaign and its loop, the ``--length`` argument.
+fault record, the random draws of a campaign, its options and its loop.
 
 Pure standard library, because the ROS 1 injector runs under Debian's ``/usr/bin/python3``
 and the ROS 2 one under the project's virtualenv; each adds this directory to its path.
@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import argparse
 import random
+import signal
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol
 
 DEFAULT_RATES = {"/usb_cam/image_raw": 15.0, "/audio": 33.333, "/signal": 15.0}
@@ -71,6 +73,40 @@ def span(text: str) -> tuple[float, float]:
     if not 0 < a <= b:
         raise argparse.ArgumentTypeError(f"expected MIN:MAX seconds with 0 < MIN <= MAX: {text}")
     return a, b
+
+
+def add_campaign_arguments(parser: argparse.ArgumentParser, default_kinds: Sequence[str]) -> None:
+    """The options of a random campaign: ground truth file, length, seed, fault kinds
+    (default ``default_kinds``), gaps, fault lengths, warm-up and the robot's log folder."""
+    parser.add_argument("--truth", type=Path, required=True, help="ground truth JSON lines")
+    parser.add_argument("--duration", type=float, default=300.0, help="seconds of faults")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--kinds", default=",".join(default_kinds))
+    parser.add_argument("--mean-gap", type=float, default=20.0,
+                        help="mean healthy seconds between faults")
+    parser.add_argument("--length", type=span, default=(5.0, 15.0),
+                        help="fault length range MIN:MAX seconds")
+    parser.add_argument("--warmup", type=float, default=10.0,
+                        help="healthy seconds before the first fault")
+    parser.add_argument("--log-dir", type=Path)
+
+
+def chosen_kinds(parser: argparse.ArgumentParser, args: argparse.Namespace,
+                 known: Sequence[str]) -> list[str]:
+    """The fault kinds of ``--kinds``; a usage error (exit 2) if any is not in ``known``."""
+    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
+    unknown = sorted(set(kinds) - set(known))
+    if unknown or not kinds:
+        parser.error(f"unknown kinds {unknown}; expected some of {', '.join(known)}")
+    return kinds
+
+
+def stop_on_signals() -> dict[str, bool]:
+    """A flag, ``stop["now"]``, that SIGTERM and SIGINT set (the loops check it)."""
+    stop = {"now": False}
+    signal.signal(signal.SIGTERM, lambda *_: stop.update(now=True))
+    signal.signal(signal.SIGINT, lambda *_: stop.update(now=True))
+    return stop
 
 
 def sleep(stop: dict[str, bool], seconds: float) -> None:

@@ -32,7 +32,14 @@ from typing import Any
 from robot import NODES, TOPICS, ParameterClient, ThesisRobot2
 
 sys.path.append(str(Path(__file__).resolve().parent.parent))  # scripts/: the shared module
-from fault_injection import DEFAULT_RATES, ActiveFault, run_random, span
+from fault_injection import (
+    DEFAULT_RATES,
+    ActiveFault,
+    add_campaign_arguments,
+    chosen_kinds,
+    run_random,
+    stop_on_signals,
+)
 
 KINDS = ("kill", "stall", "rate", "offset", "scale")
 
@@ -96,25 +103,10 @@ def _check(name: str, known: dict[str, str]) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--domain", type=int, required=True)
-    parser.add_argument("--truth", type=Path, required=True, help="ground truth JSON lines")
-    parser.add_argument("--duration", type=float, default=300.0, help="seconds of faults")
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--kinds", default=",".join(KINDS))
-    parser.add_argument("--mean-gap", type=float, default=20.0,
-                        help="mean healthy seconds between faults")
-    parser.add_argument("--length", type=span, default=(5.0, 15.0),
-                        help="fault length range MIN:MAX seconds")
-    parser.add_argument("--warmup", type=float, default=10.0,
-                        help="healthy seconds before the first fault")
-    parser.add_argument("--log-dir", type=Path)
+    add_campaign_arguments(parser, KINDS)
     args = parser.parse_args(argv)
-    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
-    unknown = sorted(set(kinds) - set(KINDS))
-    if unknown or not kinds:
-        parser.error(f"unknown kinds {unknown}; expected some of {', '.join(KINDS)}")
-    stop = {"now": False}
-    signal.signal(signal.SIGTERM, lambda *_: stop.update(now=True))
-    signal.signal(signal.SIGINT, lambda *_: stop.update(now=True))
+    kinds = chosen_kinds(parser, args, KINDS)
+    stop = stop_on_signals()
     rng = random.Random(args.seed)
     args.truth.write_text("")
     robot = ThesisRobot2(args.domain) if args.log_dir is None else \
