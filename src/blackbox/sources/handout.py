@@ -8,8 +8,18 @@ Those are held back for the next poll, so the pipeline never sees the future.
 
 from __future__ import annotations
 
+import threading
+import time
+
 from blackbox.events import Event
 from blackbox.model import BlackBoxEvent
+
+
+def wait_until(stop: threading.Event, until: float) -> None:
+    """Block until wall time ``until``, or until ``stop`` is set (the source closing)."""
+    delay = until - time.time()
+    if delay > 0:
+        stop.wait(delay)
 
 
 def split_due(events: list[Event], until: float) -> tuple[list[Event], list[Event]]:

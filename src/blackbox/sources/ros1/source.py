@@ -35,7 +35,7 @@ from blackbox.events import (
 )
 from blackbox.model import BlackBoxEvent
 from blackbox.sources.base import SOURCES, Capabilities, SourceKind, SourceOptions
-from blackbox.sources.handout import overflow_event, split_due
+from blackbox.sources.handout import overflow_event, split_due, wait_until
 from blackbox.sources.ros1.busstats import BusStatsRates, TopicCounts
 from blackbox.sources.ros1.callerid import DEFAULT_PREFIX, unique_caller_id, valid_caller_id
 from blackbox.sources.ros1.master import GraphPoller
@@ -191,9 +191,7 @@ class Ros1Source:
         return time.time()
 
     def poll(self, until: float) -> list[Event]:
-        delay = until - time.time()
-        if delay > 0:
-            self._stop.wait(delay)
+        wait_until(self._stop, until)
         queue = self._queue
         events = self._held
         self._held = []

@@ -48,7 +48,7 @@ from blackbox.config.node import ConfigError
 from blackbox.events import Event, GraphSnapshot, Interest, MessageArrival, TopicSchema
 from blackbox.model import BlackBoxEvent
 from blackbox.sources.base import SOURCES, Capabilities, SourceKind, SourceOptions
-from blackbox.sources.handout import overflow_event, split_due
+from blackbox.sources.handout import overflow_event, split_due, wait_until
 from blackbox.sources.ros1.resources import ResourceSampler
 from blackbox.sources.ros2.graph import Endpoint, Ros2Graph
 from blackbox.sources.ros2.idl import IdlTypes, UnknownType, ros_type_name
@@ -235,9 +235,7 @@ class Ros2Source:
         return time.time()
 
     def poll(self, until: float) -> list[Event]:
-        delay = until - time.time()
-        if delay > 0:
-            self._stop.wait(delay)
+        wait_until(self._stop, until)
         events = self._held
         self._held = []
         with self._lock:
