@@ -33,21 +33,8 @@ from blackbox.evaluate.metrics import (
     score_run,
 )
 from blackbox.learn import learn_from, render_config, render_model
-from blackbox.model import Diagnosis, Observation
-from blackbox.sinks import SinkBase
+from blackbox.sinks import Collector
 from blackbox.sources.sim import THESIS_FAULT_KINDS, open_sim, random_campaign
-
-
-class Collect(SinkBase):
-    def __init__(self) -> None:
-        self.observations: list[Observation] = []
-        self.diagnoses: list[Diagnosis] = []
-
-    def on_observations(self, now: float, observations: Sequence[Observation]) -> None:
-        self.observations.extend(observations)
-
-    def on_diagnosis(self, diagnosis: Diagnosis) -> None:
-        self.diagnoses.append(diagnosis)
 
 
 def campaign(config: Path, runs: int, duration: float) -> dict[str, float | None]:
@@ -58,7 +45,7 @@ def campaign(config: Path, runs: int, duration: float) -> dict[str, float | None
         robot = open_sim("sim:thesis", seed=seed, realtime=False)
         injected = random_campaign(robot.topology, duration - 5.0, seed, THESIS_FAULT_KINDS,
                                    mean_gap=10.0, warmup=5.0, min_separation=5.0)
-        sink = Collect()
+        sink = Collector()
         box = build(RunOptions(config=config, source="sim:thesis", duration=duration,
                                simulated_clock=True, faults=injected, seed=seed, live=False,
                                extra_sinks=[sink]))
@@ -85,7 +72,7 @@ def campaign(config: Path, runs: int, duration: float) -> dict[str, float | None
 
 
 def healthy(config: Path, duration: float) -> tuple[int, float]:
-    sink = Collect()
+    sink = Collector()
     build(RunOptions(config=config, source="sim:thesis", duration=duration,
                      simulated_clock=True, seed=5, live=False, extra_sinks=[sink])).run()
     alarms = len(episodes(sink.observations))

@@ -22,63 +22,31 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import signal
 import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import psutil
 
-ROOT = Path(__file__).resolve().parent.parent
+from support import (
+    BLACKBOX,
+    ROOT,
+    THESIS_CONFIG,
+    Usage,
+    measure,
+    print_usage,
+    stop,
+    summary_rate,
+)
+
 sys.path.insert(0, str(ROOT / "scripts" / "ros1_robot"))
-from robot import ROS_PYTHON, ThesisRobot, free_port, ros_env  # noqa: E402
+from robot import ROS_PYTHON, ThesisRobot, free_port, ros_env
 
-THESIS_CONFIG = Path("/work/shared/reference/thesis-setup/observers_tests_11-20.yaml")
-if not THESIS_CONFIG.exists():
-    THESIS_CONFIG = ROOT / "tests" / "data" / "shared" / "thesis-setup" / \
-        "observers_tests_11-20.yaml"
-BLACKBOX = [sys.executable, "-m", "blackbox"]
 LOAD_SCRIPT = ROOT / "scripts" / "ros1_robot" / "load_publishers.py"
-
-
-@dataclass
-class Usage:
-    what: str
-    cpu_percent: float
-    peak_rss_mb: float
-    seconds: float
-    note: str = ""
-
-
-def peak_rss(pid: int) -> int:
-    text = Path(f"/proc/{pid}/status").read_text()
-    m = re.search(r"VmHWM:\s+(\d+) kB", text)
-    return int(m.group(1)) * 1024 if m else 0
-
-
-def measure(proc: subprocess.Popen[bytes], what: str, warmup: float, seconds: float) -> Usage:
-    p = psutil.Process(proc.pid)
-    time.sleep(warmup)
-    if proc.poll() is not None:
-        raise RuntimeError(f"{what} exited early with {proc.returncode}")
-    t0, c0 = time.monotonic(), sum(p.cpu_times()[:2])
-    time.sleep(seconds)
-    t1, c1 = time.monotonic(), sum(p.cpu_times()[:2])
-    return Usage(what, 100.0 * (c1 - c0) / (t1 - t0), peak_rss(proc.pid) / 1e6, t1 - t0)
-
-
-def stop(proc: subprocess.Popen[bytes]) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 def blackbox(config: Path, port: int, log: Path) -> subprocess.Popen[bytes]:
@@ -87,15 +55,6 @@ def blackbox(config: Path, port: int, log: Path) -> subprocess.Popen[bytes]:
         return subprocess.Popen([*BLACKBOX, "run", "--config", str(config), "--source",
                                  f"ros1://127.0.0.1:{port}", "--quiet"],
                                 stdout=out, stderr=subprocess.STDOUT, env=env, cwd=ROOT)
-
-
-def summary_rate(log: Path) -> float | None:
-    """Messages per second over the run, from ``blackbox run``'s closing summary."""
-    m = re.search(r"([\d.,]+) s observed, ([\d,]+) messages", log.read_text(errors="replace"))
-    if not m:
-        return None
-    seconds = float(m.group(1).replace(",", ""))
-    return int(m.group(2).replace(",", "")) / seconds if seconds > 0 else None
 
 
 def thesis_phases(seconds: float, warmup: float, work: Path) -> list[Usage]:
@@ -198,12 +157,7 @@ def main(argv: list[str] | None = None) -> int:
                                args.processes)
     rows.append(Usage("thesis black box (Raspberry Pi 3, thesis section 6.2.2)", 32.5, 142.0,
                       0.0, "as reported, not measured here"))
-    print(f"machine: {os.cpu_count()} cores, {psutil.virtual_memory().total / 2**30:.0f} GiB; "
-          f"python {sys.version.split()[0]}")
-    print("| what | CPU % of one core | peak RSS MB | note |")
-    print("|---|---|---|---|")
-    for r in rows:
-        print(f"| {r.what} | {r.cpu_percent:.1f} | {r.peak_rss_mb:.0f} | {r.note} |")
+    print_usage(rows)
     if args.json:
         args.json.write_text(json.dumps([asdict(r) for r in rows], indent=2) + "\n")
     return 0

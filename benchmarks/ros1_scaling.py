@@ -27,7 +27,6 @@ import itertools
 import json
 import os
 import re
-import signal
 import statistics
 import subprocess
 import sys
@@ -38,12 +37,12 @@ from pathlib import Path
 
 import psutil
 
-ROOT = Path(__file__).resolve().parent.parent
+from support import BLACKBOX, ROOT, stop
+
 sys.path.insert(0, str(ROOT / "scripts" / "ros1_robot"))
-from robot import ROS_PYTHON, ThesisRobot, free_port  # noqa: E402
+from robot import ROS_PYTHON, ThesisRobot, free_port
 
 PUBLISHER = ROOT / "benchmarks" / "ros1" / "paced_publisher.py"
-BLACKBOX = [sys.executable, "-m", "blackbox"]
 
 
 @dataclass
@@ -113,19 +112,6 @@ def _config(path: Path, names: list[str], rate: float) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
-def _stop(proc: subprocess.Popen[bytes], group: bool = False) -> None:
-    if proc.poll() is None:
-        if group:
-            os.killpg(proc.pid, signal.SIGINT)
-        else:
-            proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
 def run_case(topics: int, rate: float, seconds: float, warmup: float, work: Path,
              src: Path | None = None) -> Case:
     work.mkdir(parents=True, exist_ok=True)
@@ -157,7 +143,7 @@ def run_case(topics: int, rate: float, seconds: float, warmup: float, work: Path
             load = os.getloadavg()[0]
             time.sleep(1.2)  # one more publisher report after the window
         finally:
-            _stop(bb)
+            stop(bb)
         text = log.read_text(errors="replace")
         m = re.search(r"([\d.,]+) s observed, ([\d,]+) messages", text)
         if not m:
@@ -190,7 +176,7 @@ def run_case(topics: int, rate: float, seconds: float, warmup: float, work: Path
                     load)
     finally:
         for proc, _, _ in pubs:
-            _stop(proc, group=True)
+            stop(proc, group=True)
         robot.stop()
 
 

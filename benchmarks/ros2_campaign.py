@@ -31,7 +31,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "scripts" / "ros2_robot"))
-from inject import KINDS, Injector, random_fault  # noqa: E402
+sys.path.insert(1, str(ROOT / "scripts"))  # fault_injection, shared with the ROS 1 robot
+from fault_injection import random_fault  # noqa: E402
+from inject import KINDS, Injector  # noqa: E402
 from robot import NODES, TOPICS, ParameterClient, ThesisRobot2  # noqa: E402
 
 from blackbox.app import DEFAULT_CONFIG, RunOptions, build  # noqa: E402
@@ -84,7 +86,7 @@ def one_run(args: argparse.Namespace, index: int, domain: int, work: Path) -> Ru
         time.sleep(args.warmup)
         last_end: dict[str, float] = {}
         while time.time() < started + args.duration - args.tail - args.length[1]:
-            kind, component, fparams = random_fault(rng, args.kinds)
+            kind, component, fparams = random_fault(rng, args.kinds, NODES, TOPICS)
             node = (NODES.get(component) and component) or TOPICS.get(component, component)
             wait = last_end.get(node, 0.0) + args.separation - time.time()
             if wait > 0:

@@ -28,63 +28,31 @@ import contextlib
 import json
 import os
 import random
-import re
-import signal
 import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import psutil
 
-ROOT = Path(__file__).resolve().parent.parent
+from support import (
+    BLACKBOX,
+    ROOT,
+    THESIS_CONFIG,
+    Usage,
+    measure,
+    peak_rss,
+    print_usage,
+    stop,
+    summary_rate,
+)
+
 sys.path.insert(0, str(ROOT / "scripts" / "ros2_robot"))
-from robot import NODE_SCRIPT, ThesisRobot2, ros2_env  # noqa: E402
+from robot import NODE_SCRIPT, ThesisRobot2, ros2_env
 
-THESIS_CONFIG = Path("/work/shared/reference/thesis-setup/observers_tests_11-20.yaml")
-if not THESIS_CONFIG.exists():
-    THESIS_CONFIG = ROOT / "tests" / "data" / "shared" / "thesis-setup" / \
-        "observers_tests_11-20.yaml"
-BLACKBOX = [sys.executable, "-m", "blackbox"]
 HZ_SCRIPT = ROOT / "scripts" / "ros2_robot" / "hz.py"
-
-
-@dataclass
-class Usage:
-    what: str
-    cpu_percent: float
-    peak_rss_mb: float
-    seconds: float
-    note: str = ""
-
-
-def peak_rss(pid: int) -> int:
-    text = Path(f"/proc/{pid}/status").read_text()
-    m = re.search(r"VmHWM:\s+(\d+) kB", text)
-    return int(m.group(1)) * 1024 if m else 0
-
-
-def measure(proc: subprocess.Popen[bytes], what: str, warmup: float, seconds: float) -> Usage:
-    p = psutil.Process(proc.pid)
-    time.sleep(warmup)
-    if proc.poll() is not None:
-        raise RuntimeError(f"{what} exited early with {proc.returncode}")
-    t0, c0 = time.monotonic(), sum(p.cpu_times()[:2])
-    time.sleep(seconds)
-    t1, c1 = time.monotonic(), sum(p.cpu_times()[:2])
-    return Usage(what, 100.0 * (c1 - c0) / (t1 - t0), peak_rss(proc.pid) / 1e6, t1 - t0)
-
-
-def stop(proc: subprocess.Popen[bytes]) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 def blackbox(config: Path, domain: int, log: Path) -> subprocess.Popen[bytes]:
@@ -93,15 +61,6 @@ def blackbox(config: Path, domain: int, log: Path) -> subprocess.Popen[bytes]:
                                  f"ros2:{domain}", "--quiet"],
                                 stdout=out, stderr=subprocess.STDOUT, cwd=ROOT,
                                 env=ros2_env(domain))
-
-
-def summary_rate(log: Path) -> float | None:
-    """Messages per second over the run, from ``blackbox run``'s closing summary."""
-    m = re.search(r"([\d.,]+) s observed, ([\d,]+) messages", log.read_text(errors="replace"))
-    if not m:
-        return None
-    seconds = float(m.group(1).replace(",", ""))
-    return int(m.group(2).replace(",", "")) / seconds if seconds > 0 else None
 
 
 def thesis_phases(seconds: float, warmup: float, work: Path, domain: int) -> list[Usage]:
@@ -265,12 +224,7 @@ def main(argv: list[str] | None = None) -> int:
         if not args.skip_load:
             rows += load_phase(args.seconds, args.warmup, work, args.topics, args.rate,
                                args.processes, domain + 1)
-    print(f"machine: {os.cpu_count()} cores, {psutil.virtual_memory().total / 2**30:.0f} GiB; "
-          f"python {sys.version.split()[0]}")
-    print("| what | CPU % of one core | peak RSS MB | note |")
-    print("|---|---|---|---|")
-    for r in rows:
-        print(f"| {r.what} | {r.cpu_percent:.1f} | {r.peak_rss_mb:.0f} | {r.note} |")
+    print_usage(rows)
     if len(rows) >= 2 and not args.skip_thesis and rows[0].cpu_percent > 0:
         print(f"ratio black box / hz CPU: {rows[1].cpu_percent / rows[0].cpu_percent:.2f}")
     if args.json:

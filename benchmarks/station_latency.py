@@ -27,7 +27,6 @@ import argparse
 import json
 import os
 import platform
-import signal
 import statistics
 import subprocess
 import sys
@@ -36,7 +35,8 @@ import threading
 import time
 from pathlib import Path
 
-BLACKBOX = [sys.executable, "-m", "blackbox"]
+from support import BLACKBOX, stop
+
 CHROMIUM = "/usr/bin/chromium"
 ENTITY = "/usb_cam"
 OBSERVE = """
@@ -196,12 +196,7 @@ def main() -> int:
     finally:
         stop_stream.set()
         for proc in (station, box):
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-                try:
-                    proc.wait(timeout=15)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
+            stop(proc, timeout=15)
 
     red = [float(t) for t, c in changes if c == "h-not-operational"]
     green = [float(t) for t, c in changes if c == "h-operational"]

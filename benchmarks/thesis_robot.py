@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import statistics
 import subprocess
 import sys
@@ -38,23 +37,13 @@ from pathlib import Path
 
 import psutil
 
-ROOT = Path(__file__).resolve().parent.parent
+from support import BLACKBOX, ROOT, stop
+
 sys.path.insert(0, str(ROOT / "scripts" / "ros1_robot"))
-from inject import Injector  # noqa: E402
-from robot import ThesisRobot, free_port, ros_env  # noqa: E402
+from inject import Injector
+from robot import ThesisRobot, free_port, ros_env
 
-BLACKBOX = [sys.executable, "-m", "blackbox"]
 CAMERA = "/usb_cam/image_raw"
-
-
-def _stop(proc: subprocess.Popen[bytes]) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 def _blackbox(robot: ThesisRobot, work: Path, domain: int, extra: list[str],
@@ -92,8 +81,8 @@ def overhead_round(robot: ThesisRobot, work: Path, seconds: float, warmup: float
         rss = pb.memory_info().rss / 1e6
         load = os.getloadavg()[0]
     finally:
-        _stop(hz)
-        _stop(bb)
+        stop(hz, timeout=15)
+        stop(bb, timeout=15)
     faulty = total = 0
     for line in obs.read_text().splitlines():
         o = json.loads(line)
@@ -172,7 +161,7 @@ def latency(args: argparse.Namespace) -> int:
                           f"{os.getloadavg()[0]:.2f})", flush=True)
                 time.sleep(args.recover)
         finally:
-            _stop(bb)
+            stop(bb, timeout=15)
             bus.close()
     if results:
         ms = sorted(1000 * x for x in results)

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
 from blackbox.app import RunOptions, build
+from blackbox.model import Observation, Resource
+from blackbox.sinks import SinkBase
 
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT / "data" / "shared"
@@ -37,3 +39,22 @@ def black_box_running(options: RunOptions) -> Iterator[None]:
     finally:
         stop.set()
         thread.join(timeout=5)
+
+
+class Collected(SinkBase):
+    """The observations of a black box running in another thread (:func:`black_box_running`),
+    read by the test while it runs."""
+
+    def __init__(self) -> None:
+        self.observations: list[Observation] = []
+        self.lock = threading.Lock()
+
+    def on_observations(self, now: float, observations: Sequence[Observation]) -> None:
+        with self.lock:
+            self.observations.extend(observations)
+
+    def about(self, observer: str, resource: Resource, since: float) -> list[Observation]:
+        """The observations of ``observer`` on ``resource`` stamped at or after ``since``."""
+        with self.lock:
+            return [o for o in self.observations
+                    if o.observer == observer and o.resource == resource and o.time >= since]

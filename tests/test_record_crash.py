@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import random
-import signal
 import sqlite3
 import subprocess
 import sys
@@ -20,6 +19,7 @@ from blackbox.model import BlackBoxEvent, Code, Observation, Resource
 from blackbox.record import Recorder, Store
 from blackbox.record.settings import RecorderSettings
 from blackbox.record.store import Row
+from crash_support import sigkill_after
 
 COMMIT = 0.25
 # Writing one commit interval's rows takes part of the next interval; scheduling on a
@@ -62,16 +62,12 @@ def test_sigkill_during_heavy_writing_loses_at_most_one_commit_interval(tmp_path
     for run in range(runs):
         proc = subprocess.Popen([sys.executable, "-c", WRITER, str(log), str(run), str(COMMIT)],
                                 stdout=subprocess.PIPE, env=_env())
-        try:
+
+        def ready(proc: subprocess.Popen[bytes] = proc) -> None:
             assert proc.stdout is not None
             assert proc.stdout.readline().strip() == b"ready"
-            time.sleep(rng.uniform(0.4, 1.2))
-            killed_at = time.time()
-            proc.send_signal(signal.SIGKILL)
-        finally:
-            proc.kill()
-            proc.wait(timeout=30)
-        assert proc.returncode == -signal.SIGKILL
+
+        killed_at = sigkill_after(proc, ready, rng.uniform(0.4, 1.2))
 
         with Store.open(log) as store:  # opening replays the WAL, as the next start would
             assert store.integrity_check() == "ok"

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import random
-import signal
 import sqlite3
 import subprocess
 import sys
@@ -22,6 +21,7 @@ from pathlib import Path
 import pytest
 
 from blackbox.record import Store
+from crash_support import sigkill_after
 
 COMMIT = 0.5
 BOUND = COMMIT + 1.0
@@ -59,19 +59,15 @@ def test_sigkill_under_load_lags_at_most_commit_interval_plus_one_second(
              "--simulated-clock", "--faults", "random", "--seed", str(run),
              "--duration", "100000", "--record", str(log)],
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-        try:
+
+        def recording(proc: subprocess.Popen[bytes] = proc, log: Path = log) -> None:
             deadline = time.monotonic() + 30
             while progress(log) is None:  # recording has begun
                 assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
                 assert time.monotonic() < deadline, "the black box never committed"
                 time.sleep(0.05)
-            time.sleep(rng.uniform(0.2, 1.5))
-            killed_at = time.time()
-            proc.send_signal(signal.SIGKILL)
-        finally:
-            proc.kill()
-            proc.wait(timeout=30)
-        assert proc.returncode == -signal.SIGKILL
+
+        killed_at = sigkill_after(proc, recording, rng.uniform(0.2, 1.5))
 
         with Store.open(log) as store:  # opening replays the WAL, as the next start would
             assert store.integrity_check() == "ok"

@@ -5,17 +5,15 @@ from __future__ import annotations
 
 import shutil
 import sys
-import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from blackbox.app import RunOptions
-from blackbox.model import Observation, Resource
-from blackbox.sinks import SinkBase
-from conftest import black_box_running, wait_for
+from blackbox.model import Resource
+from conftest import Collected, black_box_running, wait_for
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros1_robot"))
 from inject import Injector
@@ -47,22 +45,6 @@ observers:
     states:
       - {number: 1, name: ok, score: {value: {type: gauss, mean: 15.0, std_deviation: 0.5}}}
 """
-
-
-class Collected(SinkBase):
-    def __init__(self) -> None:
-        self.observations: list[Observation] = []
-        self.lock = threading.Lock()
-
-    def on_observations(self, now: float, observations: Sequence[Observation]) -> None:
-        with self.lock:
-            self.observations.extend(observations)
-
-    def about(self, observer: str, resource: Resource, since: float) -> list[Observation]:
-        with self.lock:
-            return [o for o in self.observations
-                    if o.observer == observer and o.resource == resource and o.time >= since]
-
 
 
 @pytest.fixture

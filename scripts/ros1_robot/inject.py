@@ -40,11 +40,20 @@ import signal
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from robot import NODES, TOPICS, ThesisRobot
+
+sys.path.append(str(Path(__file__).resolve().parent.parent))  # scripts/: the shared module
+from fault_injection import (
+    DEFAULT_RATES,
+    ActiveFault,
+    add_campaign_arguments,
+    chosen_kinds,
+    run_random,
+    stop_on_signals,
+)
 
 KINDS = ("kill", "stall", "rate", "offset", "scale", "stuck", "drift", "cpu_hog",
          "memory_growth")
@@ -52,20 +61,6 @@ VALUE_PARAMS = {"offset": ("offset", "value", 0.0), "scale": ("scale", "factor",
                 "stuck": ("stuck", None, 0.0), "drift": ("drift", "rate", 0.0)}
 """Value fault kind -> (parameter of the signal generator, fault parameter, healthy value)."""
 NODE_PARAMS = {"cpu_hog": ("hog", "percent"), "memory_growth": ("leak", "rate")}
-DEFAULT_RATES = {"/usb_cam/image_raw": 15.0, "/audio": 33.333, "/signal": 15.0}
-
-
-@dataclass
-class ActiveFault:
-    kind: str
-    component: str
-    node: str
-    start: float
-    params: dict[str, float] = field(default_factory=dict)
-
-    def record(self, end: float | None) -> dict[str, Any]:
-        return {"start": self.start, "end": end, "kind": self.kind,
-                "component": self.component, "node": self.node, "params": dict(self.params)}
 
 
 class Injector:
@@ -144,29 +139,6 @@ class Injector:
         return TOPICS[topic]
 
 
-def random_fault(rng: random.Random, kinds: list[str]) -> tuple[str, str, dict[str, float]]:
-    kind = rng.choice(kinds)
-    if kind == "kill":
-        return kind, rng.choice(sorted(NODES)), {}
-    if kind == "stall":
-        return kind, rng.choice(sorted(TOPICS)), {}
-    if kind == "rate":
-        topic = rng.choice(["/usb_cam/image_raw", "/signal"])
-        factor = rng.choice([0.3, 0.5, 2.0])
-        return kind, topic, {"hz": round(DEFAULT_RATES[topic] * factor, 3)}
-    if kind == "offset":
-        return kind, "/signal", {"value": rng.choice([-5.0, -3.0, 3.0, 5.0])}
-    if kind == "scale":
-        return kind, "/signal", {"factor": rng.choice([0.5, 1.5])}
-    if kind == "stuck":
-        return kind, "/signal", {}
-    if kind == "drift":
-        return kind, "/signal", {"rate": rng.choice([-1.0, 1.0])}
-    if kind == "cpu_hog":
-        return kind, rng.choice(sorted(NODES)), {"percent": 90.0}
-    return kind, rng.choice(sorted(NODES)), {"rate": 10e6}
-
-
 def run_schedule(injector: Injector, schedule: list[dict[str, Any]], t0: float,
                  stop: dict[str, bool]) -> None:
     """Begin and end every fault of ``schedule`` at ``t0`` + its offsets (wall clock)."""
@@ -195,48 +167,19 @@ def run_schedule(injector: Injector, schedule: list[dict[str, Any]], t0: float,
             injector.end(fault)
 
 
-def _span(text: str) -> tuple[float, float]:
-    lo, _, hi = text.partition(":")
-    a, b = float(lo), float(hi or lo)
-    if not 0 < a <= b:
-        raise argparse.ArgumentTypeError(f"expected MIN:MAX seconds with 0 < MIN <= MAX: {text}")
-    return a, b
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--port", type=int, default=11311)
-    parser.add_argument("--truth", type=Path, required=True, help="ground truth JSON lines")
-    parser.add_argument("--duration", type=float, default=300.0, help="seconds of faults")
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--kinds", default=",".join(KINDS[:5]))
-    parser.add_argument("--mean-gap", type=float, default=20.0,
-                        help="mean healthy seconds between faults")
-    parser.add_argument("--length", type=_span, default=(5.0, 15.0),
-                        help="fault length range MIN:MAX seconds")
-    parser.add_argument("--warmup", type=float, default=10.0,
-                        help="healthy seconds before the first fault")
-    parser.add_argument("--log-dir", type=Path)
+    add_campaign_arguments(parser, KINDS[:5])
     parser.add_argument("--schedule", type=Path,
                         help="inject these faults (JSON list) from a start instant read on stdin")
     args = parser.parse_args(argv)
-    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
-    unknown = sorted(set(kinds) - set(KINDS))
-    if unknown or not kinds:
-        parser.error(f"unknown kinds {unknown}; expected some of {', '.join(KINDS)}")
-    stop = {"now": False}
-    signal.signal(signal.SIGTERM, lambda *_: stop.update(now=True))
-    signal.signal(signal.SIGINT, lambda *_: stop.update(now=True))
+    kinds = chosen_kinds(parser, args, KINDS)
+    stop = stop_on_signals()
     rng = random.Random(args.seed)
     args.truth.write_text("")
     robot = ThesisRobot(args.port, log_dir=args.log_dir)
-    active: ActiveFault | None = None
     injector = Injector(robot, args.truth)
-
-    def sleep(seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while not stop["now"] and time.monotonic() < end:
-            time.sleep(min(0.1, end - time.monotonic()))
 
     try:
         robot.start()
@@ -250,25 +193,12 @@ def main(argv: list[str] | None = None) -> int:
                     time.sleep(0.1)
             return 0
         print(json.dumps(robot.pids(), sort_keys=True), flush=True)
-        finish = time.monotonic() + args.duration
-        sleep(args.warmup)
-        while not stop["now"] and time.monotonic() < finish:
-            kind, component, params = random_fault(rng, kinds)
-            active = injector.begin(kind, component, **params)
-            print(f"{active.start:.3f} begin {kind} {component} {params}", flush=True)
-            sleep(rng.uniform(*args.length))
-            rec = injector.end(active)
-            active = None
-            print(f"{rec['end']:.3f} end {kind} {component}", flush=True)
-            if kind == "kill":
-                robot.wait_registered([component])
-            sleep(rng.expovariate(1.0 / args.mean_gap))
+        run_random(injector, rng, kinds, (NODES, TOPICS), args, stop,
+                   lambda node: robot.wait_registered([node]))
     except (RuntimeError, OSError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     finally:
-        if active is not None:
-            injector.end(active)
         robot.stop()
     return 0
 

@@ -26,27 +26,22 @@ import random
 import signal
 import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from robot import NODES, TOPICS, ParameterClient, ThesisRobot2
 
+sys.path.append(str(Path(__file__).resolve().parent.parent))  # scripts/: the shared module
+from fault_injection import (
+    DEFAULT_RATES,
+    ActiveFault,
+    add_campaign_arguments,
+    chosen_kinds,
+    run_random,
+    stop_on_signals,
+)
+
 KINDS = ("kill", "stall", "rate", "offset", "scale")
-DEFAULT_RATES = {"/usb_cam/image_raw": 15.0, "/audio": 33.333, "/signal": 15.0}
-
-
-@dataclass
-class ActiveFault:
-    kind: str
-    component: str
-    node: str
-    start: float
-    params: dict[str, float] = field(default_factory=dict)
-
-    def record(self, end: float) -> dict[str, Any]:
-        return {"start": self.start, "end": end, "kind": self.kind,
-                "component": self.component, "node": self.node, "params": dict(self.params)}
 
 
 class Injector:
@@ -105,61 +100,17 @@ def _check(name: str, known: dict[str, str]) -> str:
     return name
 
 
-def random_fault(rng: random.Random, kinds: list[str]) -> tuple[str, str, dict[str, float]]:
-    kind = rng.choice(kinds)
-    if kind == "kill":
-        return kind, rng.choice(sorted(NODES)), {}
-    if kind == "stall":
-        return kind, rng.choice(sorted(TOPICS)), {}
-    if kind == "rate":
-        topic = rng.choice(["/usb_cam/image_raw", "/signal"])
-        factor = rng.choice([0.3, 0.5, 2.0])
-        return kind, topic, {"hz": round(DEFAULT_RATES[topic] * factor, 3)}
-    if kind == "offset":
-        return kind, "/signal", {"value": rng.choice([-5.0, -3.0, 3.0, 5.0])}
-    return kind, "/signal", {"factor": rng.choice([0.5, 1.5])}
-
-
-def _span(text: str) -> tuple[float, float]:
-    lo, _, hi = text.partition(":")
-    a, b = float(lo), float(hi or lo)
-    if not 0 < a <= b:
-        raise argparse.ArgumentTypeError(f"expected MIN:MAX seconds with 0 < MIN <= MAX: {text}")
-    return a, b
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--domain", type=int, required=True)
-    parser.add_argument("--truth", type=Path, required=True, help="ground truth JSON lines")
-    parser.add_argument("--duration", type=float, default=300.0, help="seconds of faults")
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--kinds", default=",".join(KINDS))
-    parser.add_argument("--mean-gap", type=float, default=20.0,
-                        help="mean healthy seconds between faults")
-    parser.add_argument("--length", type=_span, default=(5.0, 15.0),
-                        help="fault length range MIN:MAX seconds")
-    parser.add_argument("--warmup", type=float, default=10.0,
-                        help="healthy seconds before the first fault")
-    parser.add_argument("--log-dir", type=Path)
+    add_campaign_arguments(parser, KINDS)
     args = parser.parse_args(argv)
-    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
-    unknown = sorted(set(kinds) - set(KINDS))
-    if unknown or not kinds:
-        parser.error(f"unknown kinds {unknown}; expected some of {', '.join(KINDS)}")
-    stop = {"now": False}
-    signal.signal(signal.SIGTERM, lambda *_: stop.update(now=True))
-    signal.signal(signal.SIGINT, lambda *_: stop.update(now=True))
+    kinds = chosen_kinds(parser, args, KINDS)
+    stop = stop_on_signals()
     rng = random.Random(args.seed)
     args.truth.write_text("")
     robot = ThesisRobot2(args.domain) if args.log_dir is None else \
         ThesisRobot2(args.domain, log_dir=args.log_dir)
-    active: ActiveFault | None = None
-
-    def sleep(seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while not stop["now"] and time.monotonic() < end:
-            time.sleep(min(0.1, end - time.monotonic()))
 
     params = ParameterClient(args.domain)
     injector = Injector(robot, params, args.truth)
@@ -169,25 +120,12 @@ def main(argv: list[str] | None = None) -> int:
             if not params.wait_for_node(node, 30):
                 raise RuntimeError(f"{node} did not join the ROS 2 graph within 30 s")
         print(json.dumps(robot.pids(), sort_keys=True), flush=True)  # the robot is up
-        finish = time.monotonic() + args.duration
-        sleep(args.warmup)
-        while not stop["now"] and time.monotonic() < finish:
-            kind, component, fparams = random_fault(rng, kinds)
-            active = injector.begin(kind, component, **fparams)
-            print(f"{active.start:.3f} begin {kind} {component} {fparams}", flush=True)
-            sleep(rng.uniform(*args.length))
-            rec = injector.end(active)
-            active = None
-            print(f"{rec['end']:.3f} end {kind} {component}", flush=True)
-            if kind == "kill":
-                params.wait_for_node(component, 30)
-            sleep(rng.expovariate(1.0 / args.mean_gap))
+        run_random(injector, rng, kinds, (NODES, TOPICS), args, stop,
+                   lambda node: params.wait_for_node(node, 30))
     except (RuntimeError, OSError, ValueError, TimeoutError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     finally:
-        if active is not None:
-            injector.end(active)
         robot.stop()
         params.close()
     return 0

@@ -48,3 +48,18 @@ class SinkBase:
 
     def close(self) -> None:
         return None
+
+
+class Collector(SinkBase):
+    """Keeps every observation and diagnosis in memory, in the order they came: what a
+    campaign or an experiment scores once its run is over."""
+
+    def __init__(self) -> None:
+        self.observations: list[Observation] = []
+        self.diagnoses: list[Diagnosis] = []
+
+    def on_observations(self, now: float, observations: Sequence[Observation]) -> None:
+        self.observations.extend(observations)
+
+    def on_diagnosis(self, diagnosis: Diagnosis) -> None:
+        self.diagnoses.append(diagnosis)

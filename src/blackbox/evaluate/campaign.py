@@ -41,9 +41,8 @@ from blackbox.evaluate.real_campaign import (
     RobotHarness,
     run_real,
 )
-from blackbox.model import Diagnosis, Observation
 from blackbox.pipeline import RunStats
-from blackbox.sinks import SinkBase
+from blackbox.sinks import Collector
 from blackbox.sources.base import (
     Capabilities,
     GroundTruthSource,
@@ -140,18 +139,6 @@ class CampaignSettings:
                 "grace": self.grace, "separation": self.separation, "mean_gap": self.mean_gap,
                 "warmup": self.warmup, "tail": self.tail, "diagnosis": self.diagnosis,
                 "engine": self.engine}
-
-
-class _Collector(SinkBase):
-    def __init__(self) -> None:
-        self.observations: list[Observation] = []
-        self.diagnoses: list[Diagnosis] = []
-
-    def on_observations(self, now: float, observations: Sequence[Observation]) -> None:
-        self.observations.extend(observations)
-
-    def on_diagnosis(self, diagnosis: Diagnosis) -> None:
-        self.diagnoses.append(diagnosis)
 
 
 @dataclass(frozen=True)
@@ -304,7 +291,7 @@ def run_one(settings: CampaignSettings, index: int,
     faults = RandomFaults(settings.duration - settings.tail, settings.kinds,
                           mean_gap=settings.mean_gap, warmup=settings.warmup,
                           min_separation=settings.separation)
-    sink = _Collector()
+    sink = Collector()
     try:
         box = build(RunOptions(config=Path(settings.config), source=settings.source,
                                duration=settings.duration, simulated_clock=True, faults=faults,

@@ -30,7 +30,7 @@ from blackbox.evaluate.real_campaign import RealRun
 from blackbox.model import Observation
 from blackbox.observe.build import build_observers, load_config_text
 from blackbox.pipeline import Pipeline
-from blackbox.sinks import SinkBase
+from blackbox.sinks import Collector
 from blackbox.sources.base import RandomFaults
 from blackbox.sources.memory import MemorySource
 
@@ -99,14 +99,6 @@ class FilterPoint:
                     k for k, _ in self.delays)), 50)}
 
 
-class _Collector(SinkBase):
-    def __init__(self) -> None:
-        self.observations: list[Observation] = []
-
-    def on_observations(self, now: float, observations: Sequence[Observation]) -> None:
-        self.observations.extend(observations)
-
-
 Progress = Callable[[str], None]
 
 
@@ -131,14 +123,14 @@ def simulated_filter_experiments(
     total = len(filters) * len(windows)
     for n, (kind, window) in enumerate((k, w) for k in filters for w in windows):
         config = _write(tmp, kind, window, base)
-        sink = _Collector()
+        sink = Collector()
         build(RunOptions(config=config, source="sim:thesis", duration=fault_free,
                          simulated_clock=True, seed=seed, live=False, diagnosis=False,
                          extra_sinks=[sink])).run()
         clean = _alarms(sink.observations, settle)
         scores = []
         for i in range(runs):
-            run_sink = _Collector()
+            run_sink = Collector()
             box = build(RunOptions(
                 config=config, source="sim:thesis", duration=duration, simulated_clock=True,
                 seed=seed + i, live=False, diagnosis=False, extra_sinks=[run_sink],
@@ -166,7 +158,7 @@ def _point(kind: str, window: int, clean: int, scores: Sequence[RunScore]) -> Fi
 def replay(run: RealRun, config_text: str, name: str) -> list[Observation]:
     """The observations ``config_text`` makes from a recorded real run's events."""
     observers = build_observers(load_config_text(config_text, name))
-    sink = _Collector()
+    sink = Collector()
     started = run.stats.started
     pipeline = Pipeline(MemorySource(run.events, start_time=started), observers, [sink])
     pipeline.run(run.end - started)

@@ -36,7 +36,7 @@ from blackbox.events import Event, Interest, TopicSchema
 from blackbox.model import Diagnosis, Observation
 from blackbox.pipeline import RunStats
 from blackbox.registry import Registry
-from blackbox.sinks import SinkBase
+from blackbox.sinks import Collector
 from blackbox.sources.base import Source
 from blackbox.sources.sim import GroundTruth, Topology, random_campaign
 
@@ -122,18 +122,6 @@ class RecordingSource:
 
     def close(self) -> None:
         self.inner.close()
-
-
-class _Collector(SinkBase):
-    def __init__(self) -> None:
-        self.observations: list[Observation] = []
-        self.diagnoses: list[Diagnosis] = []
-
-    def on_observations(self, now: float, observations: Sequence[Observation]) -> None:
-        self.observations.extend(observations)
-
-    def on_diagnosis(self, diagnosis: Diagnosis) -> None:
-        self.diagnoses.append(diagnosis)
 
 
 @dataclass
@@ -316,7 +304,7 @@ def run_real(harness: RobotHarness, *, config: Path, duration: float, tail: floa
     directory = Path(work_dir or tempfile.mkdtemp(prefix="blackbox-eval-"))
     directory.mkdir(parents=True, exist_ok=True)
     truth = directory / "truth.jsonl"
-    sink = _Collector()
+    sink = Collector()
     with harness.running(schedule, truth, directory) as robot:
         box = build(RunOptions(config=config, source=robot.source, duration=settle + duration,
                                live=False, diagnosis=diagnosis, extra_sinks=[sink]))

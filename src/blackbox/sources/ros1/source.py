@@ -35,6 +35,7 @@ from blackbox.events import (
 )
 from blackbox.model import BlackBoxEvent
 from blackbox.sources.base import SOURCES, Capabilities, SourceKind, SourceOptions
+from blackbox.sources.handout import overflow_event, split_due, wait_until
 from blackbox.sources.ros1.busstats import BusStatsRates, TopicCounts
 from blackbox.sources.ros1.callerid import DEFAULT_PREFIX, unique_caller_id, valid_caller_id
 from blackbox.sources.ros1.master import GraphPoller
@@ -198,9 +199,7 @@ class Ros1Source:
         return time.time()
 
     def poll(self, until: float) -> list[Event]:
-        delay = until - time.time()
-        if delay > 0:
-            self._stop.wait(delay)
+        wait_until(self._stop, until)
         queue = self._queue
         events = self._held
         self._held = []
@@ -210,15 +209,10 @@ class Ros1Source:
                 events.append(queue.popleft())
         if self._dropped:
             dropped, self._dropped = self._dropped, 0
-            events.append(BlackBoxEvent(time.time(), "ros1_queue_overflow",
-                                        f"dropped {dropped} events: the black box fell behind "
-                                        "the robot", self.name))
-        events.sort(key=_time_of)
-        cut = len(events)
-        while cut and events[cut - 1].time > until:
-            cut -= 1
-        self._held = events[cut:]
-        return events[:cut]
+            events.append(overflow_event(time.time(), "ros1_queue_overflow", dropped,
+                                         self.name))
+        due, self._held = split_due(events, until)
+        return due
 
     def schema(self, topic: str) -> TopicSchema | None:
         return self._subscriber.schemas.get(topic) if self._subscriber else None
@@ -369,10 +363,6 @@ class Ros1Source:
 
 def _restamped(sample: ResourceSample, time: float) -> ResourceSample:
     return dataclasses.replace(sample, time=time)
-
-
-def _time_of(event: Event | BlackBoxEvent) -> float:
-    return event.time
 
 
 def open_ros1_source(spec: str, options: SourceOptions) -> Ros1Source:

@@ -48,6 +48,7 @@ from blackbox.config.node import ConfigError
 from blackbox.events import Event, GraphSnapshot, Interest, MessageArrival, TopicSchema
 from blackbox.model import BlackBoxEvent
 from blackbox.sources.base import SOURCES, Capabilities, SourceKind, SourceOptions
+from blackbox.sources.handout import overflow_event, split_due, wait_until
 from blackbox.sources.ros1.resources import ResourceSampler
 from blackbox.sources.ros2.graph import Endpoint, Ros2Graph
 from blackbox.sources.ros2.idl import IdlTypes, UnknownType, ros_type_name
@@ -234,9 +235,7 @@ class Ros2Source:
         return time.time()
 
     def poll(self, until: float) -> list[Event]:
-        delay = until - time.time()
-        if delay > 0:
-            self._stop.wait(delay)
+        wait_until(self._stop, until)
         events = self._held
         self._held = []
         with self._lock:
@@ -245,15 +244,10 @@ class Ros2Source:
             self._queue.clear()
             dropped, self._dropped = self._dropped, 0
         if dropped:
-            events.append(BlackBoxEvent(time.time(), "ros2_queue_overflow",
-                                        f"dropped {dropped} events: the black box fell behind "
-                                        "the robot", self.name))
-        events.sort(key=_time_of)
-        cut = len(events)
-        while cut and events[cut - 1].time > until:
-            cut -= 1
-        self._held = events[cut:]
-        return events[:cut]
+            events.append(overflow_event(time.time(), "ros2_queue_overflow", dropped,
+                                         self.name))
+        due, self._held = split_due(events, until)
+        return due
 
     def schema(self, topic: str) -> TopicSchema | None:
         return None
@@ -622,10 +616,6 @@ def _opaque(dds_type: str) -> type[IdlStruct]:
 
 def _node_name(namespace: str, name: str) -> str:
     return f"{namespace.rstrip('/')}/{name}"
-
-
-def _time_of(event: Event) -> float:
-    return event.time
 
 
 def open_ros2_source(spec: str, options: SourceOptions) -> Ros2Source:
