@@ -34,10 +34,9 @@ from rosbags.rosbag2 import Writer as Ros2Writer
 from rosbags.typesys import Stores, get_typestore
 
 from blackbox.app import RunOptions, build
-from blackbox.events import Interest, MessageArrival
+from blackbox.events import Interest, MessageArrival, TopicSchema
 from blackbox.record.snapshot import Held, write_mcap
 from blackbox.sources.bag import BagSource
-from blackbox.sources.base import TopicSchema
 
 T0 = 1_700_000_000
 IMAGE_BYTES = 640 * 480 * 3

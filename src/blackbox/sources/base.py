@@ -16,15 +16,8 @@ from typing import TYPE_CHECKING, Literal, Protocol
 from blackbox.config.node import ConfigError
 from blackbox.events import (
     Event,
-    GraphSnapshot,
     Interest,
-    MessageArrival,
-    NetworkSample,
-    NodeInfo,
-    ResourceSample,
-    TopicInfo,
     TopicSchema,
-    merge_interests,
 )
 from blackbox.registry import Registry
 
@@ -34,22 +27,12 @@ if TYPE_CHECKING:
 __all__ = [
     "SOURCES",
     "Capabilities",
-    "Event",
-    "GraphSnapshot",
     "GroundTruthSource",
-    "Interest",
-    "MessageArrival",
-    "NetworkSample",
-    "NodeInfo",
     "RandomFaults",
     "ReplaySource",
-    "ResourceSample",
     "Source",
     "SourceKind",
     "SourceOptions",
-    "TopicInfo",
-    "TopicSchema",
-    "merge_interests",
     "source_kind",
 ]
 
