@@ -10,7 +10,6 @@ import contextlib
 import json
 import os
 import shutil
-import signal
 import subprocess
 import sys
 import time
@@ -18,6 +17,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from blackbox.evaluate.real_campaign import stop_process_group
 
 ROOT = Path(__file__).resolve().parent.parent
 ROBOT_SCRIPT = ROOT / "scripts" / "ros1_robot" / "robot.py"
@@ -129,14 +130,7 @@ def robot_in(link: ShapedLink, log_dir: Path, port: int = 11311) -> Iterator[dic
             raise RuntimeError(f"robot did not start in {link.robot_ns}; see {log_dir}")
         yield json.loads(line)
     finally:
-        with contextlib.suppress(OSError):
-            os.killpg(proc.pid, signal.SIGTERM)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            with contextlib.suppress(OSError):
-                os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(timeout=5)
+        stop_process_group(proc)
 
 
 def set_param(link: ShapedLink, key: str, value: float, port: int = 11311) -> None:

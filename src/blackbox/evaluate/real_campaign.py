@@ -210,7 +210,7 @@ class Ros1ThesisHarness:
             self._wait_ready(proc, log_dir)
             yield _Ros1Injected(proc, f"ros1://127.0.0.1:{port}")
         finally:
-            _stop(proc)
+            stop_process_group(proc)
             out.close()
 
     def _wait_ready(self, proc: subprocess.Popen[str], log_dir: Path) -> None:
@@ -236,7 +236,8 @@ def _drain(stream: Any) -> None:
         pass
 
 
-def _stop(proc: subprocess.Popen[str]) -> None:
+def stop_process_group(proc: subprocess.Popen[str]) -> None:
+    """Stop a robot started in its own session: SIGTERM to its group, SIGKILL after 20 s."""
     if proc.poll() is None:
         with contextlib.suppress(OSError):
             os.killpg(proc.pid, signal.SIGTERM)
