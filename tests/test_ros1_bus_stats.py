@@ -1,14 +1,21 @@
-"""Rates from a publisher's ``getBusStats`` counters: parsing and counting (no ROS needed;
-the real robot over a shaped link is tests/test_netns_constrained_link.py)."""
+"""Rates from a publisher's ``getBusStats`` counters: parsing, counting, and asking for
+them along with the liveness probe (real XML-RPC servers on loopback; no ROS needed; the
+real robot over a shaped link is tests/test_netns_constrained_link.py)."""
 
 from __future__ import annotations
 
+import threading
+from xmlrpc.server import SimpleXMLRPCServer
+
 from blackbox.sources.ros1.busstats import (
+    STATS,
+    STATS_AND_INFO,
     BusStatsRates,
     Connection,
     parse_bus_info,
     parse_bus_stats,
 )
+from blackbox.sources.ros1.master import NodeReply, RosApiError, probe_nodes
 
 IMAGE = "/usb_cam/image_raw"
 
@@ -33,30 +40,120 @@ def _conn(cid: int, dest: str, messages: int, connected: bool = True) -> Connect
 
 def test_the_busiest_live_robot_connection_gives_evenly_spaced_arrivals() -> None:
     rates = BusStatsRates()
-    try:
-        first = rates._count(10.0, IMAGE, "/usb_cam", [_conn(1, "/Signal_generator", 100)],
-                             set())
-        assert first.on_robot and first.arrivals == []  # one reading is no rate yet
-        later = rates._count(11.0, IMAGE, "/usb_cam",
-                             [_conn(1, "/Signal_generator", 115), _conn(2, "/slow", 105)], set())
-        assert later.robot_sent == 15
-        times = [a.time for a in later.arrivals]
-        assert len(times) == 15 and times[0] > 11.0 and abs(times[-1] - 12.0) < 1e-9
-        assert {a.size for a in later.arrivals} == {1000}  # 4-byte length prefix removed
-    finally:
-        rates.close()
+    first = rates._count(10.0, IMAGE, "/usb_cam", [_conn(1, "/Signal_generator", 100)],
+                         set())
+    assert first.on_robot and first.arrivals == []  # one reading is no rate yet
+    later = rates._count(11.0, IMAGE, "/usb_cam",
+                         [_conn(1, "/Signal_generator", 115), _conn(2, "/slow", 105)], set())
+    assert later.robot_sent == 15
+    times = [a.time for a in later.arrivals]
+    assert len(times) == 15 and times[0] > 11.0 and abs(times[-1] - 12.0) < 1e-9
+    assert {a.size for a in later.arrivals} == {1000}  # 4-byte length prefix removed
 
 
 def test_dead_or_closed_subscribers_and_the_black_box_itself_do_not_count() -> None:
     rates = BusStatsRates()
+    conns = [_conn(1, "/Signal_generator", 100), _conn(2, "/blackbox", 50),
+             _conn(3, "/gone", 10, connected=False)]
+    rates._count(0.0, IMAGE, "/usb_cam", conns, set())
+    r = rates._count(1.0, IMAGE, "/usb_cam",
+                     [_conn(1, "/Signal_generator", 100), _conn(2, "/blackbox", 58),
+                      _conn(3, "/gone", 10, connected=False)], {"/Signal_generator"})
+    assert not r.on_robot and r.arrivals == [] and r.robot_sent is None
+    assert r.own_sent == 8
+
+
+def _stats(*conns: tuple[int, int]) -> list[object]:
+    """A rospy ``getBusStats`` value for IMAGE: (connection id, messages) pairs."""
+    return [[[IMAGE, 0, [[cid, m * 1004, m, True] for cid, m in conns]]], [], []]
+
+
+def _info(*conns: tuple[int, str]) -> list[object]:
+    return [[cid, dest, "o", "TCPROS", IMAGE, True, ""] for cid, dest in conns]
+
+
+def test_bus_info_is_asked_only_when_a_count_names_a_connection_not_seen_in_that_process(
+        ) -> None:
+    rates = BusStatsRates(caller_id="/blackbox_me")
+    pubs = {IMAGE: ("/usb_cam",)}
+    assert rates.calls([IMAGE], pubs, set()) == {"/usb_cam": STATS_AND_INFO}
+    rates.count(0.0, [IMAGE], pubs, {"/usb_cam": NodeReply(
+        41, {"getBusStats": _stats((1, 100)), "getBusInfo": _info((1, "/viewer"))})}, set())
+    assert rates.calls([IMAGE], pubs, set()) == {"/usb_cam": STATS}
+    [r] = rates.count(1.0, [IMAGE], pubs, {"/usb_cam": NodeReply(
+        41, {"getBusStats": _stats((1, 115))})}, set())
+    assert r.robot_sent == 15 and len(r.arrivals) == 15
+    # a second subscriber connects: unknown until its caller id is asked for, so it
+    # counts for nobody (it might be the black box's own connection)
+    [r] = rates.count(2.0, [IMAGE], pubs, {"/usb_cam": NodeReply(
+        41, {"getBusStats": _stats((1, 130), (2, 900))})}, set())
+    assert r.robot_sent == 15
+    assert rates.calls([IMAGE], pubs, set()) == {"/usb_cam": STATS_AND_INFO}
+    # the publisher restarted (new pid): connection ids start again, the old names go
+    rates.count(3.0, [IMAGE], pubs, {"/usb_cam": NodeReply(
+        57, {"getBusStats": _stats((1, 3))})}, set())
+    assert rates.calls([IMAGE], pubs, set()) == {"/usb_cam": STATS_AND_INFO}
+    assert rates.calls([IMAGE], pubs, {"/usb_cam"}) == {}
+
+
+def test_a_publisher_without_counts_this_round_starts_afresh() -> None:
+    rates = BusStatsRates()
+    pubs = {IMAGE: ("/usb_cam",)}
+    both = {"getBusStats": _stats((1, 100)), "getBusInfo": _info((1, "/viewer"))}
+    rates.count(0.0, [IMAGE], pubs, {"/usb_cam": NodeReply(41, both)}, set())
+    error = RosApiError("getBusStats on http://x: no answer (timed out)")
+    assert rates.count(1.0, [IMAGE], pubs,
+                       {"/usb_cam": NodeReply(41, {"getBusStats": error})}, set()) == []
+    [r] = rates.count(2.0, [IMAGE], pubs, {"/usb_cam": NodeReply(
+        41, {"getBusStats": _stats((1, 400))})}, set())
+    assert r.arrivals == [] and r.on_robot  # no burst of 300 from the gap
+
+
+class _Slave(threading.Thread):
+    """A real XML-RPC slave API on loopback answering getPid / getBusStats / getBusInfo,
+    with or without ``system.multicall`` (rospy and roscpp have it; others may not)."""
+
+    def __init__(self, multicall: bool) -> None:
+        super().__init__(daemon=True)
+        self.server = SimpleXMLRPCServer(("127.0.0.1", 0), logRequests=False)
+        self.server.register_function(lambda caller: [1, "", 4242], "getPid")
+        self.server.register_function(lambda caller: [1, "", _stats((1, 7))], "getBusStats")
+        self.server.register_function(lambda caller: [1, "", _info((1, "/viewer"))],
+                                      "getBusInfo")
+        if multicall:
+            self.server.register_multicall_functions()
+        self.uri = f"http://127.0.0.1:{self.server.server_address[1]}/"
+        self.requests = 0
+        handle = self.server._dispatch
+
+        def counted(method: str, params: tuple[object, ...]) -> object:
+            self.requests += 1
+            return handle(method, params)
+        self.server._dispatch = counted  # type: ignore[method-assign]
+
+    def run(self) -> None:
+        self.server.serve_forever(poll_interval=0.05)
+
+    def stop(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+
+
+def test_extra_calls_ride_on_the_liveness_probe_in_one_request() -> None:
+    batching, plain = _Slave(multicall=True), _Slave(multicall=False)
+    for slave in (batching, plain):
+        slave.start()
     try:
-        conns = [_conn(1, "/Signal_generator", 100), _conn(2, "/blackbox", 50),
-                 _conn(3, "/gone", 10, connected=False)]
-        rates._count(0.0, IMAGE, "/usb_cam", conns, set())
-        r = rates._count(1.0, IMAGE, "/usb_cam",
-                         [_conn(1, "/Signal_generator", 100), _conn(2, "/blackbox", 58),
-                          _conn(3, "/gone", 10, connected=False)], {"/Signal_generator"})
-        assert not r.on_robot and r.arrivals == [] and r.robot_sent is None
-        assert r.own_sent == 8
+        replies = probe_nodes({"/a": batching.uri, "/b": plain.uri, "/c": "http://127.0.0.1:9/"},
+                              timeout=2.0, extra={"/a": STATS_AND_INFO, "/b": STATS})
     finally:
-        rates.close()
+        batching.stop()
+        plain.stop()
+    a, b, c = replies["/a"], replies["/b"], replies["/c"]
+    assert a.pid == 4242 and a.multicall
+    assert a.extra == {"getBusStats": _stats((1, 7)), "getBusInfo": _info((1, "/viewer"))}
+    # one HTTP request whose three calls the server dispatched itself
+    assert batching.requests == 1 + 3
+    # no system.multicall: the pid alone, asked again within the same deadline
+    assert b.pid == 4242 and not b.multicall and b.extra == {}
+    assert isinstance(c.pid, RosApiError) and "refused" in str(c.pid)

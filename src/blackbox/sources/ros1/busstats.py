@@ -7,6 +7,12 @@ the robot subscribes to a topic, the publisher's count on that connection is the
 rate, measured on the robot: the black box needs no copy of a 14 MB/s camera stream, and a
 thin link to the black box cannot make the topic look slow.
 
+The calls ride on the liveness probe: each round the black box already asks every node
+for its pid, and ``getBusStats`` goes in the same ``system.multicall`` request.
+``getBusInfo`` (which caller each connection id belongs to) is asked only when a count
+names a connection the black box has not seen in that process (keyed by pid), so a steady
+robot costs one request per publisher per round, not three.
+
 Each round, the count increase on the busiest live on-robot connection since the previous
 round becomes that many :class:`MessageArrival` s spread evenly over a span as long as that
 interval, starting now (size: serialized bytes per message, averaged over the round; no
@@ -20,21 +26,23 @@ the topic over its link.
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
 from blackbox.events import MessageArrival
 from blackbox.sources.ros1.callerid import is_black_box
-from blackbox.sources.ros1.master import CALLER_ID, RosApi, RosApiError
+from blackbox.sources.ros1.master import CALLER_ID, NodeReply, RosApiError
 
 
 @dataclass(frozen=True, slots=True)
 class Connection:
-    """One publisher-side connection of a topic: who receives it and what was sent."""
+    """One publisher-side connection of a topic: who receives it and what was sent.
+
+    ``destination`` is ``None`` while the black box does not yet know it (a connection
+    opened since the last ``getBusInfo``); such a connection counts for nobody."""
 
     id: int
-    destination: str
+    destination: str | None
     messages: int
     bytes: int
     connected: bool
@@ -69,9 +77,15 @@ def parse_bus_info(info: Any) -> dict[int, str]:
     return out
 
 
-def node_name(caller: str) -> str:
+def _destination(caller: str | None) -> str | None:
     """rospy lists a subscriber by its caller id; tolerate a missing leading slash."""
+    if caller is None:
+        return None
     return caller if caller.startswith("/") else "/" + caller
+
+
+STATS = ("getBusStats",)
+STATS_AND_INFO = ("getBusStats", "getBusInfo")
 
 
 @dataclass(slots=True)
@@ -96,61 +110,80 @@ class TopicCounts:
 
 
 class BusStatsRates:
-    """Polls ``getBusStats``/``getBusInfo`` of publishers and turns counts into arrivals."""
+    """Turns the publishers' counters, read each round, into arrivals.
 
-    def __init__(self, timeout: float = 0.5, max_workers: int = 4, *,
-                 caller_id: str = CALLER_ID) -> None:
+    Pure bookkeeping: :meth:`calls` says what to ask each node this round, the graph
+    poller asks it along with its liveness probe, and :meth:`count` reads the answers.
+    """
+
+    def __init__(self, *, caller_id: str = CALLER_ID) -> None:
         """``caller_id``: the black box's own id on the publishers' connections (its own
         connection is never taken for a robot node's)."""
-        self._timeout = timeout
         self.caller_id = caller_id
-        self._pool = ThreadPoolExecutor(max_workers=max_workers,
-                                        thread_name_prefix="ros1-busstats")
         self._previous: dict[tuple[str, str], _Previous] = {}
+        self._info: dict[str, tuple[int, dict[int, str]]] = {}
+        self._stale: set[str] = set()
 
-    def close(self) -> None:
-        self._pool.shutdown(wait=False, cancel_futures=True)
+    def calls(self, topics: Iterable[str], publishers: Mapping[str, tuple[str, ...]],
+              dead: set[str]) -> dict[str, tuple[str, ...]]:
+        """The slave API methods to ask each live publisher of ``topics`` this round."""
+        nodes = {n for t in topics for n in publishers.get(t, ()) if n not in dead}
+        return {n: STATS if n in self._info and n not in self._stale else STATS_AND_INFO
+                for n in sorted(nodes)}
 
-    def poll(self, now: float, topics: Iterable[str],
-             publishers: Mapping[str, tuple[str, ...]], uri_of: Any,
-             dead: set[str]) -> list[TopicCounts]:
-        """One round over ``topics``: each publisher asked once, in parallel."""
+    def count(self, now: float, topics: Iterable[str],
+              publishers: Mapping[str, tuple[str, ...]], replies: Mapping[str, NodeReply],
+              dead: set[str]) -> list[TopicCounts]:
+        """One round's counts for ``topics`` from the nodes' ``replies``.
+
+        A publisher that gave no counts this round (dead, no ``system.multicall``, an
+        error) has its history dropped, so its next counts start afresh."""
         wanted: dict[str, list[str]] = {}
         for topic in topics:
             for node in publishers.get(topic, ()):
                 wanted.setdefault(node, []).append(topic)
-        futures = {}
-        for node in wanted:
-            uri = uri_of(node)
-            if uri is not None and node not in dead:
-                futures[node] = self._pool.submit(self._ask, uri)
         out: list[TopicCounts] = []
-        for node, fut in futures.items():
-            try:
-                stats, info = fut.result()
-            except RosApiError:
-                for topic in wanted[node]:
+        for node, node_topics in wanted.items():
+            reply = replies.get(node)
+            stats_value = reply.extra.get("getBusStats") if reply is not None else None
+            if reply is None or stats_value is None or isinstance(stats_value, RosApiError):
+                for topic in node_topics:
                     self._previous.pop((topic, node), None)
                 continue
-            for topic in wanted[node]:
-                conns = [Connection(cid, node_name(info.get(cid, "?")), m, b, c)
+            stats = parse_bus_stats(stats_value)
+            info = self._destinations(node, reply, stats)
+            for topic in node_topics:
+                conns = [Connection(cid, _destination(info.get(cid)), m, b, c)
                          for cid, (m, b, c) in stats.get(topic, {}).items()]
                 out.append(self._count(now, topic, node, conns, dead))
         return out
 
-    def _ask(self, uri: str) -> tuple[dict[str, dict[int, tuple[int, int, bool]]],
-                                      dict[int, str]]:
-        api = RosApi(uri, self._timeout)
-        return (parse_bus_stats(api.call("getBusStats", CALLER_ID)),
-                parse_bus_info(api.call("getBusInfo", CALLER_ID)))
+    def _destinations(self, node: str, reply: NodeReply,
+                      stats: dict[str, dict[int, tuple[int, int, bool]]]) -> dict[int, str]:
+        """Connection id -> caller id for ``node``'s current process, refreshed when the
+        process changed or a count names a connection not seen before."""
+        pid = reply.pid if isinstance(reply.pid, int) else -1
+        fresh = reply.extra.get("getBusInfo")
+        if fresh is not None and not isinstance(fresh, RosApiError):
+            self._info[node] = (pid, parse_bus_info(fresh))
+        known_pid, info = self._info.get(node, (None, {}))
+        if known_pid != pid:
+            info = {}
+        ids = {cid for conns in stats.values() for cid in conns}
+        if ids <= info.keys():
+            self._stale.discard(node)
+        else:
+            self._stale.add(node)
+        return info
 
     def _count(self, now: float, topic: str, node: str, conns: list[Connection],
                dead: set[str]) -> TopicCounts:
         key = (topic, node)
         prev = self._previous.get(key)
         self._previous[key] = _Previous(now, {c.id: (c.messages, c.bytes) for c in conns})
-        robot = [c for c in conns if c.connected and c.destination != self.caller_id
-                 and not is_black_box(c.destination) and c.destination not in dead]
+        robot = [c for c in conns if c.connected and c.destination is not None
+                 and c.destination != self.caller_id and not is_black_box(c.destination)
+                 and c.destination not in dead]
         own = [c for c in conns if c.destination == self.caller_id]
         result = TopicCounts(topic, node, bool(robot), [], None, None)
         if prev is None:

@@ -9,16 +9,17 @@ registers anything anywhere, so the robot never sees the black box in its graph.
 from __future__ import annotations
 
 import errno
+import functools
 import http.client
 import os
 import selectors
 import socket
 import time
 import xmlrpc.client
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 from urllib.parse import urlsplit
 
 from blackbox.events import GraphSnapshot, NodeInfo, TopicInfo
@@ -149,6 +150,8 @@ class NodeState:
     pid: int | None = None
     reason: str = "not yet probed"
     registered: bool = True
+    multicall: bool = True
+    """The node's server answers ``system.multicall`` (so extra calls ride on the probe)."""
 
 
 def probe_pid(uri: str, timeout: float) -> int:
@@ -181,6 +184,8 @@ class GraphPoller:
         self._master_period = master_period
         self._next_master = 0.0
         self._registered: set[str] = set()
+        self.replies: dict[str, NodeReply] = {}
+        """This round's replies of the nodes asked extra calls (see :meth:`refresh`)."""
 
     def close(self) -> None:
         self._pool.shutdown(wait=False, cancel_futures=True)
@@ -189,8 +194,11 @@ class GraphPoller:
         st = self.nodes.get(node)
         return st.uri if st is not None else None
 
-    def refresh(self) -> None:
+    def refresh(self, extra: Mapping[str, tuple[str, ...]] | None = None) -> None:
         """One round: probe every node, and ask the master every ``master_period`` s.
+
+        ``extra``: slave API methods to call on some nodes in the same request as the
+        probe; their answers are in :attr:`replies` until the next round.
 
         Liveness needs a fast probe; the graph's structure changes rarely, so the master
         is asked less often (and every round while it is unreachable).
@@ -210,7 +218,7 @@ class GraphPoller:
             self.nodes[name] = NodeState(name)
         for name, st in self.nodes.items():
             st.registered = name in self._registered
-        self._probe(list(self.nodes.values()))
+        self._probe(list(self.nodes.values()), extra or {})
         for name in [n for n, st in self.nodes.items() if not st.registered and not st.alive]:
             del self.nodes[name]
         if fresh is None:
@@ -256,9 +264,17 @@ class GraphPoller:
         self.master_ok = True
         return state
 
-    def _probe(self, states: Iterable[NodeState]) -> None:
+    def _probe(self, states: Iterable[NodeState],
+               extra: Mapping[str, tuple[str, ...]]) -> None:
         states = list(states)
-        quick = probe_pids({st.name: st.uri for st in states if st.uri}, self._probe_timeout)
+        batched = {n: m for n, m in extra.items()
+                   if n in self.nodes and self.nodes[n].multicall}
+        replies = probe_nodes({st.name: st.uri for st in states if st.uri},
+                              self._probe_timeout, batched)
+        self.replies = {n: r for n, r in replies.items() if r.extra}
+        for name, reply in replies.items():
+            self.nodes[name].multicall = reply.multicall
+        quick = {n: r.pid for n, r in replies.items()}
         slow = [(st, self._pool.submit(self._probe_one, st, quick.get(st.name)))
                 for st in states if not isinstance(quick.get(st.name), int)]
         results: dict[str, int | Exception] = {
@@ -295,12 +311,35 @@ class GraphPoller:
             raise first_error or exc from None
         if uri == st.uri and first_error is not None:
             raise first_error
-        st.uri = uri
+        if uri != st.uri:
+            st.uri, st.multicall = uri, True
         return probe_pid(uri, self._probe_timeout)
 
 
 _GET_PID = xmlrpc.client.dumps((CALLER_ID,), "getPid").encode()
-_MAX_REPLY = 64 * 1024
+_MAX_REPLY = 256 * 1024
+
+
+class _NoMulticall(Exception):
+    """The node's XML-RPC server has no ``system.multicall`` (neither rospy nor roscpp)."""
+
+
+@dataclass(frozen=True, slots=True)
+class NodeReply:
+    """One node's answers in a probe round: its pid (or why not) and the extra calls'.
+
+    ``extra`` maps each extra method to its value or a :class:`RosApiError`; it is empty
+    when the node's server cannot batch calls (``multicall`` is then ``False``)."""
+
+    pid: int | RosApiError
+    extra: dict[str, Any] = field(default_factory=dict)
+    multicall: bool = True
+
+
+@functools.cache
+def _multicall_body(methods: tuple[str, ...]) -> bytes:
+    calls = [{"methodName": m, "params": [CALLER_ID]} for m in ("getPid", *methods)]
+    return xmlrpc.client.dumps((calls,), "system.multicall").encode()
 
 
 def _http_request(uri: str, body: bytes) -> tuple[tuple[str, int], bytes]:
@@ -313,55 +352,145 @@ def _http_request(uri: str, body: bytes) -> tuple[tuple[str, int], bytes]:
     return (parts.hostname, parts.port), head.encode() + body
 
 
-def _parse_pid(uri: str, reply: bytes) -> int:
+def _http_body(what: str, reply: bytes) -> bytes:
     head, sep, body = reply.partition(b"\r\n\r\n")
     if not sep or not head.startswith(b"HTTP/1.") or b" 200 " not in head.split(b"\r\n")[0]:
-        raise RosApiError(f"getPid on {uri}: not an HTTP 200 reply: {reply[:60]!r}")
+        raise RosApiError(f"{what}: not an HTTP 200 reply: {reply[:60]!r}")
+    return body
+
+
+def _ros_value(what: str, reply: Any) -> Any:
+    """The value of a ``[code, message, value]`` reply, or a :class:`RosApiError`."""
+    if not (isinstance(reply, list) and len(reply) == 3 and isinstance(reply[0], int)):
+        return RosApiError(f"{what}: unexpected reply {str(reply)[:80]!r}")
+    if reply[0] != 1:
+        return RosApiError(f"{what}: error {reply[0]}: {reply[1]}")
+    return reply[2]
+
+
+def _pid_of(what: str, value: Any) -> int | RosApiError:
+    if isinstance(value, RosApiError):
+        return value
+    if not isinstance(value, int) or isinstance(value, bool):
+        return RosApiError(f"{what}: not a pid: {str(value)[:40]!r}")
+    return value
+
+
+def _parse_pid(uri: str, reply: bytes) -> int:
+    what = f"getPid on {uri}"
     try:
-        (value,), _ = xmlrpc.client.loads(body)
+        (value,), _ = xmlrpc.client.loads(_http_body(what, reply))
+    except RosApiError:
+        raise
     except Exception as exc:
-        raise RosApiError(f"getPid on {uri}: malformed reply ({_describe(exc)})") from None
-    if not (isinstance(value, list) and len(value) == 3 and value[0] == 1
-            and isinstance(value[2], int)):
-        raise RosApiError(f"getPid on {uri}: unexpected reply {str(value)[:80]!r}")
-    return value[2]
+        raise RosApiError(f"{what}: malformed reply ({_describe(exc)})") from None
+    pid = _pid_of(what, _ros_value(what, value))
+    if isinstance(pid, RosApiError):
+        raise pid
+    return pid
 
 
-def probe_pids(uris: dict[str, str], timeout: float) -> dict[str, int | RosApiError]:
-    """``getPid`` on many nodes at once from one thread, each within ``timeout`` seconds.
+def _parse_multicall(uri: str, reply: bytes, methods: tuple[str, ...]) -> NodeReply:
+    """``system.multicall`` of getPid plus ``methods``: each answer is ``[reply]`` or a
+    fault struct. A fault for the whole call means the server cannot batch."""
+    what = f"system.multicall on {uri}"
+    try:
+        (answers,), _ = xmlrpc.client.loads(_http_body(what, reply))
+    except xmlrpc.client.Fault:
+        raise _NoMulticall from None
+    except RosApiError:
+        raise
+    except Exception as exc:
+        raise RosApiError(f"{what}: malformed reply ({_describe(exc)})") from None
+    names = ("getPid", *methods)
+    if not (isinstance(answers, list) and len(answers) == len(names)):
+        raise RosApiError(f"{what}: unexpected reply {str(answers)[:80]!r}")
+    values: list[Any] = []
+    for name, answer in zip(names, answers, strict=True):
+        call = f"{name} on {uri}"
+        if isinstance(answer, list) and len(answer) == 1:
+            values.append(_ros_value(call, answer[0]))
+        else:
+            values.append(RosApiError(f"{call}: {str(answer)[:80]!r}"))
+    return NodeReply(_pid_of(f"getPid on {uri}", values[0]), dict(zip(methods, values[1:],
+                                                                      strict=True)))
+
+
+@dataclass(slots=True)
+class _Exchange:
+    name: str
+    uri: str
+    body: bytes
+    methods: tuple[str, ...]
+    request: bytes = b""
+    reply: bytearray = field(default_factory=bytearray)
+
+
+def _open(ex: _Exchange, sel: selectors.BaseSelector) -> socket.socket | RosApiError:
+    try:
+        address, ex.request = _http_request(ex.uri, ex.body)
+        infos = socket.getaddrinfo(*address, type=socket.SOCK_STREAM)
+        sock = socket.socket(infos[0][0], socket.SOCK_STREAM)
+    except RosApiError as exc:
+        return exc
+    except OSError as exc:
+        return RosApiError(f"getPid on {ex.uri}: {_describe(exc)}")
+    sock.setblocking(False)
+    err = sock.connect_ex(infos[0][4])
+    if err not in (0, errno.EINPROGRESS):
+        sock.close()
+        return RosApiError(f"getPid on {ex.uri}: {os.strerror(err).lower()}")
+    sel.register(sock, selectors.EVENT_WRITE)
+    return sock
+
+
+def _finish(ex: _Exchange) -> NodeReply | _NoMulticall:
+    try:
+        if ex.methods:
+            return _parse_multicall(ex.uri, bytes(ex.reply), ex.methods)
+        return NodeReply(_parse_pid(ex.uri, bytes(ex.reply)))
+    except RosApiError as exc:
+        return NodeReply(exc)
+    except _NoMulticall as exc:
+        return exc
+
+
+def probe_nodes(uris: dict[str, str], timeout: float,
+                extra: Mapping[str, tuple[str, ...]] | None = None) -> dict[str, NodeReply]:
+    """``getPid`` on many nodes at once from one thread, each within ``timeout`` seconds,
+    plus any ``extra`` methods (called with the caller id) per node in the same request.
 
     The liveness probe runs several times a second for every node, so it avoids a thread
-    and an HTTP client per call: one non-blocking socket per node, one selector.
+    and an HTTP client per call: one non-blocking socket per node, one selector, and extra
+    calls ride along as one ``system.multicall``. A server that cannot batch is asked for
+    its pid alone within the same deadline and its reply says ``multicall=False``.
     """
-    results: dict[str, int | RosApiError] = {}
+    extra = extra or {}
+    results: dict[str, NodeReply] = {}
+    no_multicall: set[str] = set()
     sel = selectors.DefaultSelector()
-    pending: dict[socket.socket, tuple[str, str, bytes, bytearray]] = {}
+    pending: dict[socket.socket, _Exchange] = {}
+
+    def start(ex: _Exchange) -> None:
+        sock = _open(ex, sel)
+        if isinstance(sock, RosApiError):
+            results[ex.name] = NodeReply(sock, multicall=ex.name not in no_multicall)
+        else:
+            pending[sock] = ex
+
     try:
         for name, uri in uris.items():
-            try:
-                address, request = _http_request(uri, _GET_PID)
-                infos = socket.getaddrinfo(*address, type=socket.SOCK_STREAM)
-                sock = socket.socket(infos[0][0], socket.SOCK_STREAM)
-            except (OSError, RosApiError) as exc:
-                results[name] = (exc if isinstance(exc, RosApiError)
-                                 else RosApiError(f"getPid on {uri}: {_describe(exc)}"))
-                continue
-            sock.setblocking(False)
-            err = sock.connect_ex(infos[0][4])
-            if err not in (0, errno.EINPROGRESS):
-                sock.close()
-                results[name] = RosApiError(f"getPid on {uri}: {os.strerror(err).lower()}")
-                continue
-            pending[sock] = (name, uri, request, bytearray())
-            sel.register(sock, selectors.EVENT_WRITE)
+            methods = extra.get(name, ())
+            start(_Exchange(name, uri, _multicall_body(methods) if methods else _GET_PID,
+                            methods))
         deadline = time.monotonic() + timeout
         while pending:
             left = deadline - time.monotonic()
             if left <= 0:
                 break
             for key, mask in sel.select(left):
-                sock = key.fileobj  # type: ignore[assignment]
-                name, uri, request, buf = pending[sock]
+                sock = cast(socket.socket, key.fileobj)
+                ex = pending[sock]
                 error: str | None = None
                 try:
                     if mask & selectors.EVENT_WRITE:
@@ -369,13 +498,13 @@ def probe_pids(uris: dict[str, str], timeout: float) -> dict[str, int | RosApiEr
                         if err:
                             error = os.strerror(err).lower()
                         else:
-                            sock.sendall(request)
+                            sock.sendall(ex.request)
                             sel.modify(sock, selectors.EVENT_READ)
                             continue
                     else:
                         chunk = sock.recv(65536)
-                        if chunk and len(buf) + len(chunk) <= _MAX_REPLY:
-                            buf += chunk
+                        if chunk and len(ex.reply) + len(chunk) <= _MAX_REPLY:
+                            ex.reply += chunk
                             continue
                         if chunk:
                             error = f"reply larger than {_MAX_REPLY} bytes"
@@ -385,14 +514,20 @@ def probe_pids(uris: dict[str, str], timeout: float) -> dict[str, int | RosApiEr
                 sock.close()
                 del pending[sock]
                 if error is not None:
-                    results[name] = RosApiError(f"getPid on {uri}: {error}")
+                    results[ex.name] = NodeReply(RosApiError(f"getPid on {ex.uri}: {error}"),
+                                                 multicall=ex.name not in no_multicall)
+                    continue
+                done = _finish(ex)
+                if isinstance(done, _NoMulticall):
+                    no_multicall.add(ex.name)
+                    start(_Exchange(ex.name, ex.uri, _GET_PID, ()))
                 else:
-                    try:
-                        results[name] = _parse_pid(uri, bytes(buf))
-                    except RosApiError as exc:
-                        results[name] = exc
-        for sock, (name, uri, _, _) in pending.items():
-            results[name] = RosApiError(f"getPid on {uri}: no answer (timed out)")
+                    results[ex.name] = (done if ex.name not in no_multicall else
+                                        NodeReply(done.pid, multicall=False))
+        for sock, ex in pending.items():
+            results[ex.name] = NodeReply(RosApiError(f"getPid on {ex.uri}: no answer "
+                                                     "(timed out)"),
+                                         multicall=ex.name not in no_multicall)
             sock.close()
     finally:
         sel.close()

@@ -166,7 +166,7 @@ class Ros1Source:
         self._thread: threading.Thread | None = None
         self._interest = Interest()
         self.caller_id = settings.caller_id or unique_caller_id(settings.caller_id_prefix)
-        self._bus = BusStatsRates(settings.probe_timeout, caller_id=self.caller_id)
+        self._bus = BusStatsRates(caller_id=self.caller_id)
         self.counted: set[tuple[str, str]] = set()
         """(topic, publisher) pairs whose rate currently comes from the publisher's counters."""
         self.behind: set[str] = set()
@@ -223,7 +223,6 @@ class Ros1Source:
             self._thread.join(timeout=3.0)
         if self._subscriber is not None:
             self._subscriber.close()
-        self._bus.close()
         self._poller.close()
 
     # ---- background ------------------------------------------------------------------------
@@ -265,10 +264,13 @@ class Ros1Source:
         next_resources = 0.0
         subscriber = self._subscriber
         assert subscriber is not None
+        dead: set[str] = set()
         while not self._stop.is_set():
             started = time.time()
             try:
-                self._poller.refresh()
+                interest = self._interest
+                self._poller.refresh(self._bus.calls(interest.topics | interest.decoded,
+                                                     self._poller.state.publishers, dead))
                 self._push(self._poller.snapshot)
                 dead = {n for n, st in self._poller.nodes.items() if not st.alive}
                 publishers = self._poller.state.publishers
@@ -300,8 +302,8 @@ class Ros1Source:
         interest = self._interest
         rate_only = (interest.topics - interest.decoded if self.settings.rates_from_counters
                      else frozenset())
-        results = self._bus.poll(now, interest.topics | interest.decoded, publishers,
-                                 self._poller.uri_of, dead)
+        results = self._bus.count(now, interest.topics | interest.decoded, publishers,
+                                  self._poller.replies, dead)
         counted: set[tuple[str, str]] = set()
         for r in results:
             key = (r.topic, r.publisher)
