@@ -113,11 +113,12 @@ class _Slave(threading.Thread):
     """A real XML-RPC slave API on loopback answering getPid / getBusStats / getBusInfo,
     with or without ``system.multicall`` (rospy and roscpp have it; others may not)."""
 
-    def __init__(self, multicall: bool) -> None:
+    def __init__(self, multicall: bool, messages: int = 7) -> None:
         super().__init__(daemon=True)
         self.server = SimpleXMLRPCServer(("127.0.0.1", 0), logRequests=False)
         self.server.register_function(lambda caller: [1, "", 4242], "getPid")
-        self.server.register_function(lambda caller: [1, "", _stats((1, 7))], "getBusStats")
+        self.server.register_function(lambda caller: [1, "", _stats((1, messages))],
+                                      "getBusStats")
         self.server.register_function(lambda caller: [1, "", _info((1, "/viewer"))],
                                       "getBusInfo")
         if multicall:
@@ -140,20 +141,31 @@ class _Slave(threading.Thread):
 
 
 def test_extra_calls_ride_on_the_liveness_probe_in_one_request() -> None:
-    batching, plain = _Slave(multicall=True), _Slave(multicall=False)
-    for slave in (batching, plain):
+    # rospy cannot encode a counter past 2**31 (2 GB of camera images on one connection):
+    # the whole batch faults, yet the node is alive
+    batching, plain, overflow = (_Slave(multicall=True), _Slave(multicall=False),
+                                 _Slave(multicall=True, messages=2**31))
+    for slave in (batching, plain, overflow):
         slave.start()
     try:
-        replies = probe_nodes({"/a": batching.uri, "/b": plain.uri, "/c": "http://127.0.0.1:9/"},
-                              timeout=2.0, extra={"/a": STATS_AND_INFO, "/b": STATS})
+        replies = probe_nodes({"/a": batching.uri, "/b": plain.uri, "/c": "http://127.0.0.1:9/",
+                               "/d": overflow.uri},
+                              timeout=2.0, extra={"/a": STATS_AND_INFO, "/b": STATS,
+                                                  "/d": STATS})
     finally:
-        batching.stop()
-        plain.stop()
-    a, b, c = replies["/a"], replies["/b"], replies["/c"]
+        for slave in (batching, plain, overflow):
+            slave.stop()
+    a, b, c, d = replies["/a"], replies["/b"], replies["/c"], replies["/d"]
     assert a.pid == 4242 and a.multicall
     assert a.extra == {"getBusStats": _stats((1, 7)), "getBusInfo": _info((1, "/viewer"))}
     # one HTTP request whose three calls the server dispatched itself
     assert batching.requests == 1 + 3
     # no system.multicall: the pid alone, asked again within the same deadline
-    assert b.pid == 4242 and not b.multicall and b.extra == {}
+    assert b.pid == 4242 and not b.multicall
+    assert isinstance(b.extra["getBusStats"], RosApiError)
     assert isinstance(c.pid, RosApiError) and "refused" in str(c.pid)
+    assert d.pid == 4242 and not d.multicall
+    assert "int exceeds XML-RPC limits" in str(d.extra["getBusStats"])
+    rates = BusStatsRates()
+    assert rates.count(0.0, [IMAGE], {IMAGE: ("/d",)}, {"/d": d}, set()) == []
+    assert "exceeds" in rates.unavailable["/d"]

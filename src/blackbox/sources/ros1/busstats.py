@@ -123,6 +123,8 @@ class BusStatsRates:
         self._previous: dict[tuple[str, str], _Previous] = {}
         self._info: dict[str, tuple[int, dict[int, str]]] = {}
         self._stale: set[str] = set()
+        self.unavailable: dict[str, str] = {}
+        """Publishers whose counters the last round could not read, and why."""
 
     def calls(self, topics: Iterable[str], publishers: Mapping[str, tuple[str, ...]],
               dead: set[str]) -> dict[str, tuple[str, ...]]:
@@ -143,10 +145,13 @@ class BusStatsRates:
             for node in publishers.get(topic, ()):
                 wanted.setdefault(node, []).append(topic)
         out: list[TopicCounts] = []
+        self.unavailable = {}
         for node, node_topics in wanted.items():
             reply = replies.get(node)
             stats_value = reply.extra.get("getBusStats") if reply is not None else None
             if reply is None or stats_value is None or isinstance(stats_value, RosApiError):
+                self.unavailable[node] = (str(stats_value) if stats_value is not None
+                                          else "not asked this round")
                 for topic in node_topics:
                     self._previous.pop((topic, node), None)
                 continue

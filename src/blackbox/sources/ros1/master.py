@@ -150,8 +150,9 @@ class NodeState:
     pid: int | None = None
     reason: str = "not yet probed"
     registered: bool = True
-    multicall: bool = True
-    """The node's server answers ``system.multicall`` (so extra calls ride on the probe)."""
+    unbatched_rounds: int = 0
+    """Rounds left without extra calls: after ``system.multicall`` failed as a whole the
+    node is asked for its pid alone for a while (``GraphPoller.batch_pause``)."""
 
 
 def probe_pid(uri: str, timeout: float) -> int:
@@ -184,6 +185,8 @@ class GraphPoller:
         self._master_period = master_period
         self._next_master = 0.0
         self._registered: set[str] = set()
+        self.batch_pause = 20
+        """Rounds (about 9 s) a node whose batch failed is asked for its pid alone."""
         self.replies: dict[str, NodeReply] = {}
         """This round's replies of the nodes asked extra calls (see :meth:`refresh`)."""
 
@@ -268,12 +271,15 @@ class GraphPoller:
                extra: Mapping[str, tuple[str, ...]]) -> None:
         states = list(states)
         batched = {n: m for n, m in extra.items()
-                   if n in self.nodes and self.nodes[n].multicall}
+                   if n in self.nodes and self.nodes[n].unbatched_rounds == 0}
+        for st in states:
+            st.unbatched_rounds = max(0, st.unbatched_rounds - 1)
         replies = probe_nodes({st.name: st.uri for st in states if st.uri},
                               self._probe_timeout, batched)
         self.replies = {n: r for n, r in replies.items() if r.extra}
         for name, reply in replies.items():
-            self.nodes[name].multicall = reply.multicall
+            if not reply.multicall:
+                self.nodes[name].unbatched_rounds = self.batch_pause
         quick = {n: r.pid for n, r in replies.items()}
         slow = [(st, self._pool.submit(self._probe_one, st, quick.get(st.name)))
                 for st in states if not isinstance(quick.get(st.name), int)]
@@ -312,7 +318,7 @@ class GraphPoller:
         if uri == st.uri and first_error is not None:
             raise first_error
         if uri != st.uri:
-            st.uri, st.multicall = uri, True
+            st.uri, st.unbatched_rounds = uri, 0
         return probe_pid(uri, self._probe_timeout)
 
 
@@ -320,16 +326,19 @@ _GET_PID = xmlrpc.client.dumps((CALLER_ID,), "getPid").encode()
 _MAX_REPLY = 256 * 1024
 
 
-class _NoMulticall(Exception):
-    """The node's XML-RPC server has no ``system.multicall`` (neither rospy nor roscpp)."""
+class _BatchFault(Exception):
+    """``system.multicall`` as a whole was answered with a fault: the server has none, or
+    one answer could not be encoded (rospy cannot send an int over 2**31, and its byte
+    counters pass that after 2 GB on one connection)."""
 
 
 @dataclass(frozen=True, slots=True)
 class NodeReply:
     """One node's answers in a probe round: its pid (or why not) and the extra calls'.
 
-    ``extra`` maps each extra method to its value or a :class:`RosApiError`; it is empty
-    when the node's server cannot batch calls (``multicall`` is then ``False``)."""
+    ``extra`` maps each extra method to its value or a :class:`RosApiError`. When the
+    batch failed as a whole (``multicall`` is then ``False``), the pid was asked alone and
+    every extra method has the batch's error."""
 
     pid: int | RosApiError
     extra: dict[str, Any] = field(default_factory=dict)
@@ -396,8 +405,9 @@ def _parse_multicall(uri: str, reply: bytes, methods: tuple[str, ...]) -> NodeRe
     what = f"system.multicall on {uri}"
     try:
         (answers,), _ = xmlrpc.client.loads(_http_body(what, reply))
-    except xmlrpc.client.Fault:
-        raise _NoMulticall from None
+    except xmlrpc.client.Fault as fault:
+        raise _BatchFault(f"{what}: fault {fault.faultCode}: "
+                          f"{str(fault.faultString)[:120]}") from None
     except RosApiError:
         raise
     except Exception as exc:
@@ -444,14 +454,14 @@ def _open(ex: _Exchange, sel: selectors.BaseSelector) -> socket.socket | RosApiE
     return sock
 
 
-def _finish(ex: _Exchange) -> NodeReply | _NoMulticall:
+def _finish(ex: _Exchange) -> NodeReply | _BatchFault:
     try:
         if ex.methods:
             return _parse_multicall(ex.uri, bytes(ex.reply), ex.methods)
         return NodeReply(_parse_pid(ex.uri, bytes(ex.reply)))
     except RosApiError as exc:
         return NodeReply(exc)
-    except _NoMulticall as exc:
+    except _BatchFault as exc:
         return exc
 
 
@@ -467,14 +477,20 @@ def probe_nodes(uris: dict[str, str], timeout: float,
     """
     extra = extra or {}
     results: dict[str, NodeReply] = {}
-    no_multicall: set[str] = set()
+    faults: dict[str, RosApiError] = {}
     sel = selectors.DefaultSelector()
     pending: dict[socket.socket, _Exchange] = {}
+
+    def reply(name: str, pid: int | RosApiError) -> NodeReply:
+        fault = faults.get(name)
+        if fault is None:
+            return NodeReply(pid)
+        return NodeReply(pid, dict.fromkeys(extra.get(name, ()), fault), multicall=False)
 
     def start(ex: _Exchange) -> None:
         sock = _open(ex, sel)
         if isinstance(sock, RosApiError):
-            results[ex.name] = NodeReply(sock, multicall=ex.name not in no_multicall)
+            results[ex.name] = reply(ex.name, sock)
         else:
             pending[sock] = ex
 
@@ -514,20 +530,20 @@ def probe_nodes(uris: dict[str, str], timeout: float,
                 sock.close()
                 del pending[sock]
                 if error is not None:
-                    results[ex.name] = NodeReply(RosApiError(f"getPid on {ex.uri}: {error}"),
-                                                 multicall=ex.name not in no_multicall)
+                    results[ex.name] = reply(ex.name,
+                                             RosApiError(f"getPid on {ex.uri}: {error}"))
                     continue
                 done = _finish(ex)
-                if isinstance(done, _NoMulticall):
-                    no_multicall.add(ex.name)
+                if isinstance(done, _BatchFault):
+                    faults[ex.name] = RosApiError(str(done))
                     start(_Exchange(ex.name, ex.uri, _GET_PID, ()))
+                elif ex.methods:
+                    results[ex.name] = done
                 else:
-                    results[ex.name] = (done if ex.name not in no_multicall else
-                                        NodeReply(done.pid, multicall=False))
+                    results[ex.name] = reply(ex.name, done.pid)
         for sock, ex in pending.items():
-            results[ex.name] = NodeReply(RosApiError(f"getPid on {ex.uri}: no answer "
-                                                     "(timed out)"),
-                                         multicall=ex.name not in no_multicall)
+            results[ex.name] = reply(ex.name, RosApiError(f"getPid on {ex.uri}: no answer "
+                                                          "(timed out)"))
             sock.close()
     finally:
         sel.close()

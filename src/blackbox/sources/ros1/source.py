@@ -319,9 +319,12 @@ class Ros1Source:
             else:
                 self._check_behind(now, r)
         for topic, node in self.counted - counted:
+            why = self._bus.unavailable.get(node)
             self._report("rate_from_subscription", topic,
-                         f"{topic} from {node}: no live subscriber on the robot; subscribing "
-                         "to measure its rate")
+                         f"{topic} from {node}: "
+                         + (f"the publisher's counters are unavailable ({why})" if why
+                            else "no live subscriber on the robot")
+                         + "; subscribing to measure its rate")
         self.counted = counted
 
     def _check_behind(self, now: float, r: TopicCounts) -> None:
