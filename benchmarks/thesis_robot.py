@@ -15,6 +15,13 @@ ratio black box / rostopic hz printed. Rounds are repeated; min/median/max are p
 with the load average. The black box's observations over the window are counted: a
 healthy robot must give no faulty one. ``--before SRC`` alternates every round with the
 black box from another ``src/`` directory (before/after in the same run).
+The ``camera`` column says how the black box measured the camera's rate: ``counted``
+(its publisher's ``getBusStats`` counters, possible while a robot node subscribes to it:
+here ``/Signal_generator`` and ``rostopic hz``) or ``subscribed`` (its own connection,
+the 900 kB bodies dropped by the kernel). rospy cannot report a byte counter past 2**31,
+so on this robot the counters stop after about 150 s of camera images and the black box
+subscribes from then on; ``--subscribed`` adds a variant that always subscribes
+(``?counters=0``).
 
 ``latency``: the black box (default settings, ``--dds``) watches the robot while a
 listener in this process reads ``C_Failure_Event`` from DDS; the camera node is killed
@@ -34,6 +41,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import psutil
 
@@ -47,13 +55,14 @@ CAMERA = "/usb_cam/image_raw"
 
 
 def _blackbox(robot: ThesisRobot, work: Path, domain: int, extra: list[str],
-              src: Path | None = None) -> subprocess.Popen[bytes]:
+              src: Path | None = None, query: str = "") -> subprocess.Popen[bytes]:
     env = {k: v for k, v in os.environ.items()
            if k not in ("ROS_MASTER_URI", "CYCLONEDDS_URI")}
     if src is not None:
         env["PYTHONPATH"] = str(src)
     log = (work / "bb.log").open("wb")
-    return subprocess.Popen([*BLACKBOX, "run", "--source", f"ros1://127.0.0.1:{robot.port}",
+    return subprocess.Popen([*BLACKBOX, "run", "--source",
+                             f"ros1://127.0.0.1:{robot.port}{query}",
                              "--dds", "--domain", str(domain), "--quiet", *extra],
                             stdout=log, stderr=subprocess.STDOUT, env=env, cwd=ROOT)
 
@@ -62,12 +71,24 @@ def _cpu(p: psutil.Process) -> float:
     return float(sum(p.cpu_times()[:2]))
 
 
+def camera_mode(log: Path) -> str:
+    """How the black box measured the camera's rate at the end of a run, from its log:
+    ``counted`` (the publisher's getBusStats counters), else ``subscribed``."""
+    mode = "subscribed"
+    for line in log.read_text(errors="replace").splitlines():
+        if CAMERA in line and "own counters" in line:
+            mode = "counted"
+        elif CAMERA in line and "subscribing to measure" in line:
+            mode = "subscribed"
+    return mode
+
+
 def overhead_round(robot: ThesisRobot, work: Path, seconds: float, warmup: float,
-                   domain: int, src: Path | None) -> dict[str, float]:
+                   domain: int, src: Path | None, query: str = "") -> dict[str, Any]:
     work.mkdir(parents=True, exist_ok=True)
     obs = work / "obs.jsonl"
     bb = _blackbox(robot, work, domain, ["--record", str(work / "health.db"),
-                                         "--observations", str(obs)], src)
+                                         "--observations", str(obs)], src, query)
     hz = subprocess.Popen(["rostopic", "hz", CAMERA], env=ros_env(robot.port, robot.home),
                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
@@ -91,28 +112,31 @@ def overhead_round(robot: ThesisRobot, work: Path, seconds: float, warmup: float
             faulty += bool(o["faulty"])
     bb_cpu, hz_cpu = 100 * (b1 - b0) / (t1 - t0), 100 * (h1 - h0) / (t1 - t0)
     return {"bb_cpu": bb_cpu, "hz_cpu": hz_cpu, "ratio": bb_cpu / hz_cpu, "rss_mb": rss,
-            "faulty": faulty, "observations": total, "load": load}
+            "faulty": faulty, "observations": total, "load": load,
+            "camera": camera_mode(work / "bb.log")}
 
 
 def overhead(args: argparse.Namespace) -> int:
-    variants: list[tuple[str, Path | None]] = [("after", None)]
+    variants: list[tuple[str, Path | None, str]] = [("after", None, "")]
     if args.before is not None:
-        variants = [("before", args.before.resolve()), ("after", None)]
-    rows: dict[str, list[dict[str, float]]] = {label: [] for label, _ in variants}
-    print(f"{'round':>5} {'variant':>7} {'blackbox':>9} {'rostopic hz':>11} {'ratio':>6} "
-          f"{'RSS MB':>7} {'faulty/obs':>10} {'load':>5}")
+        variants.insert(0, ("before", args.before.resolve(), ""))
+    if args.subscribed:
+        variants.append(("after-subscribed", None, "?counters=0"))
+    rows: dict[str, list[dict[str, Any]]] = {label: [] for label, _, _ in variants}
+    print(f"{'round':>5} {'variant':>16} {'blackbox':>9} {'rostopic hz':>11} {'ratio':>6} "
+          f"{'RSS MB':>7} {'faulty/obs':>10} {'camera':>10} {'load':>5}")
     with tempfile.TemporaryDirectory(prefix="thesis-bench-") as tmp, \
             ThesisRobot(free_port(), log_dir=Path(tmp) / "robot") as robot:
         robot.start()
         for r in range(args.repeat):
-            for label, src in variants:
+            for label, src, query in variants:
                 row = overhead_round(robot, Path(tmp) / f"{label}{r}", args.seconds,
-                                     args.warmup, args.domain, src)
+                                     args.warmup, args.domain, src, query)
                 rows[label].append(row)
-                print(f"{r:5d} {label:>7} {row['bb_cpu']:8.2f}% {row['hz_cpu']:10.2f}% "
+                print(f"{r:5d} {label:>16} {row['bb_cpu']:8.2f}% {row['hz_cpu']:10.2f}% "
                       f"{row['ratio']:6.2f} {row['rss_mb']:7.1f} "
-                      f"{row['faulty']:>4.0f}/{row['observations']:<5.0f} {row['load']:5.2f}",
-                      flush=True)
+                      f"{row['faulty']:>4.0f}/{row['observations']:<5.0f} "
+                      f"{row['camera']:>10} {row['load']:5.2f}", flush=True)
     for label, got in rows.items():
         ratios = sorted(x["ratio"] for x in got)
         print(f"{label}: black box / rostopic hz over {len(got)} rounds: min "
@@ -178,6 +202,9 @@ def main(argv: list[str] | None = None) -> int:
     o.add_argument("--seconds", type=float, default=20.0)
     o.add_argument("--warmup", type=float, default=6.0)
     o.add_argument("--before", type=Path, metavar="SRC")
+    o.add_argument("--subscribed", action="store_true",
+                   help="also run the black box with ?counters=0: the camera subscribed "
+                        "(bodies dropped by the kernel) instead of read from the counters")
     lat = sub.add_parser("latency")
     lat.add_argument("--faults", type=int, default=10)
     lat.add_argument("--warmup", type=float, default=8.0)

@@ -4,8 +4,10 @@ real robot over a shaped link is tests/test_netns_constrained_link.py)."""
 
 from __future__ import annotations
 
+import socket
 import threading
-from xmlrpc.server import SimpleXMLRPCServer
+from socketserver import ThreadingMixIn
+from xmlrpc.server import SimpleXMLRPCRequestHandler, SimpleXMLRPCServer
 
 from blackbox.sources.ros1.busstats import (
     STATS,
@@ -15,7 +17,8 @@ from blackbox.sources.ros1.busstats import (
     parse_bus_info,
     parse_bus_stats,
 )
-from blackbox.sources.ros1.master import NodeReply, RosApiError, probe_nodes
+from blackbox.sources.ros1.master import RosApiError
+from blackbox.sources.ros1.slave_probe import NodeReply, SlaveProbe
 
 IMAGE = "/usb_cam/image_raw"
 
@@ -148,7 +151,7 @@ def test_extra_calls_ride_on_the_liveness_probe_in_one_request() -> None:
     for slave in (batching, plain, overflow):
         slave.start()
     try:
-        replies = probe_nodes({"/a": batching.uri, "/b": plain.uri, "/c": "http://127.0.0.1:9/",
+        replies = SlaveProbe().probe({"/a": batching.uri, "/b": plain.uri, "/c": "http://127.0.0.1:9/",
                                "/d": overflow.uri},
                               timeout=2.0, extra={"/a": STATS_AND_INFO, "/b": STATS,
                                                   "/d": STATS})
@@ -169,3 +172,60 @@ def test_extra_calls_ride_on_the_liveness_probe_in_one_request() -> None:
     rates = BusStatsRates()
     assert rates.count(0.0, [IMAGE], {IMAGE: ("/d",)}, {"/d": d}, set()) == []
     assert "exceeds" in rates.unavailable["/d"]
+
+
+class _KeepAliveSlave(threading.Thread):
+    """A slave API served like rospy's: HTTP/1.1, one thread per kept connection."""
+
+    def __init__(self) -> None:
+        super().__init__(daemon=True)
+
+        class Handler(SimpleXMLRPCRequestHandler):
+            protocol_version = "HTTP/1.1"
+
+        class Server(ThreadingMixIn, SimpleXMLRPCServer):
+            daemon_threads = True
+
+        self.server = Server(("127.0.0.1", 0), requestHandler=Handler, logRequests=False)
+        self.server.register_function(lambda caller: [1, "", 4242], "getPid")
+        self.uri = f"http://127.0.0.1:{self.server.server_address[1]}/"
+
+    def run(self) -> None:
+        self.server.serve_forever(poll_interval=0.05)
+
+    def stop(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+
+
+def test_the_probe_keeps_its_connection_to_a_node_and_reopens_one_the_node_closed() -> None:
+    slave = _KeepAliveSlave()
+    slave.start()
+    probe = SlaveProbe()
+    try:
+        for _ in range(5):
+            assert probe.probe({"/n": slave.uri}, timeout=2.0)["/n"].pid == 4242
+        assert probe.connects == 1  # one connection, five answers
+        kept = probe._kept["/n"][1]
+        kept.shutdown(socket.SHUT_RDWR)  # as a node closing an idle connection looks
+        assert probe.probe({"/n": slave.uri}, timeout=2.0)["/n"].pid == 4242
+        assert probe.connects == 2
+    finally:
+        probe.close()
+        slave.stop()
+
+
+def test_a_node_that_stops_answering_is_dead_and_its_connection_is_not_reused() -> None:
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen()  # accepts (the kernel does) but never answers: a SIGSTOPped node
+    uri = f"http://127.0.0.1:{listener.getsockname()[1]}/"
+    probe = SlaveProbe()
+    try:
+        for connects in (1, 2):
+            reply = probe.probe({"/stopped": uri}, timeout=0.2)["/stopped"]
+            assert isinstance(reply.pid, RosApiError) and "timed out" in str(reply.pid)
+            assert probe.connects == connects and "/stopped" not in probe._kept
+    finally:
+        probe.close()
+        listener.close()

@@ -31,7 +31,8 @@ from typing import Any
 
 from blackbox.events import MessageArrival
 from blackbox.sources.ros1.callerid import is_black_box
-from blackbox.sources.ros1.master import CALLER_ID, NodeReply, RosApiError
+from blackbox.sources.ros1.master import CALLER_ID, RosApiError
+from blackbox.sources.ros1.slave_probe import NodeReply
 
 
 @dataclass(frozen=True, slots=True)

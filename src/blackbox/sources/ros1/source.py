@@ -38,7 +38,7 @@ from blackbox.sources.base import SOURCES, Capabilities, SourceKind, SourceOptio
 from blackbox.sources.handout import overflow_event, split_due, wait_until
 from blackbox.sources.ros1.busstats import BusStatsRates, TopicCounts
 from blackbox.sources.ros1.callerid import DEFAULT_PREFIX, unique_caller_id, valid_caller_id
-from blackbox.sources.ros1.master import GraphPoller
+from blackbox.sources.ros1.graph import GraphPoller
 from blackbox.sources.ros1.resources import ResourceSampler
 from blackbox.sources.ros1.tcpros import (
     DEFAULT_MAX_MESSAGE_BYTES,
