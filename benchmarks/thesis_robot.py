@@ -11,10 +11,12 @@ The robot is the thesis robot on Debian's ROS 1 (roscore, /usb_cam 640x480 rgb8 
 default settings (``blackbox run`` with no ``--config``: ``configs/thesis.yaml``, which
 matches the robot) plus ``--record --dds`` run *at the same time*; both processes' CPU
 (user+system over the same window, 100 % = one core) is read over one window, and the
-ratio black box / rostopic hz printed. Rounds are repeated; min/median/max are printed
-with the load average. The black box's observations over the window are counted: a
-healthy robot must give no faulty one. ``--before SRC`` alternates every round with the
-black box from another ``src/`` directory (before/after in the same run).
+ratio black box / rostopic hz printed, with the CPU of the robot's three nodes over the
+same window (what watching costs the robot itself: liveness probes, counters). Rounds
+are repeated; min/median/max are printed with the load average. The black box's
+observations over the window are counted: a healthy robot must give no faulty one.
+``--before SRC`` alternates every round with the black box from another ``src/``
+directory (before/after in the same run).
 The ``camera`` column says how the black box measured the camera's rate: ``counted``
 (its publisher's ``getBusStats`` counters, possible while a robot node subscribes to it:
 here ``/Signal_generator`` and ``rostopic hz``) or ``subscribed`` (its own connection,
@@ -49,7 +51,7 @@ from support import BLACKBOX, ROOT, stop
 
 sys.path.insert(0, str(ROOT / "scripts" / "ros1_robot"))
 from inject import Injector
-from robot import ThesisRobot, free_port, ros_env
+from robot import NODES, ThesisRobot, free_port, ros_env
 
 CAMERA = "/usb_cam/image_raw"
 
@@ -93,12 +95,16 @@ def overhead_round(robot: ThesisRobot, work: Path, seconds: float, warmup: float
                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         pb, ph = psutil.Process(bb.pid), psutil.Process(hz.pid)
+        nodes = [psutil.Process(pid) for name, pid in robot.pids().items()
+                 if name in NODES]
         time.sleep(warmup)
         if bb.poll() is not None or hz.poll() is not None:
             raise RuntimeError(f"exited early; see {work / 'bb.log'}")
         t0, b0, h0 = time.time(), _cpu(pb), _cpu(ph)
+        n0 = sum(_cpu(n) for n in nodes)
         time.sleep(seconds)
         t1, b1, h1 = time.time(), _cpu(pb), _cpu(ph)
+        n1 = sum(_cpu(n) for n in nodes)
         rss = pb.memory_info().rss / 1e6
         load = os.getloadavg()[0]
     finally:
@@ -110,9 +116,12 @@ def overhead_round(robot: ThesisRobot, work: Path, seconds: float, warmup: float
         if t0 <= o["time"] <= t1:
             total += 1
             faulty += bool(o["faulty"])
+            if o["faulty"]:
+                print(f"      faulty: {line[:300]}", flush=True)
     bb_cpu, hz_cpu = 100 * (b1 - b0) / (t1 - t0), 100 * (h1 - h0) / (t1 - t0)
     return {"bb_cpu": bb_cpu, "hz_cpu": hz_cpu, "ratio": bb_cpu / hz_cpu, "rss_mb": rss,
             "faulty": faulty, "observations": total, "load": load,
+            "nodes_cpu": 100 * (n1 - n0) / (t1 - t0),
             "camera": camera_mode(work / "bb.log")}
 
 
@@ -124,7 +133,7 @@ def overhead(args: argparse.Namespace) -> int:
         variants.append(("after-subscribed", None, "?counters=0"))
     rows: dict[str, list[dict[str, Any]]] = {label: [] for label, _, _ in variants}
     print(f"{'round':>5} {'variant':>16} {'blackbox':>9} {'rostopic hz':>11} {'ratio':>6} "
-          f"{'RSS MB':>7} {'faulty/obs':>10} {'camera':>10} {'load':>5}")
+          f"{'RSS MB':>7} {'faulty/obs':>10} {'camera':>10} {'robot nodes':>11} {'load':>5}")
     with tempfile.TemporaryDirectory(prefix="thesis-bench-") as tmp, \
             ThesisRobot(free_port(), log_dir=Path(tmp) / "robot") as robot:
         robot.start()
@@ -136,7 +145,8 @@ def overhead(args: argparse.Namespace) -> int:
                 print(f"{r:5d} {label:>16} {row['bb_cpu']:8.2f}% {row['hz_cpu']:10.2f}% "
                       f"{row['ratio']:6.2f} {row['rss_mb']:7.1f} "
                       f"{row['faulty']:>4.0f}/{row['observations']:<5.0f} "
-                      f"{row['camera']:>10} {row['load']:5.2f}", flush=True)
+                      f"{row['camera']:>10} {row['nodes_cpu']:10.2f}% {row['load']:5.2f}",
+                      flush=True)
     for label, got in rows.items():
         ratios = sorted(x["ratio"] for x in got)
         print(f"{label}: black box / rostopic hz over {len(got)} rounds: min "

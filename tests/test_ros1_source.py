@@ -188,3 +188,25 @@ def test_two_black_boxes_on_one_robot_both_receive_the_full_rate(robot: ThesisRo
 
 def test_no_faults_are_reported_on_a_healthy_robot(watched: Watch) -> None:
     assert watched.of(BlackBoxEvent) == []
+
+
+def test_a_topic_moves_from_its_subscription_to_the_counters_without_a_gap(
+        robot: ThesisRobot) -> None:
+    # /Signal_generator subscribes to the camera on the robot, so its rate can come from
+    # the camera's getBusStats counters; the subscription that measured it until then is
+    # released only once the counts can carry on
+    source = Ros1Source.from_uri(f"ros1://127.0.0.1:{robot.port}")
+    source.start(THESIS_INTEREST)
+    try:
+        watch = Watch(source)
+        watch.until(lambda ev: False, timeout=6.0)
+    finally:
+        source.close()
+    times = [m.time for m in watch.of(MessageArrival) if m.topic == IMAGE]
+    gaps = [b - a for a, b in itertools.pairwise(times)]
+    assert len(times) >= 15 * 4 and max(gaps) < 0.2, max(gaps)
+    assert (IMAGE, "/usb_cam") in source.counted
+    switched = [e for e in watch.of(BlackBoxEvent) if e.kind == "ros1_rate_from_counters"]
+    assert {e.component for e in switched} >= {IMAGE}
+    # the liveness probe kept one connection per node over about 13 rounds
+    assert source._poller._slaves.connects <= len(robot.pids()) + 2

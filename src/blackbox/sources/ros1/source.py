@@ -307,7 +307,10 @@ class Ros1Source:
         counted: set[tuple[str, str]] = set()
         for r in results:
             key = (r.topic, r.publisher)
-            if r.topic in rate_only and r.on_robot:
+            # the subscription is released only once counts can continue its arrivals
+            # without a gap (a first reading gives no count yet)
+            if r.topic in rate_only and r.on_robot and (key in self.counted
+                                                        or r.robot_sent is not None):
                 counted.add(key)
                 if key not in self.counted:
                     self._subscriber.release(StreamKey(r.topic, r.publisher),
