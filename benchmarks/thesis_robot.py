@@ -86,11 +86,17 @@ def camera_mode(log: Path) -> str:
 
 
 def overhead_round(robot: ThesisRobot, work: Path, seconds: float, warmup: float,
-                   domain: int, src: Path | None, query: str = "") -> dict[str, Any]:
+                   domain: int, src: Path | None, query: str | None = "") -> dict[str, Any]:
+    """One window; ``query`` ``None`` runs ``rostopic hz`` alone (no black box)."""
     work.mkdir(parents=True, exist_ok=True)
     obs = work / "obs.jsonl"
-    bb = _blackbox(robot, work, domain, ["--record", str(work / "health.db"),
-                                         "--observations", str(obs)], src, query)
+    if query is None:
+        obs.write_text("")
+        (work / "bb.log").write_text("")
+        bb = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(3600)"])
+    else:
+        bb = _blackbox(robot, work, domain, ["--record", str(work / "health.db"),
+                                             "--observations", str(obs)], src, query)
     hz = subprocess.Popen(["rostopic", "hz", CAMERA], env=ros_env(robot.port, robot.home),
                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
@@ -126,11 +132,13 @@ def overhead_round(robot: ThesisRobot, work: Path, seconds: float, warmup: float
 
 
 def overhead(args: argparse.Namespace) -> int:
-    variants: list[tuple[str, Path | None, str]] = [("after", None, "")]
+    variants: list[tuple[str, Path | None, str | None]] = [("after", None, "")]
     if args.before is not None:
         variants.insert(0, ("before", args.before.resolve(), ""))
     if args.subscribed:
         variants.append(("after-subscribed", None, "?counters=0"))
+    if args.robot_alone:
+        variants.append(("no black box", None, None))
     rows: dict[str, list[dict[str, Any]]] = {label: [] for label, _, _ in variants}
     print(f"{'round':>5} {'variant':>16} {'blackbox':>9} {'rostopic hz':>11} {'ratio':>6} "
           f"{'RSS MB':>7} {'faulty/obs':>10} {'camera':>10} {'robot nodes':>11} {'load':>5}")
@@ -149,8 +157,10 @@ def overhead(args: argparse.Namespace) -> int:
                       flush=True)
     for label, got in rows.items():
         ratios = sorted(x["ratio"] for x in got)
+        nodes = statistics.median(x["nodes_cpu"] for x in got)
         print(f"{label}: black box / rostopic hz over {len(got)} rounds: min "
               f"{ratios[0]:.2f}  median {statistics.median(ratios):.2f}  max {ratios[-1]:.2f}"
+              f"; robot nodes median {nodes:.2f} %"
               f"; faulty observations {sum(x['faulty'] for x in got):.0f}")
     return 0
 
@@ -212,6 +222,9 @@ def main(argv: list[str] | None = None) -> int:
     o.add_argument("--seconds", type=float, default=20.0)
     o.add_argument("--warmup", type=float, default=6.0)
     o.add_argument("--before", type=Path, metavar="SRC")
+    o.add_argument("--robot-alone", action="store_true",
+                   help="also a window with rostopic hz alone: the robot nodes' CPU "
+                        "without a black box")
     o.add_argument("--subscribed", action="store_true",
                    help="also run the black box with ?counters=0: the camera subscribed "
                         "(bodies dropped by the kernel) instead of read from the counters")
