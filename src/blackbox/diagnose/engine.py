@@ -167,6 +167,8 @@ class DiagnosisEngine:
         self._keys: list[Key] = list(self._slot)
         self._row: dict[Key, int] = {k: i for i, k in enumerate(self._keys)}
         self._obs: list[Observation | None] = [latest.get(k) for k in self._keys]
+        self._held = len(self._obs) - self._obs.count(None)
+        self._by_resource: dict[int, tuple[Resource, dict[str, int]]] = {}
         self._direct: dict[int, frozenset[str]] = {self._row[k]: c for k, c in direct.items()}
         self._watch = self._learning_evidence(mentions)
         # Rows whose turning OK (``_at_rate_watchers``) or failed (``_silence_watchers``) may
@@ -394,6 +396,24 @@ class DiagnosisEngine:
         """Rows of the failed observations, in the order of the failed list."""
         return sorted(self._failed, key=self._order.__getitem__)
 
+    def _row_of(self, obs: Observation) -> int:
+        """The row of ``obs``'s key, extending the model for an undeclared one; remembered
+        per resource object, so the next observation of it needs no hashing of its key."""
+        r = obs.resource
+        i = self._row.get((obs.observer, r))
+        if i is None:
+            self._old_keys = self._keys
+            self._ensure_slot(obs)  # rebuilds the model and the whole assignment
+            i = self._row[(obs.observer, r)]
+        if len(self._by_resource) > 2 * len(self._keys) + 64:
+            self._by_resource.clear()  # resources made afresh per observation: start over
+        seen = self._by_resource.get(id(r))
+        if seen is None or seen[0] is not r:
+            # The entry holds ``r``, so no other object can have its id while it is there.
+            seen = self._by_resource[id(r)] = (r, {})
+        seen[1][obs.observer] = i
+        return i
+
     def _set_facts(self, facts: Mapping[int, bool | None]) -> None:
         """Record new facts (by row) and write their literals into the assignment."""
         fact, failed = self._fact, self._failed
@@ -444,11 +464,13 @@ class DiagnosisEngine:
             # looked at again.
             touched = dict(evidencing)
             at_rate, silence = self._at_rate_watchers, self._silence_watchers
+            fact = self._fact
             for i, value in changed.items():
                 if value is None:
                     continue
                 for w in (at_rate if value else silence).get(i, ()):
-                    touched[w[0]] = w
+                    if fact[w[1][0]] is True:  # else its output is not at rate
+                        touched[w[0]] = w
             for edge, w in touched.items():
                 if self._evidences(w):
                     evidencing[edge] = w
@@ -506,26 +528,35 @@ class DiagnosisEngine:
         diagnoses changed, else ``None``."""
         # Incremental: an observation whose fact (ok / failed / no evidence) is the one
         # already held changes no literal, so it only replaces the stored observation.
-        row, held = self._row.get, self._obs
+        held, fact_of = self._obs, _FACT_OF
+        by_id = self._by_resource.get
         changed: dict[int, bool | None] = {}
         for obs in observations:
-            i = row((obs.observer, obs.resource))
+            r = obs.resource
+            seen = by_id(id(r))
+            i = seen[1].get(obs.observer) if seen is not None and seen[0] is r else None
             if i is None:
-                before = {self._keys[j]: v for j, v in changed.items()}
-                self._ensure_slot(obs)  # rebuilds the model and the whole assignment
-                row, held = self._row.get, self._obs
-                changed = {self._row[k]: v for k, v in before.items()}
-                i = self._row[obs.key()]
+                i = self._row_of(obs)
+                if held is not self._obs:  # the model was extended and rebuilt
+                    changed = {self._row[self._old_keys[j]]: v for j, v in changed.items()}
+                    held, by_id = self._obs, self._by_resource.get
             prev = held[i]
             held[i] = obs
+            if prev is None:
+                self._held += 1
+            elif prev.code is obs.code:
+                continue
+            try:
+                value = fact_of[obs.code]
+            except KeyError:
+                value = observation_fact(obs.code)
             if prev is not None:
-                if prev.code is obs.code:
+                try:
+                    before = fact_of[prev.code]
+                except KeyError:
+                    before = observation_fact(prev.code)
+                if before is value:
                     continue
-                value = observation_fact(obs.code)
-                if observation_fact(prev.code) is value:
-                    continue
-            else:
-                value = observation_fact(obs.code)
             changed[i] = value  # the fact held now (a row may change twice in one call)
         if changed:
             self._set_facts(changed)
@@ -576,7 +607,7 @@ class DiagnosisEngine:
     def explain(self, candidates: Sequence[frozenset[str]], failed: Sequence[Observation],
                 complete: bool) -> str:
         """One paragraph a technician can act on."""
-        total = len(self._obs) - self._obs.count(None)
+        total = self._held
         if not failed:
             return f"All {total} current observations are OK; no component is suspected."
         listed = "; ".join(f"{o.observer} on {o.resource.label()} ({o.code.name})"

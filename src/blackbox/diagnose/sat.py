@@ -17,6 +17,7 @@ import time
 from collections.abc import Hashable, Iterable, Sequence
 from dataclasses import dataclass
 
+import numpy as np
 from pysat.solvers import Solver
 
 SOLVER_NAME = "minisat22"
@@ -73,6 +74,8 @@ class ConsistencyChecker:
         self.ab = {c: theory.ab(c) for c in self.components}
         self._component_of = {-v: c for c, v in self.ab.items()}
         self._all_healthy = [-v for v in self.ab.values()]
+        self._healthy_array = np.array(self._all_healthy, dtype=np.int64)
+        self._position = {c: i for i, c in enumerate(self.ab)}
         self.minimise = minimise
         self._solver = Solver(name=SOLVER_NAME, bootstrap_with=theory.clauses)
         self._added = len(theory.clauses)
@@ -103,10 +106,11 @@ class ConsistencyChecker:
 
     def _healthy(self, abnormal: Iterable[str]) -> list[int]:
         """``-AB(c)`` for every component not in ``abnormal``, in component order."""
-        bad = set(abnormal)
-        if not bad:
+        drop = [i for c in set(abnormal) if (i := self._position.get(c)) is not None]
+        if not drop:
             return self._all_healthy
-        return [-v for c, v in self.ab.items() if c not in bad]
+        healthy: list[int] = np.delete(self._healthy_array, drop).tolist()
+        return healthy
 
     def conflict(self, facts: Sequence[int], abnormal: Iterable[str] = (),
                  deadline: float | None = None) -> Conflict | None:
