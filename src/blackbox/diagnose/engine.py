@@ -64,8 +64,11 @@ Key = tuple[str, Resource]
 Watch = tuple[Edge, list[int], list[int], list[int]]
 """A learnable edge with the rows of the observations saying its output is at rate, its input
 timed out, and its input's publishers are alive."""
-Support = tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]
-"""The variables a conflict rests on and the literal each must have for it to hold."""
+Support = tuple[int, ...] | tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]
+"""The literals a conflict rests on: a few as they are, many as arrays of their variables and
+literals (one vectorised comparison with the assignment)."""
+SMALL = 16
+"""Up to this many items, plain Python beats a round of numpy calls."""
 
 
 def observation_fact(code: Code) -> bool | None:
@@ -426,10 +429,18 @@ class DiagnosisEngine:
                 direct = self._direct.get(i)
                 if direct is not None:
                     ok = int(self._ok_var[i])
-                    self._conflicts[direct] = (np.array([ok]), np.array([-ok]))
+                    self._conflicts[direct] = (-ok,)
             else:
                 signs.append(1 if value else 0)
                 failed.discard(i)
+        assign = self._assign
+        if len(signs) <= SMALL:
+            for i, sg in zip(facts, signs, strict=True):
+                ok, seen = self._ok_var.item(i), self._seen_var.item(i)
+                assign[ok] = ok * sg
+                if seen:
+                    assign[seen] = seen if sg < 0 else 0
+            return
         rows = np.fromiter(facts, dtype=np.int64, count=len(facts))
         sign = np.array(signs, dtype=np.int64)
         ok_vars = self._ok_var[rows]
@@ -494,6 +505,15 @@ class DiagnosisEngine:
             self._write_depends()
         return learnt
 
+    def _holds(self, support: Support) -> bool:
+        """Whether every literal of ``support`` is in the current assignment."""
+        assign = self._assign
+        if support and isinstance(support[0], np.ndarray):
+            variables, lits = support
+            return bool((assign[variables] == lits).all())
+        item = assign.item
+        return all(item(abs(lit)) == lit for lit in support)
+
     def _search(self, facts: npt.NDArray[np.int64], key: bytes, failed: Sequence[Key]
                 ) -> tuple[tuple[frozenset[str], ...], bool]:
         hit = self._cache.get(key)
@@ -501,17 +521,19 @@ class DiagnosisEngine:
             self._cache.move_to_end(key)
             return hit
         deadline = time.perf_counter() + self.time_budget
-        assign = self._assign
-        reusable = [c for c, (variables, lits) in self._conflicts.items()
-                    if (assign[variables] == lits).all()]
+        reusable = [c for c, support in self._conflicts.items() if self._holds(support)]
         assumptions = facts.tolist()
 
         def prover(path: frozenset[str]) -> frozenset[str] | None:
             conflict = self.checker.conflict(assumptions, path, deadline)
             if conflict is None:
                 return None
-            support = np.array(sorted(conflict.support), dtype=np.int64)
-            self._conflicts[conflict.components] = (np.abs(support), support)
+            lits = sorted(conflict.support)
+            if len(lits) <= SMALL:
+                self._conflicts[conflict.components] = tuple(lits)
+            else:
+                support = np.array(lits, dtype=np.int64)
+                self._conflicts[conflict.components] = (np.abs(support), support)
             return conflict.components
 
         res = hs_dag(prover, conflicts=reusable, max_cardinality=self.max_cardinality,

@@ -109,7 +109,12 @@ class ConsistencyChecker:
         drop = [i for c in set(abnormal) if (i := self._position.get(c)) is not None]
         if not drop:
             return self._all_healthy
-        healthy: list[int] = np.delete(self._healthy_array, drop).tolist()
+        if len(self._all_healthy) <= 256:
+            out = set(drop)
+            return [lit for i, lit in enumerate(self._all_healthy) if i not in out]
+        keep = np.ones(len(self._all_healthy), dtype=bool)
+        keep[drop] = False
+        healthy: list[int] = self._healthy_array[keep].tolist()
         return healthy
 
     def conflict(self, facts: Sequence[int], abnormal: Iterable[str] = (),
