@@ -82,6 +82,7 @@ def observation_fact(code: Code) -> bool | None:
 
 
 _UNKNOWN = object()
+_SIGN: dict[bool | None, int] = {True: 1, False: -1, None: 0}
 _FACT_OF: dict[object, bool | None] = {c: None if c == Code.NOT_AVAILABLE else c >= 0
                                         for c in Code}
 
@@ -178,11 +179,17 @@ class DiagnosisEngine:
         # start evidence for an edge.
         self._at_rate_watchers: dict[int, list[Watch]] = {}
         self._silence_watchers: dict[int, list[Watch]] = {}
-        for w in self._watch:
+        # The same as arrays of (row, watch, its first at-rate row, 1 turning OK / -1 turning
+        # failed starts evidence), to find the edges a large change may start in one go.
+        pairs: list[tuple[int, int, int, int]] = []
+        for wi, w in enumerate(self._watch):
             for i in w[1]:
                 self._at_rate_watchers.setdefault(i, []).append(w)
+                pairs.append((i, wi, w[1][0], 1))
             for i in dict.fromkeys((*w[2], *w[3])):
                 self._silence_watchers.setdefault(i, []).append(w)
+                pairs.append((i, wi, w[1][0], -1))
+        self._pairs = np.array(pairs, dtype=np.int64).reshape(-1, 4).T.copy()
         self.checker = ConsistencyChecker(th, model.components)
         self._conflicts: dict[frozenset[str], Support] = {}
         self._cache: OrderedDict[bytes, tuple[tuple[frozenset[str], ...], bool]] = (
@@ -199,6 +206,7 @@ class DiagnosisEngine:
         labels = [(k[0], k[1].label()) for k in self._keys]
         position = {label: i for i, label in enumerate(sorted(set(labels)))}
         self._order = [position[label] for label in labels]  # the failed list's order
+        self._order_array = np.array(self._order, dtype=np.int64)
         # The assignment: ``_assign[v]`` is the assumption literal of variable v, 0 for none.
         # Per row, the ``ok`` and ``seen failed`` variables (0: none; 0 is never a variable).
         self._assign: npt.NDArray[np.int64] = np.zeros(th.num_vars + 1, dtype=np.int64)
@@ -397,7 +405,11 @@ class DiagnosisEngine:
 
     def _failed_rows(self) -> list[int]:
         """Rows of the failed observations, in the order of the failed list."""
-        return sorted(self._failed, key=self._order.__getitem__)
+        if len(self._failed) <= SMALL:
+            return sorted(self._failed, key=self._order.__getitem__)
+        failed = np.fromiter(self._failed, dtype=np.int64, count=len(self._failed))
+        rows: list[int] = failed[np.argsort(self._order_array[failed], kind="stable")].tolist()
+        return rows
 
     def _row_of(self, obs: Observation) -> int:
         """The row of ``obs``'s key, extending the model for an undeclared one; remembered
@@ -474,14 +486,24 @@ class DiagnosisEngine:
             # turns failed; it can stop on any change, so the edges with evidence are
             # looked at again.
             touched = dict(evidencing)
-            at_rate, silence = self._at_rate_watchers, self._silence_watchers
-            fact = self._fact
-            for i, value in changed.items():
-                if value is None:
-                    continue
-                for w in (at_rate if value else silence).get(i, ()):
-                    if fact[w[1][0]] is True:  # else its output is not at rate
-                        touched[w[0]] = w
+            if len(changed) <= SMALL:
+                at_rate, silence = self._at_rate_watchers, self._silence_watchers
+                fact = self._fact
+                for i, value in changed.items():
+                    if value is None:
+                        continue
+                    for w in (at_rate if value else silence).get(i, ()):
+                        if fact[w[1][0]] is True:  # else its output is not at rate
+                            touched[w[0]] = w
+            elif self._watch:
+                row, watch, first, starts = self._pairs
+                turned = np.zeros(len(self._keys), dtype=np.int64)
+                turned[np.fromiter(changed, dtype=np.int64, count=len(changed))] = np.fromiter(
+                    map(_SIGN.__getitem__, changed.values()), dtype=np.int64, count=len(changed))
+                hit = (turned[row] == starts) & (self._assign[self._ok_var[first]] > 0)
+                for wi in np.unique(watch[hit]).tolist():
+                    w = self._watch[wi]
+                    touched[w[0]] = w
             for edge, w in touched.items():
                 if self._evidences(w):
                     evidencing[edge] = w
