@@ -121,6 +121,8 @@ def test_incremental_updates_say_what_a_fresh_engine_says(seed: int) -> None:
         fresh.update(now, list(held.values()))
         theirs = fresh.current()
         assert [o.key() for o in mine.failed] == [o.key() for o in theirs.failed], step
+        order = [(o.observer, o.resource.label()) for o in mine.failed]
+        assert order == sorted(order), step  # failed list: by observer, then resource
         assert mine.candidates == theirs.candidates, step
         assert mine.complete and theirs.complete
         # A failed observation whose code changed but still fails changes no fact, so the
