@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import operator
 import time
 from collections import OrderedDict
 from collections.abc import Iterable, Mapping, Sequence
@@ -84,13 +83,6 @@ def observation_fact(code: Code) -> bool | None:
 
 _UNKNOWN = object()
 _SIGN: dict[bool | None, int] = {True: 1, False: -1, None: 0}
-_VALUE: dict[int, bool | None] = {1: True, -1: False, 0: None}
-NEVER = 2
-"""The fact number of a row never observed."""
-_RESOURCE = operator.attrgetter("resource")
-_OBSERVER = operator.attrgetter("observer")
-_CODE = operator.attrgetter("code")
-_ROW = operator.itemgetter(1)
 _FACT_OF: dict[object, bool | None] = {c: None if c == Code.NOT_AVAILABLE else c >= 0
                                         for c in Code}
 
@@ -178,12 +170,9 @@ class DiagnosisEngine:
         # update hashes each observation's key once.
         self._keys: list[Key] = list(self._slot)
         self._row: dict[Key, int] = {k: i for i, k in enumerate(self._keys)}
-        self._obs: npt.NDArray[np.object_] = np.empty(len(self._keys), dtype=object)
-        self._obs[:] = [latest.get(k) for k in self._keys]
-        self._held = sum(1 for o in self._obs if o is not None)
-        # Row per (resource object, observer): the entry holds the resource, so no other
-        # object can have its id while the entry is there.
-        self._by_key: dict[tuple[int, str], tuple[Resource, int]] = {}
+        self._obs: list[Observation | None] = [latest.get(k) for k in self._keys]
+        self._held = len(self._obs) - self._obs.count(None)
+        self._by_resource: dict[int, tuple[Resource, dict[str, int]]] = {}
         self._direct: dict[int, frozenset[str]] = {self._row[k]: c for k, c in direct.items()}
         self._watch = self._learning_evidence(mentions)
         # Rows whose turning OK (``_at_rate_watchers``) or failed (``_silence_watchers``) may
@@ -225,7 +214,6 @@ class DiagnosisEngine:
         self._seen_var = np.array([self._seen_failed.get(k, 0) for k in self._keys],
                                   dtype=np.int64)
         self._fact: list[bool | None] = [None] * len(self._keys)
-        self._sign = np.full(len(self._keys), NEVER, dtype=np.int64)  # the fact as a number
         self._failed: set[int] = set()
         self._set_facts({i: observation_fact(o.code) for i, o in enumerate(self._obs)
                          if o is not None})
@@ -432,37 +420,14 @@ class DiagnosisEngine:
             self._old_keys = self._keys
             self._ensure_slot(obs)  # rebuilds the model and the whole assignment
             i = self._row[(obs.observer, r)]
-        if len(self._by_key) > 2 * len(self._keys) + 64:
-            self._by_key.clear()  # resources made afresh per observation: start over
-        self._by_key[(id(r), obs.observer)] = (r, i)
+        if len(self._by_resource) > 2 * len(self._keys) + 64:
+            self._by_resource.clear()  # resources made afresh per observation: start over
+        seen = self._by_resource.get(id(r))
+        if seen is None or seen[0] is not r:
+            # The entry holds ``r``, so no other object can have its id while it is there.
+            seen = self._by_resource[id(r)] = (r, {})
+        seen[1][obs.observer] = i
         return i
-
-    def _changes(self, observations: Sequence[Observation]) -> dict[int, bool | None] | None:
-        """The rows whose fact the observations change, with the new fact, found with array
-        operations; ``None`` when that does not apply (an observation seen for the first
-        time or through a new resource object, a key twice, a code that is no integer)."""
-        n = len(observations)
-        found = list(map(self._by_key.get, zip(map(id, map(_RESOURCE, observations)),
-                                               map(_OBSERVER, observations), strict=True)))
-        if None in found:
-            return None
-        rows = np.fromiter(map(_ROW, found), dtype=np.int64, count=n)  # type: ignore[arg-type]
-        if np.bincount(rows).max() > 1:
-            return None
-        try:
-            codes = np.fromiter(map(_CODE, observations), dtype=np.int64, count=n)
-        except (TypeError, ValueError, OverflowError):
-            return None
-        held = np.empty(n, dtype=object)
-        held[:] = observations
-        self._obs[rows] = held
-        new = np.where(codes >= 0, 1, np.where(codes == Code.NOT_AVAILABLE, 0, -1))
-        old = self._sign[rows]
-        self._held += int(np.count_nonzero(old == NEVER))
-        self._sign[rows] = new
-        moved = (new != old) & ((old != NEVER) | (new != 0))
-        return dict(zip(rows[moved].tolist(), map(_VALUE.__getitem__, new[moved].tolist()),
-                        strict=True))
 
     def _set_facts(self, facts: Mapping[int, bool | None]) -> None:
         """Record new facts (by row) and write their literals into the assignment."""
@@ -483,7 +448,6 @@ class DiagnosisEngine:
         assign = self._assign
         if len(signs) <= SMALL:
             for i, sg in zip(facts, signs, strict=True):
-                self._sign[i] = sg
                 ok, seen = self._ok_var.item(i), self._seen_var.item(i)
                 assign[ok] = ok * sg
                 if seen:
@@ -491,7 +455,6 @@ class DiagnosisEngine:
             return
         rows = np.fromiter(facts, dtype=np.int64, count=len(facts))
         sign = np.array(signs, dtype=np.int64)
-        self._sign[rows] = sign
         ok_vars = self._ok_var[rows]
         self._assign[ok_vars] = ok_vars * sign
         seen_vars = self._seen_var[rows]
@@ -604,22 +567,23 @@ class DiagnosisEngine:
                 self._cache.popitem(last=False)
         return out
 
-    def _changes_one_by_one(self, observations: Sequence[Observation]
-                            ) -> dict[int, bool | None]:
-        """The rows whose fact the observations change, with the new fact (the general way:
-        extends the model for undeclared observations, takes a key twice in order)."""
+    def update(self, now: float, observations: Sequence[Observation]) -> Diagnosis | None:
+        """Feed new observations; a new :class:`Diagnosis` when the failed observations or the
+        diagnoses changed, else ``None``."""
+        # Incremental: an observation whose fact (ok / failed / no evidence) is the one
+        # already held changes no literal, so it only replaces the stored observation.
         held, fact_of = self._obs, _FACT_OF
-        by_key = self._by_key.get
+        by_id = self._by_resource.get
         changed: dict[int, bool | None] = {}
         for obs in observations:
-            found = by_key((id(obs.resource), obs.observer))
-            if found is not None:
-                i = found[1]
-            else:
+            r = obs.resource
+            seen = by_id(id(r))
+            i = seen[1].get(obs.observer) if seen is not None and seen[0] is r else None
+            if i is None:
                 i = self._row_of(obs)
                 if held is not self._obs:  # the model was extended and rebuilt
                     changed = {self._row[self._old_keys[j]]: v for j, v in changed.items()}
-                    held, by_key = self._obs, self._by_key.get
+                    held, by_id = self._obs, self._by_resource.get
             prev = held[i]
             held[i] = obs
             if prev is None:
@@ -638,15 +602,6 @@ class DiagnosisEngine:
                 if before is value:
                     continue
             changed[i] = value  # the fact held now (a row may change twice in one call)
-        return changed
-
-    def update(self, now: float, observations: Sequence[Observation]) -> Diagnosis | None:
-        """Feed new observations; a new :class:`Diagnosis` when the failed observations or the
-        diagnoses changed, else ``None``."""
-        # Incremental: an observation whose fact (ok / failed / no evidence) is the one
-        # already held changes no literal, so it only replaces the stored observation.
-        fast = self._changes(observations) if len(observations) > SMALL else None
-        changed = fast if fast is not None else self._changes_one_by_one(observations)
         if changed:
             self._set_facts(changed)
         learnt = self._learn(now, changed)
@@ -667,7 +622,6 @@ class DiagnosisEngine:
         if (candidates == previous.candidates and complete == previous.complete
                 and failed_keys == self._emitted_failed and previous.time > 0.0):
             return None
-        held = self._obs
         failed = tuple(o for i in failed_rows if (o := held[i]) is not None)
         self._current = Diagnosis(now, candidates, failed,
                                   self.explain(candidates, failed, complete), complete)
