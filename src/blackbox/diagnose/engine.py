@@ -112,7 +112,7 @@ class DiagnosisEngine:
         self._independent: set[Edge] = set(independent)
         self._evidence: dict[Edge, float] = {}
         self._current = Diagnosis(time=0.0, candidates=(), explanation="No observations yet.")
-        self._emitted_failed: list[Key] = []
+        self._emitted_rows: list[int] = []
         self._build(model, {})
 
     # ---- construction ------------------------------------------------------------------------
@@ -168,8 +168,10 @@ class DiagnosisEngine:
         self._carries_nothing(mentions)
         # Every observation has a row; per-observation state is kept in lists by row, so an
         # update hashes each observation's key once.
+        emitted = [self._keys[i] for i in self._emitted_rows] if self._emitted_rows else []
         self._keys: list[Key] = list(self._slot)
         self._row: dict[Key, int] = {k: i for i, k in enumerate(self._keys)}
+        self._emitted_rows = [self._row[k] for k in emitted]  # rows of the last failed list
         self._obs: list[Observation | None] = [latest.get(k) for k in self._keys]
         self._held = len(self._obs) - self._obs.count(None)
         self._by_resource: dict[int, tuple[Resource, dict[str, int]]] = {}
@@ -432,32 +434,29 @@ class DiagnosisEngine:
     def _set_facts(self, facts: Mapping[int, bool | None]) -> None:
         """Record new facts (by row) and write their literals into the assignment."""
         fact, failed = self._fact, self._failed
-        signs: list[int] = []  # 1 ok, -1 failed, 0 no evidence
-        for i, value in facts.items():
+        rows = list(facts)
+        values = list(facts.values())
+        for i, value in zip(rows, values, strict=True):
             fact[i] = value
-            if value is False:
-                signs.append(-1)
-                failed.add(i)
-                direct = self._direct.get(i)
-                if direct is not None:
-                    ok = int(self._ok_var[i])
-                    self._conflicts[direct] = (-ok,)
-            else:
-                signs.append(1 if value else 0)
-                failed.discard(i)
+        now_failed = [i for i, value in zip(rows, values, strict=True) if value is False]
+        failed.difference_update(rows)
+        failed.update(now_failed)
+        for i in self._direct.keys() & now_failed:
+            self._conflicts[self._direct[i]] = (-self._ok_var.item(i),)
         assign = self._assign
-        if len(signs) <= SMALL:
-            for i, sg in zip(facts, signs, strict=True):
+        if len(rows) <= SMALL:
+            for i, value in zip(rows, values, strict=True):
+                sg = _SIGN[value]
                 ok, seen = self._ok_var.item(i), self._seen_var.item(i)
                 assign[ok] = ok * sg
                 if seen:
                     assign[seen] = seen if sg < 0 else 0
             return
-        rows = np.fromiter(facts, dtype=np.int64, count=len(facts))
-        sign = np.array(signs, dtype=np.int64)
-        ok_vars = self._ok_var[rows]
+        at = np.array(rows, dtype=np.int64)
+        sign = np.fromiter(map(_SIGN.__getitem__, values), dtype=np.int64, count=len(rows))
+        ok_vars = self._ok_var[at]
         self._assign[ok_vars] = ok_vars * sign
-        seen_vars = self._seen_var[rows]
+        seen_vars = self._seen_var[at]
         self._assign[seen_vars] = np.where(sign < 0, seen_vars, 0)
         self._assign[0] = 0
 
@@ -536,7 +535,7 @@ class DiagnosisEngine:
         item = assign.item
         return all(item(abs(lit)) == lit for lit in support)
 
-    def _search(self, facts: npt.NDArray[np.int64], key: bytes, failed: Sequence[Key]
+    def _search(self, facts: npt.NDArray[np.int64], key: bytes, failed: Iterable[Key]
                 ) -> tuple[tuple[frozenset[str], ...], bool]:
         hit = self._cache.get(key)
         if hit is not None:
@@ -613,19 +612,19 @@ class DiagnosisEngine:
             return None
         self._facts_key = fkey
         failed_rows = self._failed_rows()
-        failed_keys = [self._keys[i] for i in failed_rows]
-        if failed_keys:
-            candidates, complete = self._search(facts, fkey, failed_keys)
+        keys = self._keys
+        if failed_rows:
+            candidates, complete = self._search(facts, fkey, (keys[i] for i in failed_rows))
         else:
             candidates, complete = (), True
         previous = self._current
         if (candidates == previous.candidates and complete == previous.complete
-                and failed_keys == self._emitted_failed and previous.time > 0.0):
+                and failed_rows == self._emitted_rows and previous.time > 0.0):
             return None
         failed = tuple(o for i in failed_rows if (o := held[i]) is not None)
         self._current = Diagnosis(now, candidates, failed,
                                   self.explain(candidates, failed, complete), complete)
-        self._emitted_failed = failed_keys
+        self._emitted_rows = failed_rows
         return self._current
 
     def current(self) -> Diagnosis:
