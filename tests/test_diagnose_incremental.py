@@ -2,7 +2,8 @@
 says exactly what an engine built from scratch says about the same observations (same
 candidates in the same order, same failed list, same words), and its candidates are the
 minimal diagnoses a plain HS-DAG over solver conflicts finds, without reused conflicts, the
-result cache or the conflicts read off failed clauses of components alone."""
+result cache, the conflicts read off failed clauses of components alone or the assumption
+literals left out as pure."""
 
 from __future__ import annotations
 
@@ -59,8 +60,9 @@ def world_codes(model: RobotModel, dead: set[str], stalled: set[str], wrong: set
 
 
 def plain_candidates(engine: DiagnosisEngine) -> set[frozenset[str]]:
-    """Minimal diagnoses from a plain HS-DAG asking the solver for every conflict."""
-    facts = engine._facts().tolist()
+    """Minimal diagnoses from a plain HS-DAG asking the solver for every conflict, with
+    every assumption literal (also those the engine leaves out as pure)."""
+    facts = sorted(lit for lit in engine._assign.tolist() if lit)
 
     def prover(path: frozenset[str]) -> frozenset[str] | None:
         c = engine.checker.conflict(facts, path)

@@ -193,6 +193,8 @@ class DiagnosisEngine:
                 pairs.append((i, wi, w[1][0], -1))
         self._pairs = np.array(pairs, dtype=np.int64).reshape(-1, 4).T.copy()
         self.checker = ConsistencyChecker(th, model.components)
+        self._negated = np.zeros(th.num_vars + 1, dtype=bool)  # variables some clause negates
+        self._negated[[-lit for clause in th.clauses for lit in clause if lit < 0]] = True
         self._conflicts: dict[frozenset[str], Support] = {}
         self._cache: OrderedDict[bytes, tuple[tuple[frozenset[str], ...], bool]] = (
             OrderedDict())
@@ -394,9 +396,13 @@ class DiagnosisEngine:
         return mode == "always" or (mode == "learn" and edge not in self._independent)
 
     def _facts(self) -> npt.NDArray[np.int64]:
-        """The assumption literals of the current assignment, in ascending order."""
+        """The assumption literals of the current assignment, in ascending order, without
+        the positive literals of variables no clause negates (an OK ``activated``, a
+        ``depends`` edge): such a literal only satisfies clauses, so it changes neither
+        whether the solver finds a model nor any conflict (pure literal rule), and leaving
+        out a third of the assumptions makes every check cheaper."""
         assign = self._assign
-        lits: npt.NDArray[np.int64] = assign[assign != 0]
+        lits: npt.NDArray[np.int64] = assign[(assign < 0) | ((assign > 0) & self._negated)]
         lits.sort()
         return lits
 
