@@ -83,7 +83,7 @@ class ConsistencyChecker:
 
     def warm_up(self) -> None:
         """Solve once without assumptions, so the first consistency check does not also pay
-        for the solver's first-call set-up (about 0.6 ms on a 12,000-variable theory)."""
+        for the solver's first-call set-up (about 0.5 ms on a 12,000-variable theory)."""
         self.sync()
         self._solver.solve()
 
