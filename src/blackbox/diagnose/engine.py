@@ -14,6 +14,15 @@ When that assignment changes, the engine recomputes the minimal diagnoses with t
 over conflicts from the SAT solver, reusing every earlier conflict whose supporting
 observations still hold, and a cache of whole results for assignments seen before (a flapping
 observation costs nothing).
+
+Re-diagnosis is incremental, so that its cost follows what changed rather than the size of
+the model: the assignment is one array indexed by variable, written only for observations
+whose fact changed; learning re-examines only the edges those observations watch; and a
+failed observation whose clause names components alone (``activated``, ``resources``,
+``network``, a rate observation of a source topic) is a conflict by itself, handed to the
+HS-DAG without asking the solver. None of this changes the result: the minimal diagnoses are
+those of the same clauses and assumptions, whatever sound conflicts the search starts from
+(``tests/test_diagnose_incremental.py`` compares with engines built from scratch).
 """
 
 from __future__ import annotations
@@ -24,6 +33,9 @@ import time
 from collections import OrderedDict
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
 
 from blackbox.diagnose.hsdag import hs_dag
 from blackbox.diagnose.robot_model import (
@@ -49,7 +61,14 @@ DEFAULT_PRIORS = {"node": 0.05, "hardware": 0.05, "topic": 0.01, "interface": 0.
 before the topic it publishes (the transport rarely fails on its own)."""
 
 Key = tuple[str, Resource]
-Watch = tuple[Edge, list[Key], list[Key], list[Key]]
+Watch = tuple[Edge, list[int], list[int], list[int]]
+"""A learnable edge with the rows of the observations saying its output is at rate, its input
+timed out, and its input's publishers are alive."""
+Support = tuple[int, ...] | tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]
+"""The literals a conflict rests on: a few as they are, many as arrays of their variables and
+literals (one vectorised comparison with the assignment)."""
+SMALL = 16
+"""Up to this many items, plain Python beats a round of numpy calls."""
 
 
 def observation_fact(code: Code) -> bool | None:
@@ -63,6 +82,7 @@ def observation_fact(code: Code) -> bool | None:
 
 
 _UNKNOWN = object()
+_SIGN: dict[bool | None, int] = {True: 1, False: -1, None: 0}
 _FACT_OF: dict[object, bool | None] = {c: None if c == Code.NOT_AVAILABLE else c >= 0
                                         for c in Code}
 
@@ -91,10 +111,9 @@ class DiagnosisEngine:
         self.propagation = propagation if propagation is not None else Propagation()
         self._independent: set[Edge] = set(independent)
         self._evidence: dict[Edge, float] = {}
-        self._latest: dict[Key, Observation] = {}
-        self._failed_keys: set[Key] = set()
         self._current = Diagnosis(time=0.0, candidates=(), explanation="No observations yet.")
-        self._build(model)
+        self._emitted_rows: list[int] = []
+        self._build(model, {})
 
     # ---- construction ------------------------------------------------------------------------
 
@@ -109,7 +128,8 @@ class DiagnosisEngine:
                    ) -> DiagnosisEngine:
         return cls(derive_robot_model(graph, observers), priors, **kwargs)  # type: ignore[arg-type]
 
-    def _build(self, model: RobotModel) -> None:
+    def _build(self, model: RobotModel, latest: Mapping[Key, Observation]) -> None:
+        """Encode ``model``; ``latest`` are the observations held so far (all in the model)."""
         self.model = model
         self.structure = st = TopicStructure(model)
         th = Theory()
@@ -121,6 +141,8 @@ class DiagnosisEngine:
             self._rate_clause(th.var(("live", t)), st.producers(t, (), rate=True))
             self._value_clause(th.var(("right", t)), st.producers(t, (), rate=False))
         mentions: dict[str, list[ObservationSpec]] = {}
+        direct: dict[Key, frozenset[str]] = {}
+        diagnosable = set(model.components)
         for spec in model.observations:
             ok = th.var(("ok", spec.key()))
             self._slot[spec.key()] = ok
@@ -128,6 +150,10 @@ class DiagnosisEngine:
             if not ex.components and not ex.inputs:
                 ex = Explanation(tuple(t for t in (spec.resource.topic, spec.resource.topic_b)
                                        if t), ())
+            if (ex.components and not ex.inputs and not ex.edges
+                    and diagnosable.issuperset(ex.components)):
+                # The clause is "ok or one of these is abnormal": failed, it is a conflict.
+                direct[spec.key()] = frozenset(ex.components)
             if is_rate_type(spec.type):
                 self._rate_clause(ok, ex)
             else:
@@ -140,18 +166,65 @@ class DiagnosisEngine:
             self._exonerate(th.var(("live", t)), rate)
             self._exonerate(th.var(("right", t)), value)
         self._carries_nothing(mentions)
-        self._watch, self._silencing = self._learning_evidence(mentions)
-        self._depends_facts: list[int] | None = None
-        self._literals = {k: self._literals_of(k, observation_fact(o.code))
-                          for k, o in self._latest.items()}
+        # Every observation has a row; per-observation state is kept in lists by row, so an
+        # update hashes each observation's key once.
+        emitted = [self._keys[i] for i in self._emitted_rows] if self._emitted_rows else []
+        self._keys: list[Key] = list(self._slot)
+        self._row: dict[Key, int] = {k: i for i, k in enumerate(self._keys)}
+        self._emitted_rows = [self._row[k] for k in emitted]  # rows of the last failed list
+        self._obs: list[Observation | None] = [latest.get(k) for k in self._keys]
+        self._held = len(self._obs) - self._obs.count(None)
+        self._by_resource: dict[int, tuple[Resource, dict[str, int]]] = {}
+        self._direct: dict[int, frozenset[str]] = {self._row[k]: c for k, c in direct.items()}
+        self._watch = self._learning_evidence(mentions)
+        # Rows whose turning OK (``_at_rate_watchers``) or failed (``_silence_watchers``) may
+        # start evidence for an edge.
+        self._at_rate_watchers: dict[int, list[Watch]] = {}
+        self._silence_watchers: dict[int, list[Watch]] = {}
+        # The same as arrays of (row, watch, its first at-rate row, 1 turning OK / -1 turning
+        # failed starts evidence), to find the edges a large change may start in one go.
+        pairs: list[tuple[int, int, int, int]] = []
+        for wi, w in enumerate(self._watch):
+            for i in w[1]:
+                self._at_rate_watchers.setdefault(i, []).append(w)
+                pairs.append((i, wi, w[1][0], 1))
+            for i in dict.fromkeys((*w[2], *w[3])):
+                self._silence_watchers.setdefault(i, []).append(w)
+                pairs.append((i, wi, w[1][0], -1))
+        self._pairs = np.array(pairs, dtype=np.int64).reshape(-1, 4).T.copy()
         self.checker = ConsistencyChecker(th, model.components)
-        self._conflicts: dict[frozenset[str], frozenset[int]] = {}
-        self._cache: OrderedDict[frozenset[int], tuple[tuple[frozenset[str], ...], bool]] = (
+        self._negated = np.zeros(th.num_vars + 1, dtype=bool)  # variables some clause negates
+        self._negated[[-lit for clause in th.clauses for lit in clause if lit < 0]] = True
+        self._conflicts: dict[frozenset[str], Support] = {}
+        self._cache: OrderedDict[bytes, tuple[tuple[frozenset[str], ...], bool]] = (
             OrderedDict())
-        self._facts_key: frozenset[int] | None = None
+        self._facts_key: bytes | None = None
         self._upstream: dict[str, Explanation] = {}
         self._explained: dict[Key, Explanation] = {}
         self._judged: frozenset[tuple[str, bool]] | None = None
+        self._kinds: dict[str, str] = {}
+        for n in model.nodes:  # first match wins, as in RobotModel.kind
+            self._kinds.setdefault(n.name, "node")
+            for h in n.hardware:
+                self._kinds.setdefault(h, "hardware")
+        labels = [(k[0], k[1].label()) for k in self._keys]
+        position = {label: i for i, label in enumerate(sorted(set(labels)))}
+        self._order = [position[label] for label in labels]  # the failed list's order
+        self._order_array = np.array(self._order, dtype=np.int64)
+        # The assignment: ``_assign[v]`` is the assumption literal of variable v, 0 for none.
+        # Per row, the ``ok`` and ``seen failed`` variables (0: none; 0 is never a variable).
+        self._assign: npt.NDArray[np.int64] = np.zeros(th.num_vars + 1, dtype=np.int64)
+        self._ok_var = np.array([self._slot[k] for k in self._keys], dtype=np.int64)
+        self._seen_var = np.array([self._seen_failed.get(k, 0) for k in self._keys],
+                                  dtype=np.int64)
+        self._fact: list[bool | None] = [None] * len(self._keys)
+        self._failed: set[int] = set()
+        self._set_facts({i: observation_fact(o.code) for i, o in enumerate(self._obs)
+                         if o is not None})
+        self._write_depends()
+        self._evidencing: dict[Edge, Watch] = {w[0]: w for w in self._watch
+                                               if self._evidences(w)}
+        self.checker.warm_up()
 
     def _silenced(self, edge: Edge) -> int:
         """A helper literal: the edge's input is not live *and* the output's rate needs it."""
@@ -211,27 +284,27 @@ class DiagnosisEngine:
                 th.add([right, *(-seen_failed(activated[p]) for p in pubs)])
 
     def _learning_evidence(self, mentions: Mapping[str, Sequence[ObservationSpec]]
-                           ) -> tuple[dict[str, list[Watch]], dict[Key, list[str]]]:
-        """Per input topic, its learnable edges with the observations that say the output
-        is at rate, those that say the input is silent (time-outs) and the liveness of the
-        input's publishers; and which failed observations may mean which topic is silent."""
-        watch: dict[str, list[Watch]] = {}
-        silencing: dict[Key, list[str]] = {}
-        activated = {s.resource.node: s.key() for s in self.model.observations
+                           ) -> list[Watch]:
+        """The learnable edges with the observations that say the output is at rate, those
+        that say the input is silent (time-outs) and the liveness of the input's
+        publishers."""
+        watch: list[Watch] = []
+        row = self._row
+        activated = {s.resource.node: row[s.key()] for s in self.model.observations
                      if s.type == "activated" and s.resource.node}
         for edge in self._depends:
             if self.propagation.rate_of(edge.node) != "learn":
                 continue
-            at_rate = [s.key() for s in mentions.get(edge.output, ()) if is_rate_type(s.type)]
-            timeouts = [s.key() for s in mentions.get(edge.input, ()) if s.type == "timeout"]
+            at_rate = [row[s.key()] for s in mentions.get(edge.output, ())
+                       if is_rate_type(s.type)]
+            timeouts = [row[s.key()] for s in mentions.get(edge.input, ())
+                        if s.type == "timeout"]
             pubs = self.structure.publishers(edge.input)
             alive = ([activated[p] for p in pubs] if pubs and all(p in activated for p in pubs)
                      else [])
             if at_rate and (timeouts or alive):
-                watch.setdefault(edge.input, []).append((edge, at_rate, timeouts, alive))
-                for k in (*timeouts, *alive):
-                    silencing.setdefault(k, []).append(edge.input)
-        return watch, silencing
+                watch.append((edge, at_rate, timeouts, alive))
+        return watch
 
     def _ensure_slot(self, obs: Observation) -> None:
         """Observations the model did not declare extend it (and rebuild the clauses)."""
@@ -243,14 +316,15 @@ class DiagnosisEngine:
         if r.node and r.node not in nodes:
             extra.append(NodeSpec(r.node))
         spec = ObservationSpec(obs.observer, r)
-        self._build(build_model([*self.model.nodes, *extra], [*self.model.observations, spec]))
+        self._build(build_model([*self.model.nodes, *extra], [*self.model.observations, spec]),
+                    self._latest)
 
     # ---- diagnosis ---------------------------------------------------------------------------
 
     def prior(self, component: str) -> float:
         p = self.priors.get(component)
         if p is None:
-            kind = self.model.kind(component)
+            kind = self._kind(component)
             p = self.priors.get(kind, DEFAULT_PRIORS[kind])
         return p
 
@@ -321,63 +395,177 @@ class DiagnosisEngine:
         mode = self.propagation.rate_of(edge.node)
         return mode == "always" or (mode == "learn" and edge not in self._independent)
 
-    def _facts(self) -> list[int]:
-        if self._depends_facts is None:
-            self._depends_facts = [v if self.depends(e) else -v
-                                   for e, v in self._depends.items()]
-        return sorted([*(lit for lits in self._literals.values() for lit in lits),
-                       *self._depends_facts])
+    def _facts(self) -> npt.NDArray[np.int64]:
+        """The assumption literals of the current assignment, in ascending order, without
+        the positive literals of variables no clause negates (an OK ``activated``, a
+        ``depends`` edge): such a literal only satisfies clauses, so it changes neither
+        whether the solver finds a model nor any conflict (pure literal rule), and leaving
+        out a third of the assumptions makes every check cheaper."""
+        assign = self._assign
+        lits: npt.NDArray[np.int64] = assign[(assign < 0) | ((assign > 0) & self._negated)]
+        lits.sort()
+        return lits
 
-    def _literals_of(self, key: Key, value: bool | None) -> tuple[int, ...]:
-        if value is None:
-            return ()
-        ok = self._slot[key]
-        seen = self._seen_failed.get(key)
-        return (ok if value else -ok,) if value or seen is None else (-ok, seen)
+    @property
+    def _latest(self) -> dict[Key, Observation]:
+        """The latest observation per key."""
+        return {k: o for k, o in zip(self._keys, self._obs, strict=True) if o is not None}
 
-    def _learn(self, now: float) -> None:
-        """Watch for a node publishing at rate while an input is silent."""
-        def fact(key: Key) -> bool | None:
-            obs = self._latest.get(key)
-            return None if obs is None else observation_fact(obs.code)
+    def _failed_rows(self) -> list[int]:
+        """Rows of the failed observations, in the order of the failed list."""
+        if len(self._failed) <= SMALL:
+            return sorted(self._failed, key=self._order.__getitem__)
+        failed = np.fromiter(self._failed, dtype=np.int64, count=len(self._failed))
+        rows: list[int] = failed[np.argsort(self._order_array[failed], kind="stable")].tolist()
+        return rows
 
+    def _row_of(self, obs: Observation) -> int:
+        """The row of ``obs``'s key, extending the model for an undeclared one; remembered
+        per resource object, so the next observation of it needs no hashing of its key."""
+        r = obs.resource
+        i = self._row.get((obs.observer, r))
+        if i is None:
+            self._old_keys = self._keys
+            self._ensure_slot(obs)  # rebuilds the model and the whole assignment
+            i = self._row[(obs.observer, r)]
+        if len(self._by_resource) > 2 * len(self._keys) + 64:
+            self._by_resource.clear()  # resources made afresh per observation: start over
+        seen = self._by_resource.get(id(r))
+        if seen is None or seen[0] is not r:
+            # The entry holds ``r``, so no other object can have its id while it is there.
+            seen = self._by_resource[id(r)] = (r, {})
+        seen[1][obs.observer] = i
+        return i
+
+    def _set_facts(self, facts: Mapping[int, bool | None]) -> None:
+        """Record new facts (by row) and write their literals into the assignment."""
+        fact, failed = self._fact, self._failed
+        rows = list(facts)
+        values = list(facts.values())
+        for i, value in zip(rows, values, strict=True):
+            fact[i] = value
+        now_failed = [i for i, value in zip(rows, values, strict=True) if value is False]
+        failed.difference_update(rows)
+        failed.update(now_failed)
+        for i in self._direct.keys() & now_failed:
+            self._conflicts[self._direct[i]] = (-self._ok_var.item(i),)
+        assign = self._assign
+        if len(rows) <= SMALL:
+            for i, value in zip(rows, values, strict=True):
+                sg = _SIGN[value]
+                ok, seen = self._ok_var.item(i), self._seen_var.item(i)
+                assign[ok] = ok * sg
+                if seen:
+                    assign[seen] = seen if sg < 0 else 0
+            return
+        at = np.array(rows, dtype=np.int64)
+        sign = np.fromiter(map(_SIGN.__getitem__, values), dtype=np.int64, count=len(rows))
+        ok_vars = self._ok_var[at]
+        self._assign[ok_vars] = ok_vars * sign
+        seen_vars = self._seen_var[at]
+        self._assign[seen_vars] = np.where(sign < 0, seen_vars, 0)
+        self._assign[0] = 0
+
+    def _write_depends(self) -> None:
+        for e, v in self._depends.items():
+            self._assign[v] = v if self.depends(e) else -v
+
+    def _evidences(self, watch: Watch) -> bool:
+        """Whether the watched edge's input is silent while its output is at rate."""
+        _, at_rate, timeouts, alive = watch
+        fact = self._fact
+        for i in at_rate:
+            if fact[i] is not True:
+                return False
+        for i in timeouts:
+            if fact[i] is False:
+                return True
+        return bool(alive) and all(fact[i] is False for i in alive)
+
+    def _learn(self, now: float, changed: Mapping[int, bool | None]) -> bool:
+        """Watch for a node publishing at rate while an input is silent; ``changed`` are the
+        rows whose fact changed. Whether an edge was learnt."""
+        evidencing = self._evidencing
+        if changed:
+            # Evidence starts only when an at-rate observation turns OK or a silencing one
+            # turns failed; it can stop on any change, so the edges with evidence are
+            # looked at again.
+            touched = dict(evidencing)
+            if len(changed) <= SMALL:
+                at_rate, silence = self._at_rate_watchers, self._silence_watchers
+                fact = self._fact
+                for i, value in changed.items():
+                    if value is None:
+                        continue
+                    for w in (at_rate if value else silence).get(i, ()):
+                        if fact[w[1][0]] is True:  # else its output is not at rate
+                            touched[w[0]] = w
+            elif self._watch:
+                row, watch, first, starts = self._pairs
+                turned = np.zeros(len(self._keys), dtype=np.int64)
+                turned[np.fromiter(changed, dtype=np.int64, count=len(changed))] = np.fromiter(
+                    map(_SIGN.__getitem__, changed.values()), dtype=np.int64, count=len(changed))
+                hit = (turned[row] == starts) & (self._assign[self._ok_var[first]] > 0)
+                for wi in np.unique(watch[hit]).tolist():
+                    w = self._watch[wi]
+                    touched[w[0]] = w
+            for edge, w in touched.items():
+                if self._evidences(w):
+                    evidencing[edge] = w
+                else:
+                    evidencing.pop(edge, None)
+        if not evidencing and not self._evidence:
+            return False
+        learnt = False
         seen: set[Edge] = set()
-        inputs = {t for k in self._failed_keys for t in self._silencing.get(k, ())}
-        for topic in inputs:
-            for edge, at_rate, timeouts, alive in self._watch.get(topic, ()):
-                if edge in self._independent:
-                    continue
-                silent = (any(fact(k) is False for k in timeouts)
-                          or (alive and all(fact(k) is False for k in alive)))
-                if not silent or not all(fact(k) is True for k in at_rate):
-                    continue
-                seen.add(edge)
-                since = self._evidence.setdefault(edge, now)
-                if now - since >= self.propagation.learn_after:
-                    self._independent.add(edge)
-                    self._depends_facts = None
+        for edge in evidencing:
+            if edge in self._independent:
+                continue
+            seen.add(edge)
+            since = self._evidence.setdefault(edge, now)
+            if now - since >= self.propagation.learn_after:
+                self._independent.add(edge)
+                learnt = True
         self._evidence = {e: t for e, t in self._evidence.items()
                           if e in seen and e not in self._independent}
+        if learnt:
+            self._write_depends()
+        return learnt
 
-    def _search(self, facts: list[int]) -> tuple[tuple[frozenset[str], ...], bool]:
-        key = frozenset(facts)
+    def _holds(self, support: Support) -> bool:
+        """Whether every literal of ``support`` is in the current assignment."""
+        assign = self._assign
+        if support and isinstance(support[0], np.ndarray):
+            variables, lits = support
+            return bool((assign[variables] == lits).all())
+        item = assign.item
+        return all(item(abs(lit)) == lit for lit in support)
+
+    def _search(self, facts: npt.NDArray[np.int64], key: bytes, failed: Iterable[Key]
+                ) -> tuple[tuple[frozenset[str], ...], bool]:
         hit = self._cache.get(key)
         if hit is not None:
             self._cache.move_to_end(key)
             return hit
         deadline = time.perf_counter() + self.time_budget
-        reusable = [c for c, support in self._conflicts.items() if support <= key]
+        reusable = [c for c, support in self._conflicts.items() if self._holds(support)]
+        assumptions = facts.tolist()
 
         def prover(path: frozenset[str]) -> frozenset[str] | None:
-            conflict = self.checker.conflict(facts, path, deadline)
+            conflict = self.checker.conflict(assumptions, path, deadline)
             if conflict is None:
                 return None
-            self._conflicts[conflict.components] = conflict.support
+            lits = sorted(conflict.support)
+            if len(lits) <= SMALL:
+                self._conflicts[conflict.components] = tuple(lits)
+            else:
+                support = np.array(lits, dtype=np.int64)
+                self._conflicts[conflict.components] = (np.abs(support), support)
             return conflict.components
 
         res = hs_dag(prover, conflicts=reusable, max_cardinality=self.max_cardinality,
                      deadline=deadline)
-        out = (self.rank(res.sets, self._failed_keys), res.complete)
+        out = (self.rank(res.sets, failed), res.complete)
         if res.complete:
             self._cache[key] = out
             if len(self._cache) > self._cache_size:
@@ -389,49 +577,60 @@ class DiagnosisEngine:
         diagnoses changed, else ``None``."""
         # Incremental: an observation whose fact (ok / failed / no evidence) is the one
         # already held changes no literal, so it only replaces the stored observation.
-        latest, literals, failed_keys = self._latest, self._literals, self._failed_keys
-        changed = False
+        held, fact_of = self._obs, _FACT_OF
+        by_id = self._by_resource.get
+        changed: dict[int, bool | None] = {}
         for obs in observations:
-            key = obs.key()
-            prev = latest.get(key)
-            value = observation_fact(obs.code)
+            r = obs.resource
+            seen = by_id(id(r))
+            i = seen[1].get(obs.observer) if seen is not None and seen[0] is r else None
+            if i is None:
+                i = self._row_of(obs)
+                if held is not self._obs:  # the model was extended and rebuilt
+                    changed = {self._row[self._old_keys[j]]: v for j, v in changed.items()}
+                    held, by_id = self._obs, self._by_resource.get
+            prev = held[i]
+            held[i] = obs
+            if prev is None:
+                self._held += 1
+            elif prev.code is obs.code:
+                continue
+            try:
+                value = fact_of[obs.code]
+            except KeyError:
+                value = observation_fact(obs.code)
             if prev is not None:
-                latest[key] = obs
-                if observation_fact(prev.code) is value:
+                try:
+                    before = fact_of[prev.code]
+                except KeyError:
+                    before = observation_fact(prev.code)
+                if before is value:
                     continue
-            elif key not in self._slot:
-                self._ensure_slot(obs)  # rebuilds the model and every literal
-                latest, literals = self._latest, self._literals
-                latest[key] = obs
-            else:
-                latest[key] = obs
-            changed = True
-            literals[key] = self._literals_of(key, value)
-            if value is False:
-                failed_keys.add(key)
-            else:
-                failed_keys.discard(key)
-        self._learn(now)
-        if not changed and self._depends_facts is not None and self._facts_key is not None:
+            changed[i] = value  # the fact held now (a row may change twice in one call)
+        if changed:
+            self._set_facts(changed)
+        learnt = self._learn(now, changed)
+        if not changed and not learnt and self._facts_key is not None:
             return None  # same facts as last time
         facts = self._facts()
-        fkey = frozenset(facts)
+        fkey = facts.tobytes()
         if fkey == self._facts_key:
             return None
         self._facts_key = fkey
-        failed = tuple(sorted((latest[k] for k in self._failed_keys),
-                              key=lambda o: (o.observer, o.resource.label())))
-        if failed:
-            candidates, complete = self._search(facts)
+        failed_rows = self._failed_rows()
+        keys = self._keys
+        if failed_rows:
+            candidates, complete = self._search(facts, fkey, (keys[i] for i in failed_rows))
         else:
             candidates, complete = (), True
         previous = self._current
         if (candidates == previous.candidates and complete == previous.complete
-                and [o.key() for o in failed] == [o.key() for o in previous.failed]
-                and previous.time > 0.0):
+                and failed_rows == self._emitted_rows and previous.time > 0.0):
             return None
+        failed = tuple(o for i in failed_rows if (o := held[i]) is not None)
         self._current = Diagnosis(now, candidates, failed,
                                   self.explain(candidates, failed, complete), complete)
+        self._emitted_rows = failed_rows
         return self._current
 
     def current(self) -> Diagnosis:
@@ -439,8 +638,14 @@ class DiagnosisEngine:
 
     # ---- words -------------------------------------------------------------------------------
 
+    def _kind(self, component: str) -> str:
+        """``RobotModel.kind`` from a table built once (the model scans its nodes)."""
+        if component.startswith("iface:"):
+            return "interface"
+        return self._kinds.get(component, "topic")
+
     def _name(self, component: str) -> str:
-        kind = self.model.kind(component)
+        kind = self._kind(component)
         if kind == "interface":
             return f"network interface {component.removeprefix('iface:')}"
         return f"{kind} {component}"
@@ -451,7 +656,7 @@ class DiagnosisEngine:
     def explain(self, candidates: Sequence[frozenset[str]], failed: Sequence[Observation],
                 complete: bool) -> str:
         """One paragraph a technician can act on."""
-        total = len(self._latest)
+        total = self._held
         if not failed:
             return f"All {total} current observations are OK; no component is suspected."
         listed = "; ".join(f"{o.observer} on {o.resource.label()} ({o.code.name})"
@@ -469,7 +674,7 @@ class DiagnosisEngine:
             return text
         best = candidates[0]
         verb = "is" if len(best) == 1 else "are"
-        healthy = sum(1 for o in self._latest.values() if observation_fact(o.code) is True)
+        healthy = self._fact.count(True)
         agrees = f" and agrees with the {healthy} healthy ones" if healthy else ""
         same = [c for c in candidates[1:] if len(c) == len(best)]
         larger = [c for c in candidates[1:] if len(c) > len(best)]
