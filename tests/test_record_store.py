@@ -53,11 +53,11 @@ def test_old_schema_is_migrated_in_place(tmp_path: Path) -> None:
     db.close()
     assert classify(path) == "health_log"  # a log from before the application id
     with Store.open(path) as store:
-        assert store.schema_version == SCHEMA_VERSION == 3
+        assert store.schema_version == SCHEMA_VERSION == 4
         assert store.snapshot_files() == []
         assert store.execute("PRAGMA application_id").fetchone()[0] == APPLICATION_ID
         indexes = {r[0] for r in store.execute("SELECT name FROM sqlite_master WHERE type='index'")}
-        assert "entries_kind_time" in indexes
+        assert {"entries_kind_time", "frames_time", "frames_channel_time"} <= indexes
         (entry,) = store.query()
         assert (entry.id, entry.time, entry.kind, entry.payload) == \
             (1, 5.0, "blackbox_event", {"event": "start"})
