@@ -9,7 +9,7 @@ Two tables hold entries. ``entries`` has one row per entry (diagnoses, failures,
 configurations, snapshots: rare, and some are updated later). Logged observations, which
 come by the hundred thousand per second under load, are stored in ``frames``: one row per
 commit, kind and channel, holding that group's observations encoded together (MessagePack,
-then zlib). A row of ``entries`` costs SQLite 5-10 us of CPU with its three indexes; an
+then LZ4). A row of ``entries`` costs SQLite 5-10 us of CPU with its three indexes; an
 observation in a frame costs well under one (docs/benchmarks.md, "Recorder under load").
 Every entry, in either table, has its own id from one sequence, and :meth:`Store.query`
 merges both in time order, so readers never see the difference.
@@ -22,14 +22,15 @@ import heapq
 import itertools
 import json
 import math
+import operator
 import sqlite3
 import time as _time
-import zlib
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import lz4.frame
 import msgspec
 
 from blackbox.model import Code, Observation
@@ -162,7 +163,7 @@ def _v3(db: sqlite3.Connection) -> None:
 def _v4(db: sqlite3.Connection) -> None:
     # Logged observations in groups (see the module's docstring). first_id/last_id and
     # t_min/t_max bound the entries' ids and times; ``data`` is
-    # zlib(MessagePack([ids, observations])); ``thinned`` once retention thinned it.
+    # LZ4(MessagePack([ids, records])); ``thinned`` once retention thinned it.
     _script(
         db,
         """
@@ -263,25 +264,31 @@ def _frame_hook(value: Any) -> Any:
 
 _FRAME_ENCODER = msgspec.msgpack.Encoder(enc_hook=_frame_hook)
 _FRAME_DECODER = msgspec.msgpack.Decoder()
-_FRAME_LEVEL = 1
+_FRAME_FIELDS = operator.attrgetter("time", "code", "states", "values", "message")
+"""What a frame keeps of an observation: kind, entity, characteristic and resource are the
+frame's (its channel)."""
 FRAME_MIN = 8
 """Fewer observations of one kind and channel in a commit are stored as rows of
 ``entries``: a frame of one or two costs more bytes than their JSON."""
 THINNED = 4
 """Retention keeps one sample in this many (the ``thinned`` mark of the survivors)."""
-"""zlib level: the fastest; MessagePack of one channel's observations repeats itself."""
 
 
-def encode_frame(ids: Sequence[int], observations: Sequence[Any]) -> bytes:
-    """A frame's ``data``; raises :class:`TypeError` when an observation holds a value that
+def encode_frame(ids: Sequence[int], observations: Sequence[Observation]) -> bytes:
+    """A frame's ``data``: LZ4 of the MessagePack of ``[ids, [[time, code, states, values,
+    message], ...]]``. Raises :class:`TypeError` when an observation holds a value that
     MessagePack cannot carry (the caller stores those rows one by one, as JSON)."""
-    return zlib.compress(_FRAME_ENCODER.encode((ids, observations)), _FRAME_LEVEL)
+    return _pack(ids, list(map(_FRAME_FIELDS, observations)))
 
 
-def decode_frame(data: bytes) -> tuple[list[int], list[dict[str, Any]]]:
-    """The entry ids and observations (MessagePack maps of their fields) of a frame."""
-    ids, observations = _FRAME_DECODER.decode(zlib.decompress(data))
-    return ids, observations
+def _pack(ids: Sequence[int], records: Sequence[Any]) -> bytes:
+    return bytes(lz4.frame.compress(_FRAME_ENCODER.encode((ids, records))))
+
+
+def decode_frame(data: bytes) -> tuple[list[int], list[list[Any]]]:
+    """The entry ids and records ``[time, code, states, values, message]`` of a frame."""
+    ids, records = _FRAME_DECODER.decode(lz4.frame.decompress(data))
+    return ids, records
 
 
 def _observation_json(obs: Observation, kind: str) -> str:
@@ -303,17 +310,16 @@ def _code_name(code: Any) -> str:
         return str(code)
 
 
-def frame_payload(obs: Mapping[str, Any], full: bool) -> dict[str, Any]:
+def frame_payload(record: Sequence[Any], full: bool) -> dict[str, Any]:
     """What :func:`~blackbox.record.policy.observation_payload` made of the observation,
     as the JSON of an ``entries`` row reads back (non-finite numbers as text)."""
-    states = obs.get("states") or []
-    payload: dict[str, Any] = {"values": dict(obs.get("values") or {}),
-                               "states": [s["number"] for s in states]}
+    _, code, states, values, message = record
+    payload: dict[str, Any] = {"values": values, "states": [s["number"] for s in states]}
     if full:
         payload["state_names"] = [s["name"] for s in states]
-        payload["code_name"] = _code_name(obs.get("code"))
-        if obs.get("message"):
-            payload["message"] = obs["message"]
+        payload["code_name"] = _code_name(code)
+        if message:
+            payload["message"] = message
     values = payload["values"]
     if not all(type(v) is not float or math.isfinite(v) for v in values.values()):
         payload["values"] = _finite(values)
@@ -594,11 +600,11 @@ class Store:
                 db.execute("DELETE FROM frames WHERE id = ?", (fid,))
                 continue
             kept_ids = [eid for eid, _ in kept]
-            times = [float(o["time"]) for _, o in kept]
+            times = [float(o[0]) for _, o in kept]
             db.execute("UPDATE frames SET first_id = ?, last_id = ?, count = ?, t_min = ?, "
                        "t_max = ?, thinned = 1, data = ? WHERE id = ?",
                        (min(kept_ids), max(kept_ids), len(kept), min(times), max(times),
-                        encode_frame(kept_ids, [o for _, o in kept]), fid))
+                        _pack(kept_ids, [o for _, o in kept]), fid))
         return removed
 
     def drop_oldest(self, kinds: Sequence[int], take: int, keep_id: int | None) -> int:
@@ -843,9 +849,9 @@ def frame_entries(frame: FrameRow) -> list[LogEntry]:
     ids, observations = decode_frame(data)
     name = KIND_NAMES.get(kind, f"kind{kind}")
     full = name != "sample"
-    entries = [LogEntry(eid, float(o["time"]), name, entity, characteristic, o.get("code"),
-                        frame_payload(o, full))
-               for eid, o in zip(ids, observations, strict=True)]
+    entries = [LogEntry(eid, float(r[0]), name, entity, characteristic, r[1],
+                        frame_payload(r, full))
+               for eid, r in zip(ids, observations, strict=True)]
     if thinned:  # like a thinned row of ``entries``
         for e in entries:
             e.payload["thinned"] = THINNED
