@@ -15,15 +15,31 @@
    a simulated hour through the real policy and store (``blackbox log capacity``).
 
     .venv/bin/python benchmarks/recorder.py [--rows 500000] [--observations 500000]
+
+``--compare REF`` instead measures (2) before and after side by side in one invocation:
+the recorder of git revision ``REF`` (its ``src`` from ``git archive``) and of this tree,
+each in a fresh subprocess, alternating, ``--repeats`` times; ``--busy-core`` keeps
+another core busy (``while True: pass``) for the whole comparison. Prints the load
+average, records/s min/median/max, CPU per record and the ratio to the 150k target.
+
+    .venv/bin/python benchmarks/recorder.py --compare main --busy-core \
+        --observations 200000 --repeats 5
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import platform
 import sqlite3
+import statistics
+import subprocess
+import sys
+import tarfile
 import tempfile
 import time
+from io import BytesIO
 from pathlib import Path
 
 from blackbox.events import MessageArrival
@@ -72,21 +88,30 @@ def _observations(count: int, realistic: bool) -> list[list[Observation]]:
 
 def recorder_rate(tmp: Path, observations: int, realistic: bool = False) -> tuple[float, float]:
     """(pipeline-side µs per observation, records/s from first hand-over to last commit)."""
+    per, rate, _ = recorder_run(tmp, observations, realistic)
+    return per, rate
+
+
+def recorder_run(tmp: Path, observations: int,
+                 realistic: bool = False) -> tuple[float, float, float]:
+    """:func:`recorder_rate` and the process's CPU µs per record (pipeline + writer)."""
     rec = Recorder(RecorderSettings(tmp / f"recorder-{realistic}.db", snapshot=None,
                                     queue_limit=observations * 2),
                    robot_id="bench")
     batches = _observations(observations, realistic)
     written_before = rec.written
+    cpu0 = time.process_time()
     t0 = time.perf_counter()
     for batch in batches:
         rec.on_observations(batch[0].time, batch)
     handed = time.perf_counter() - t0
     while rec.written - written_before < observations:
-        time.sleep(0.01)
+        time.sleep(0.002)
     total = time.perf_counter() - t0
+    cpu = time.process_time() - cpu0
     rec.close()
     assert rec.dropped == 0, f"{rec.dropped} records dropped"
-    return handed / observations * 1e6, observations / total
+    return handed / observations * 1e6, observations / total, cpu / observations * 1e6
 
 
 def pipeline_cost(tmp: Path, observations: int, realistic: bool) -> float:
@@ -131,11 +156,102 @@ def ring_cost(messages: int) -> float:
     return (time.perf_counter() - t0) / messages * 1e9
 
 
+TARGET = 150_000.0
+"""Records/s the recorder must sustain end to end with another core busy (issue 17)."""
+
+
+def _worker(observations: int, realistic: bool) -> None:
+    """One measurement in this process (whichever ``blackbox`` PYTHONPATH gives): JSON."""
+    import blackbox.record.store as store_module
+
+    with tempfile.TemporaryDirectory() as d:
+        per, rate, cpu = recorder_run(Path(d), observations, realistic)
+    print(json.dumps({"rate": rate, "pipeline_us": per, "cpu_us": cpu,
+                      "src": str(Path(store_module.__file__).parents[2])}))
+
+
+def _old_source(ref: str, into: Path) -> Path:
+    """``src`` of git revision ``ref``, extracted into ``into``."""
+    root = Path(__file__).resolve().parent.parent
+    data = subprocess.run(["git", "-C", str(root), "archive", ref, "src"], check=True,
+                          capture_output=True).stdout
+    with tarfile.open(fileobj=BytesIO(data)) as tar:
+        tar.extractall(into, filter="data")
+    return into / "src"
+
+
+def _measure(src: Path, observations: int, realistic: bool) -> dict[str, float]:
+    env = {**os.environ, "PYTHONPATH": str(src)}
+    out = subprocess.run([sys.executable, __file__, "--worker", "--observations",
+                          str(observations), *(["--realistic"] if realistic else [])],
+                         check=True, capture_output=True, text=True, env=env, timeout=600)
+    result: dict[str, float] = json.loads(out.stdout.strip().splitlines()[-1])
+    return result
+
+
+def compare(ref: str, observations: int, repeats: int, busy_core: bool) -> None:
+    """Before (``ref``) and after (this tree), alternating, in one invocation."""
+    new_src = Path(__file__).resolve().parent.parent / "src"
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if busy_core else None
+    try:
+        with tempfile.TemporaryDirectory() as d:
+            old_src = _old_source(ref, Path(d))
+            if busy is not None:
+                time.sleep(1.0)  # let the busy loop take its core
+            load_before = os.getloadavg()
+            runs: dict[tuple[str, bool], list[dict[str, float]]] = {}
+            for _ in range(repeats):
+                for realistic in (False, True):
+                    for label, src in ((ref, old_src), ("this tree", new_src)):
+                        runs.setdefault((label, realistic), []).append(
+                            _measure(src, observations, realistic))
+            load_after = os.getloadavg()
+    finally:
+        if busy is not None:
+            busy.kill()
+            busy.wait()
+    cores = os.cpu_count()
+    print(f"machine: {platform.machine()}, {cores} cores, Python {platform.python_version()}, "
+          f"SQLite {sqlite3.sqlite_version}; another core busy: {'yes' if busy else 'no'}")
+    print(f"load average (1/5/15 min) before: {load_before[0]:.2f} {load_before[1]:.2f} "
+          f"{load_before[2]:.2f}, after: {load_after[0]:.2f} {load_after[1]:.2f} "
+          f"{load_after[2]:.2f}")
+    print(f"Recorder end to end (on_observations -> committed), {observations:,} "
+          f"observations per run, {repeats} runs each, alternating\n")
+    print("| payload | code | records/s min | median | max | CPU us/record (median) | "
+          "median / 150k |")
+    print("|---|---|---:|---:|---:|---:|---:|")
+    for realistic in (False, True):
+        medians = []
+        for label in (ref, "this tree"):
+            got = runs[(label, realistic)]
+            rates = sorted(r["rate"] for r in got)
+            med = statistics.median(rates)
+            medians.append(med)
+            cpu = statistics.median(r["cpu_us"] for r in got)
+            print(f"| {'hz-like' if realistic else 'minimal'} | {label} | {rates[0]:,.0f} | "
+                  f"{med:,.0f} | {rates[-1]:,.0f} | {cpu:.2f} | {med / TARGET:.2f} |")
+        print(f"| | after / before | | {medians[1] / medians[0]:.1f}x | | | |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rows", type=int, default=500_000)
     parser.add_argument("--observations", type=int, default=500_000)
+    parser.add_argument("--compare", metavar="REF",
+                        help="before (git REF) and after (this tree) side by side")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--busy-core", action="store_true",
+                        help="keep another core busy while comparing")
+    parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--realistic", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.worker:
+        _worker(args.observations, args.realistic)
+        return
+    if args.compare:
+        compare(args.compare, args.observations, args.repeats, args.busy_core)
+        return
     print(f"machine: {platform.machine()}, {platform.processor() or 'cpu'}, "
           f"Python {platform.python_version()}, SQLite {sqlite3.sqlite_version}")
     with tempfile.TemporaryDirectory() as d:
