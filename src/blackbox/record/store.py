@@ -22,7 +22,6 @@ import heapq
 import itertools
 import json
 import math
-import operator
 import sqlite3
 import time as _time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -264,9 +263,6 @@ def _frame_hook(value: Any) -> Any:
 
 _FRAME_ENCODER = msgspec.msgpack.Encoder(enc_hook=_frame_hook)
 _FRAME_DECODER = msgspec.msgpack.Decoder()
-_FRAME_FIELDS = operator.attrgetter("time", "code", "states", "values", "message")
-"""What a frame keeps of an observation: kind, entity, characteristic and resource are the
-frame's (its channel)."""
 FRAME_MIN = 8
 """Fewer observations of one kind and channel in a commit are stored as rows of
 ``entries``: a frame of one or two costs more bytes than their JSON."""
@@ -275,20 +271,24 @@ THINNED = 4
 
 
 def encode_frame(ids: Sequence[int], observations: Sequence[Observation]) -> bytes:
-    """A frame's ``data``: LZ4 of the MessagePack of ``[ids, [[time, code, states, values,
-    message], ...]]``. Raises :class:`TypeError` when an observation holds a value that
-    MessagePack cannot carry (the caller stores those rows one by one, as JSON)."""
-    return _pack(ids, list(map(_FRAME_FIELDS, observations)))
+    """A frame's ``data``: LZ4 of the MessagePack of the columns ``[ids, times, codes,
+    states, values, messages]`` (kind, entity, characteristic and resource are the frame's
+    channel). Columns, because building them allocates no object per observation.
+    Raises :class:`TypeError` when an observation holds a value that MessagePack cannot
+    carry (the caller stores those rows one by one, as JSON)."""
+    return _pack((ids, [o.time for o in observations], [o.code for o in observations],
+                  [o.states for o in observations], [o.values for o in observations],
+                  [o.message for o in observations]))
 
 
-def _pack(ids: Sequence[int], records: Sequence[Any]) -> bytes:
-    return bytes(lz4.frame.compress(_FRAME_ENCODER.encode((ids, records))))
+def _pack(columns: Sequence[Sequence[Any]]) -> bytes:
+    return bytes(lz4.frame.compress(_FRAME_ENCODER.encode(columns)))
 
 
-def decode_frame(data: bytes) -> tuple[list[int], list[list[Any]]]:
-    """The entry ids and records ``[time, code, states, values, message]`` of a frame."""
-    ids, records = _FRAME_DECODER.decode(lz4.frame.decompress(data))
-    return ids, records
+def decode_frame(data: bytes) -> tuple[list[int], list[tuple[Any, ...]]]:
+    """The entry ids and records ``(time, code, states, values, message)`` of a frame."""
+    ids, *columns = _FRAME_DECODER.decode(lz4.frame.decompress(data))
+    return ids, list(zip(*columns, strict=True))
 
 
 def _observation_json(obs: Observation, kind: str) -> str:
@@ -493,21 +493,25 @@ class Store:
             db.execute("INSERT INTO sqlite_sequence (name, seq) VALUES ('entries', 0)")
         base = int(seq[0]) + 1 if seq is not None else 1
         plain: list[tuple[int, RowTuple]] = []
-        groups: dict[tuple[str, Channel | None], tuple[list[int], list[Observation]]] = {}
+        # Grouped by the channel tuple's identity first (all rows are alive meanwhile, so
+        # ids are unique): the policy hands one tuple per characteristic, and hashing its
+        # text for every row costs more. Then equal tuples are merged, group by group.
+        groups: dict[tuple[str, int],
+                     tuple[Channel | None, list[int], list[Observation]]] = {}
         for eid, row in enumerate(rows, base):
             payload = row[4]
             if type(payload) is Observation:
-                key = (row[1], row[2])
+                key = (row[1], id(row[2]))
                 group = groups.get(key)
                 if group is None:
-                    groups[key] = ([eid], [payload])
+                    groups[key] = (row[2], [eid], [payload])
                 else:
-                    group[0].append(eid)
-                    group[1].append(payload)
+                    group[1].append(eid)
+                    group[2].append(payload)
             else:
                 plain.append((eid, row))
         frames: list[tuple[str, Channel | None, list[int], list[Observation], bytes]] = []
-        for (kind, channel), (ids, members) in groups.items():
+        for (kind, channel), (ids, members) in _merge_equal(groups).items():
             try:
                 if len(members) < FRAME_MIN:
                     raise TypeError("too few for a frame")
@@ -600,11 +604,12 @@ class Store:
                 db.execute("DELETE FROM frames WHERE id = ?", (fid,))
                 continue
             kept_ids = [eid for eid, _ in kept]
-            times = [float(o[0]) for _, o in kept]
+            times = [float(r[0]) for _, r in kept]
             db.execute("UPDATE frames SET first_id = ?, last_id = ?, count = ?, t_min = ?, "
                        "t_max = ?, thinned = 1, data = ? WHERE id = ?",
                        (min(kept_ids), max(kept_ids), len(kept), min(times), max(times),
-                        _pack(kept_ids, [o for _, o in kept]), fid))
+                        _pack((kept_ids, *map(list, zip(*(r for _, r in kept), strict=True)))),
+                        fid))
         return removed
 
     def drop_oldest(self, kinds: Sequence[int], take: int, keep_id: int | None) -> int:
@@ -856,6 +861,28 @@ def frame_entries(frame: FrameRow) -> list[LogEntry]:
         for e in entries:
             e.payload["thinned"] = THINNED
     return entries
+
+
+def _merge_equal(groups: Mapping[tuple[str, int],
+                                  tuple[Channel | None, list[int], list[Observation]]]
+                 ) -> dict[tuple[str, Channel | None], tuple[list[int], list[Observation]]]:
+    """Groups by (kind, channel identity) merged into groups by (kind, channel value),
+    members in id order."""
+    merged: dict[tuple[str, Channel | None], tuple[list[int], list[Observation]]] = {}
+    mixed: set[tuple[str, Channel | None]] = set()
+    for (kind, _), (channel, ids, members) in groups.items():
+        key = (kind, channel)
+        have = merged.get(key)
+        if have is None:
+            merged[key] = (ids, members)
+        else:
+            have[0].extend(ids)
+            have[1].extend(members)
+            mixed.add(key)
+    for key in mixed:
+        pairs = sorted(zip(*merged[key], strict=True), key=lambda p: p[0])
+        merged[key] = ([i for i, _ in pairs], [o for _, o in pairs])
+    return merged
 
 
 def _merge(rows: Iterator[LogEntry], frames: Iterable[FrameRow], start: float | None,
