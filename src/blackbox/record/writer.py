@@ -19,6 +19,7 @@ corrupt is moved aside and a new one started; any other file is never touched.
 from __future__ import annotations
 
 import contextlib
+import operator
 import os
 import sqlite3
 import threading
@@ -39,6 +40,7 @@ from blackbox.record.snapshot import Capture
 from blackbox.record.store import Row, RowTuple, StorageError, Store, StoreCorrupt, dumps
 
 COMPONENT = "blackbox/recorder"
+_TIME = operator.itemgetter(0)
 OWN = (COMPONENT, "event", "{}")
 
 
@@ -220,7 +222,7 @@ class LogWriter:
             extra.append(own_event(self.clock(), {"event": "records_dropped", "total": total,
                                                   "by_kind": dropped}))
         rows = self._backlog + extra
-        self._newest_time = max((r[0] for r in self._backlog), default=self._newest_time)
+        self._newest_time = max(map(_TIME, self._backlog), default=self._newest_time)
         progress = dumps({"wall": self._complete_wall, "handed": self._backlog_wall,
                           "pid": os.getpid(), "time": self._newest_time})
         created = _time.time()
