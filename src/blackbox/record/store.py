@@ -647,7 +647,8 @@ class Store:
         return removed
 
     def update_payload(self, entry_id: int, changes: dict[str, Any]) -> None:
-        """Merge ``changes`` into one entry's payload (a failure learns its snapshot file)."""
+        """Merge ``changes`` into the payload of one row of ``entries`` (a failure learns its
+        snapshot file); entries in frames (logged observations) are not updated."""
         row = self._db.execute("SELECT payload FROM entries WHERE id = ?", (entry_id,)).fetchone()
         if row is None:
             return
