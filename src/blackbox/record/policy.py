@@ -138,7 +138,7 @@ class PolicyTracker:
         states = obs.states
         changed = code != track.code
         if states != track.states:  # equal tuples of the same State objects compare fast
-            numbers = tuple(s.number for s in states)
+            numbers = tuple([s.number for s in states])
             changed = changed or numbers != track.numbers
             track.states, track.numbers = states, numbers
         if changed:
