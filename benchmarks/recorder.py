@@ -218,9 +218,9 @@ def compare(ref: str, observations: int, repeats: int, busy_core: bool) -> None:
           f"{load_after[2]:.2f}")
     print(f"Recorder end to end (on_observations -> committed), {observations:,} "
           f"observations per run, {repeats} runs each, alternating\n")
-    print("| payload | code | records/s min | median | max | CPU us/record (median) | "
-          "median / 150k |")
-    print("|---|---|---:|---:|---:|---:|---:|")
+    print("| payload | code | records/s min | median | max | median / 150k | "
+          "CPU us/record | cores used | records/s per core of CPU |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
     for realistic in (False, True):
         medians = []
         for label in (ref, "this tree"):
@@ -229,9 +229,14 @@ def compare(ref: str, observations: int, repeats: int, busy_core: bool) -> None:
             med = statistics.median(rates)
             medians.append(med)
             cpu = statistics.median(r["cpu_us"] for r in got)
+            used = statistics.median(r["cpu_us"] * r["rate"] / 1e6 for r in got)
             print(f"| {'hz-like' if realistic else 'minimal'} | {label} | {rates[0]:,.0f} | "
-                  f"{med:,.0f} | {rates[-1]:,.0f} | {cpu:.2f} | {med / TARGET:.2f} |")
-        print(f"| | after / before | | {medians[1] / medians[0]:.1f}x | | | |")
+                  f"{med:,.0f} | {rates[-1]:,.0f} | {med / TARGET:.2f} | {cpu:.2f} | "
+                  f"{used:.2f} | {1e6 / cpu:,.0f} |")
+        print(f"| | after / before | | {medians[1] / medians[0]:.1f}x | | | | | |")
+    print("\nCPU us/record: the process's CPU time (pipeline and writer threads) over the "
+          "records; cores used: that times records/s (the share of the machine the run "
+          "got); records/s per core: 1 / CPU per record, what one free core would allow.")
 
 
 def main() -> None:
