@@ -24,6 +24,12 @@ average, records/s min/median/max, CPU per record and the ratio to the 150k targ
 
     .venv/bin/python benchmarks/recorder.py --compare main --busy-core \
         --observations 200000 --repeats 5
+
+``--breakdown`` (this tree only) splits the CPU per record of (2) by thread and step:
+pipeline thread, writer thread, and in the writer the frame encoding (MessagePack), LZ4
+and the SQLite insert of the frames.
+
+    .venv/bin/python benchmarks/recorder.py --breakdown --busy-core --observations 200000
 """
 
 from __future__ import annotations
@@ -41,6 +47,7 @@ import tempfile
 import time
 from io import BytesIO
 from pathlib import Path
+from typing import Any
 
 from blackbox.events import MessageArrival
 from blackbox.model import Code, Observation, Resource, State
@@ -170,6 +177,69 @@ def _worker(observations: int, realistic: bool) -> None:
                       "src": str(Path(store_module.__file__).parents[2])}))
 
 
+def breakdown(observations: int, repeats: int, busy_core: bool) -> None:
+    """Thread CPU per record of the pipeline, the writer and the writer's main steps."""
+    import lz4.frame
+
+    import blackbox.record.store as store_module
+    from blackbox.record.writer import LogWriter
+
+    spent: dict[str, float] = {}
+
+    def timed(owner: Any, name: str, key: str) -> None:
+        inner = getattr(owner, name)
+
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            t = time.thread_time()
+            try:
+                return inner(*args, **kwargs)
+            finally:
+                spent[key] = spent.get(key, 0.0) + time.thread_time() - t
+        setattr(owner, name, wrapper)
+
+    timed(LogWriter, "_write_pending", "writer")
+    timed(lz4.frame, "compress", "lz4")
+    timed(store_module, "_pack", "encode+lz4")
+    timed(store_module.Store, "_insert_frames", "sqlite frames")
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if busy_core else None
+    try:
+        if busy is not None:
+            time.sleep(1.0)
+        load = os.getloadavg()
+        print(f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; another core busy: "
+              f"{'yes' if busy else 'no'}; thread CPU us per record\n")
+        print("| payload | process | pipeline thread | writer thread | MessagePack | LZ4 | "
+              "SQLite insert of frames |")
+        print("|---|---:|---:|---:|---:|---:|---:|")
+        for _ in range(repeats):
+            for realistic in (False, True):
+                spent.clear()
+                with tempfile.TemporaryDirectory() as d:
+                    rec = Recorder(RecorderSettings(Path(d) / "b.db", snapshot=None,
+                                                    queue_limit=observations * 2),
+                                   robot_id="bench")
+                    batches = _observations(observations, realistic)
+                    before = rec.written
+                    cpu, main = time.process_time(), time.thread_time()
+                    for batch in batches:
+                        rec.on_observations(batch[0].time, batch)
+                    main = time.thread_time() - main
+                    while rec.written - before < observations:
+                        time.sleep(0.002)
+                    cpu = time.process_time() - cpu
+                    rec.close()
+                per = {k: v / observations * 1e6 for k, v in spent.items()}
+                print(f"| {'hz-like' if realistic else 'minimal'} | "
+                      f"{cpu / observations * 1e6:.2f} | {main / observations * 1e6:.2f} | "
+                      f"{per.get('writer', 0):.2f} | "
+                      f"{per.get('encode+lz4', 0) - per.get('lz4', 0):.2f} | "
+                      f"{per.get('lz4', 0):.2f} | {per.get('sqlite frames', 0):.2f} |")
+    finally:
+        if busy is not None:
+            busy.kill()
+            busy.wait()
+
+
 def _old_source(ref: str, into: Path) -> Path:
     """``src`` of git revision ``ref``, extracted into ``into``."""
     root = Path(__file__).resolve().parent.parent
@@ -248,6 +318,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--busy-core", action="store_true",
                         help="keep another core busy while comparing")
+    parser.add_argument("--breakdown", action="store_true",
+                        help="CPU per record by thread and step (this tree)")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--realistic", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -256,6 +328,9 @@ def main() -> None:
         return
     if args.compare:
         compare(args.compare, args.observations, args.repeats, args.busy_core)
+        return
+    if args.breakdown:
+        breakdown(args.observations, args.repeats, args.busy_core)
         return
     print(f"machine: {platform.machine()}, {platform.processor() or 'cpu'}, "
           f"Python {platform.python_version()}, SQLite {sqlite3.sqlite_version}")
