@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
-import lz4.frame
+import lz4.frame  # type: ignore[import-untyped]
 import msgspec
 
 from blackbox.model import Code, Observation
