@@ -5,12 +5,14 @@ SQLite because it is a single file that survives a SIGKILL or a power cut at any
 queries of the external interface from indexes. Entities and characteristics are interned
 once in ``channels`` and entries reference them by number.
 
-Two tables hold entries. ``entries`` has one row per entry (diagnoses, failures, events,
-configurations, snapshots: rare, and some are updated later). Logged observations, which
-come by the hundred thousand per second under load, are stored in ``frames``: one row per
-commit, kind and channel, holding that group's observations encoded together (MessagePack,
-then LZ4). A row of ``entries`` costs SQLite 5-10 us of CPU with its three indexes; an
-observation in a frame costs well under one (docs/benchmarks.md, "Recorder under load").
+Two tables hold entries. ``entries`` has one row per entry: diagnoses, failures, events,
+configurations, snapshots (rare, and some are updated later), and logged observations that
+come few at a time. Logged observations that come in bulk (at least :data:`FRAME_MIN` of one
+kind and channel in a commit; under load, hundreds of thousands a second) are stored in
+``frames``: one row per commit, kind and channel, holding that group's observations
+encoded together (MessagePack, then LZ4). A row of ``entries`` costs SQLite 7-10 us of CPU
+with its three indexes; an observation in a frame 0.4-1.1 us, encoding included
+(docs/benchmarks.md, "Recorder under load").
 Every entry, in either table, has its own id from one sequence, and :meth:`Store.query`
 merges both in time order, so readers never see the difference.
 """
