@@ -173,7 +173,9 @@ def _worker(observations: int, realistic: bool) -> None:
 
     with tempfile.TemporaryDirectory() as d:
         per, rate, cpu = recorder_run(Path(d), observations, realistic)
+        size = sum(f.stat().st_size for f in Path(d).glob(f"recorder-{realistic}.db*"))
     print(json.dumps({"rate": rate, "pipeline_us": per, "cpu_us": cpu,
+                      "bytes": size / observations,
                       "src": str(Path(store_module.__file__).parents[2])}))
 
 
@@ -289,8 +291,8 @@ def compare(ref: str, observations: int, repeats: int, busy_core: bool) -> None:
     print(f"Recorder end to end (on_observations -> committed), {observations:,} "
           f"observations per run, {repeats} runs each, alternating\n")
     print("| payload | code | records/s min | median | max | median / 150k | "
-          "CPU us/record | cores used | records/s per core of CPU |")
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
+          "CPU us/record | cores used | records/s per core of CPU | bytes/record |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for realistic in (False, True):
         medians = []
         for label in (ref, "this tree"):
@@ -302,11 +304,14 @@ def compare(ref: str, observations: int, repeats: int, busy_core: bool) -> None:
             used = statistics.median(r["cpu_us"] * r["rate"] / 1e6 for r in got)
             print(f"| {'hz-like' if realistic else 'minimal'} | {label} | {rates[0]:,.0f} | "
                   f"{med:,.0f} | {rates[-1]:,.0f} | {med / TARGET:.2f} | {cpu:.2f} | "
-                  f"{used:.2f} | {1e6 / cpu:,.0f} |")
-        print(f"| | after / before | | {medians[1] / medians[0]:.1f}x | | | | | |")
+                  f"{used:.2f} | {1e6 / cpu:,.0f} | "
+                  f"{statistics.median(r['bytes'] for r in got):.1f} |")
+        print(f"| | after / before | | {medians[1] / medians[0]:.1f}x | | | | | | |")
     print("\nCPU us/record: the process's CPU time (pipeline and writer threads) over the "
           "records; cores used: that times records/s (the share of the machine the run "
-          "got); records/s per core: 1 / CPU per record, what one free core would allow.")
+          "got); records/s per core: 1 / CPU per record, what one free core would allow; "
+          "bytes/record: the log's files after close over the records (the same values "
+          "again and again: compresses far better than a robot's).")
 
 
 def main() -> None:
