@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from blackbox.model import Code, Observation, Resource
 from blackbox.record.logfile import classify
 from blackbox.record.store import (
     APPLICATION_ID,
@@ -53,14 +54,21 @@ def test_old_schema_is_migrated_in_place(tmp_path: Path) -> None:
     db.close()
     assert classify(path) == "health_log"  # a log from before the application id
     with Store.open(path) as store:
-        assert store.schema_version == SCHEMA_VERSION == 3
+        assert store.schema_version == SCHEMA_VERSION == 4
         assert store.snapshot_files() == []
         assert store.execute("PRAGMA application_id").fetchone()[0] == APPLICATION_ID
         indexes = {r[0] for r in store.execute("SELECT name FROM sqlite_master WHERE type='index'")}
-        assert "entries_kind_time" in indexes
+        assert {"entries_kind_time", "frames_time", "frames_channel_time"} <= indexes
         (entry,) = store.query()
         assert (entry.id, entry.time, entry.kind, entry.payload) == \
             (1, 5.0, "blackbox_event", {"event": "start"})
+        # New entries, framed observations too, continue the old log's id sequence.
+        r = Resource(topic="/a")
+        obs = [Observation(6.0 + i, "hz", r, Code.GENERAL_OK, values={"i": i}) for i in range(9)]
+        ids = store.append([(o.time, "sample", ("/a", "hz", "{}"), 0, o) for o in obs])
+        assert ids == list(range(2, 11))
+        assert store.execute("SELECT count(*) FROM frames").fetchone()[0] == 1
+        assert [e.id for e in store.query()] == list(range(1, 11))
 
 
 def test_newer_schema_is_refused_with_a_clear_message(tmp_path: Path) -> None:

@@ -86,18 +86,18 @@ def test_sigkill_under_load_lags_at_most_commit_interval_plus_one_second(
 
 def committed_view(log: Path) -> tuple[dict, int]:
     """What a crash now would leave: the progress marker and the newest committed ``seq``,
-    read in one read transaction (a consistent committed state)."""
-    db = sqlite3.connect(f"{log.as_uri()}?mode=ro", uri=True, timeout=5.0,
-                         isolation_level=None)
+    read in one read transaction (a consistent committed state). Through the store, since
+    logged observations are in frames as well as in ``entries``."""
+    store = Store.open(log, readonly=True, check=False)
     try:
-        db.execute("BEGIN")
-        marker = db.execute("SELECT value FROM meta WHERE key = 'progress'").fetchone()
-        seq = db.execute("SELECT max(json_extract(payload, '$.values.seq')) "
-                         "FROM entries").fetchone()[0]
-        db.execute("COMMIT")
+        store.execute("BEGIN")
+        marker = store.meta("progress")
+        seq = max((int(e.payload["values"]["seq"]) for e in store.query()
+                   if "seq" in e.payload.get("values", {})), default=-1)
+        store.execute("COMMIT")
     finally:
-        db.close()
-    return (json.loads(marker[0]) if marker else {}), (-1 if seq is None else int(seq))
+        store.close()
+    return (json.loads(marker) if marker else {}), seq
 
 
 def test_progress_marker_means_every_hand_over_before_it_is_committed(tmp_path: Path) -> None:

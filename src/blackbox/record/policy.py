@@ -81,6 +81,7 @@ class _Track:
     """One characteristic's logging state, with its four possible decisions made once."""
 
     rule: PolicyRule
+    resource: Resource
     channel: tuple[str | None, str | None, str]
     change: Decision
     fault: Decision
@@ -104,6 +105,10 @@ class PolicyTracker:
     def __init__(self, policy: LoggingPolicy) -> None:
         self.policy = policy
         self._tracks: dict[tuple[str, Resource], _Track] = {}
+        # The same tracks by the identity of the Resource they were made with: an observer
+        # keeps its resource, and hashing a frozen dataclass runs Python code every time.
+        # The track holds that object, so its id cannot be reused while the entry exists.
+        self._by_identity: dict[tuple[str, int], _Track] = {}
 
     def _new_track(self, obs: Observation) -> _Track:
         entity = entity_of(obs.resource)
@@ -111,7 +116,7 @@ class PolicyTracker:
         channel = (entity, obs.observer, resource)
         rule = self.policy.rule_for(entity, obs.observer)
         boost = rule.on_fault
-        track = _Track(rule, channel,
+        track = _Track(rule, obs.resource, channel,
                        change=Decision("observation", channel, False, False),
                        fault=Decision("exceedance", channel, False, False),
                        fault_started=Decision("exceedance", channel, True,
@@ -119,18 +124,21 @@ class PolicyTracker:
                        sample=Decision("sample", channel, False, False),
                        fixed_interval=not rule.states)
         self._tracks[(obs.observer, obs.resource)] = track
+        self._by_identity[(obs.observer, id(obs.resource))] = track
         return track
 
     def decide(self, obs: Observation) -> Decision | None:
-        track = self._tracks.get((obs.observer, obs.resource))
-        if track is None:
-            track = self._new_track(obs)
+        track = self._by_identity.get((obs.observer, id(obs.resource)))
+        if track is None or track.resource is not obs.resource:
+            track = self._tracks.get((obs.observer, obs.resource))
+            if track is None:
+                track = self._new_track(obs)
         code = int(obs.code)
         t = obs.time
         states = obs.states
         changed = code != track.code
         if states != track.states:  # equal tuples of the same State objects compare fast
-            numbers = tuple(s.number for s in states)
+            numbers = tuple([s.number for s in states])
             changed = changed or numbers != track.numbers
             track.states, track.numbers = states, numbers
         if changed:

@@ -73,13 +73,18 @@ class Retention:
     @staticmethod
     def _thin_samples(store: Store) -> int:
         """Thin the older half of not yet thinned samples to one in four per channel."""
-        row = store.execute(
+        count, t0, t1 = store.execute(
             "SELECT count(*), min(time), max(time) FROM entries "
             "WHERE kind = ? AND json_extract(payload, '$.thinned') IS NULL", (_SAMPLE,)
         ).fetchone()
-        count, t0, t1 = row
+        framed, f0, f1 = store.execute(
+            "SELECT coalesce(sum(count), 0), min(t_min), max(t_max) FROM frames "
+            "WHERE kind = ? AND thinned = 0", (_SAMPLE,)).fetchone()
+        count += framed
         if count < 8:
             return 0
+        t0 = min(t for t in (t0, f0) if t is not None)
+        t1 = max(t for t in (t1, f1) if t is not None)
         cut = t0 + (t1 - t0) / 2
         store.execute("BEGIN IMMEDIATE")
         try:
@@ -92,6 +97,7 @@ class Retention:
                 "UPDATE entries SET payload = json_set(payload, '$.thinned', 4) "
                 "WHERE kind = ? AND time < ? AND json_extract(payload, '$.thinned') IS NULL",
                 (_SAMPLE, cut))
+            removed += store.thin_frames(_SAMPLE, cut)
             store.execute("COMMIT")
         except BaseException:
             store.execute("ROLLBACK")
@@ -107,14 +113,13 @@ class Retention:
             marks = ",".join("?" * len(kinds))
             n = store.execute(f"SELECT count(*) FROM entries WHERE kind IN ({marks}) "
                               "AND id IS NOT ?", (*kinds, latest_config)).fetchone()[0]
+            n += store.execute(f"SELECT coalesce(sum(count), 0) FROM frames "
+                               f"WHERE kind IN ({marks})", kinds).fetchone()[0]
             if not n:
                 continue
-            take = max(1, n // 10)
             store.execute("BEGIN IMMEDIATE")
             try:
-                removed = store.delete_where(
-                    f"id IN (SELECT id FROM entries WHERE kind IN ({marks}) AND id IS NOT ? "
-                    "ORDER BY time, id LIMIT ?)", (*kinds, latest_config, take))
+                removed = store.drop_oldest(kinds, max(1, n // 10), latest_config)
                 store.execute("COMMIT")
             except BaseException:
                 store.execute("ROLLBACK")

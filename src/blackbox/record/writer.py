@@ -19,6 +19,7 @@ corrupt is moved aside and a new one started; any other file is never touched.
 from __future__ import annotations
 
 import contextlib
+import operator
 import os
 import sqlite3
 import threading
@@ -29,17 +30,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from blackbox.model import BlackBoxEvent, Code, Observation
+from blackbox.model import BlackBoxEvent, Code
 from blackbox.record.capture_writer import PART, CaptureWriter
 from blackbox.record.handoff import ALWAYS_KEPT, Handoff
 from blackbox.record.logfile import classify, set_aside
-from blackbox.record.policy import observation_payload
 from blackbox.record.retention import Retention, enforce_directory
 from blackbox.record.settings import RecorderSettings
 from blackbox.record.snapshot import Capture
 from blackbox.record.store import Row, RowTuple, StorageError, Store, StoreCorrupt, dumps
 
 COMPONENT = "blackbox/recorder"
+_TIME = operator.itemgetter(0)
 OWN = (COMPONENT, "event", "{}")
 
 
@@ -160,12 +161,7 @@ class LogWriter:
             wall, rows = item
             self._backlog_wall = max(self._backlog_wall, wall)
             self._handed += len(rows)
-            for time, kind, channel, code, payload in rows:
-                if isinstance(payload, Observation):
-                    backlog.append((time, kind, channel, int(payload.code),
-                                    _encoded(payload, kind)))
-                else:
-                    backlog.append((time, kind, channel, code, payload))
+            backlog += rows  # logged observations stay objects: the store frames them
         self._trim_backlog()
         return captures
 
@@ -226,13 +222,13 @@ class LogWriter:
             extra.append(own_event(self.clock(), {"event": "records_dropped", "total": total,
                                                   "by_kind": dropped}))
         rows = self._backlog + extra
-        self._newest_time = max((r[0] for r in self._backlog), default=self._newest_time)
+        self._newest_time = max(map(_TIME, self._backlog), default=self._newest_time)
         progress = dumps({"wall": self._complete_wall, "handed": self._backlog_wall,
                           "pid": os.getpid(), "time": self._newest_time})
         created = _time.time()
         try:
             store.append(rows, meta={"progress": progress},
-                         snapshots=[(c.name, created) for c in captures])
+                         snapshots=[(c.name, created) for c in captures], want_ids=False)
         except (sqlite3.Error, OSError) as exc:
             self._storage_trouble(exc)
             return False
@@ -391,11 +387,3 @@ class LogWriter:
             self._backlog.append(own_event(self.clock(), {"event": "snapshots_deleted",
                                                           "files": removed}))
 
-
-def _encoded(obs: Observation, kind: str) -> str:
-    """A logged observation's payload as JSON; never raises, so no row can block the log."""
-    try:
-        return dumps(observation_payload(obs, kind != "sample"))
-    except (TypeError, ValueError, RecursionError) as exc:
-        return dumps({"code_name": obs.code.name, "message": obs.message,
-                      "unencodable": f"{type(exc).__name__}: {exc}"})
