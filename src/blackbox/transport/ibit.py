@@ -37,7 +37,7 @@ from blackbox.transport.auth import (
     from_wire,
     to_wire,
 )
-from blackbox.transport.participant import Bus
+from blackbox.transport.participant import Bus, matched_both_ways
 
 
 def ibit_fields(command: C_Monitored_Entity_run_IBIT | C_IBIT_Request) -> dict[str, Any]:
@@ -118,7 +118,7 @@ def request_ibit(bus: Bus, robot_id: str, *, entity: str = "", timeout: float = 
     reference = secrets.randbits(31)
     recipient = ids.of("entity", entity)
     deadline = time.monotonic() + timeout
-    while not writer.get_matched_subscriptions() and time.monotonic() < deadline:
+    while not matched_both_ways(writer, reader) and time.monotonic() < deadline:
         time.sleep(0.05)
     command = C_Monitored_Entity_run_IBIT(A_recipientID=recipient, A_sourceID=station,
                                           A_referenceNum=reference,

@@ -43,7 +43,7 @@ from blackbox.transport.auth import (
     from_wire,
     to_wire,
 )
-from blackbox.transport.participant import Bus
+from blackbox.transport.participant import Bus, matched_both_ways
 
 DEFAULT_CHUNK = 200
 MAX_ENTRIES = 1_000_000
@@ -204,10 +204,10 @@ class LogClient:
                                            | InstanceState.Any))
 
     def wait_for_robot(self, timeout: float) -> bool:
-        """Wait until some black box's request reader is matched."""
+        """Wait until some black box is matched both ways (requests and replies)."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            if self.writer.get_matched_subscriptions():
+            if matched_both_ways(self.writer, self.reader):
                 return True
             time.sleep(0.05)
         return False

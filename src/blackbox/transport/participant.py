@@ -112,3 +112,23 @@ class Bus:
             self.topics.clear()
             participant.__del__()
         self.domain = None
+
+
+def matched_both_ways(writer: DataWriter[Any], reader: DataReader[Any]) -> bool:
+    """Some participant reads what ``writer`` writes *and* writes what ``reader`` reads.
+
+    A request/reply pair over volatile topics needs both: a reply written before the
+    robot's reply writer has discovered this reader is lost, and discovery of the two
+    directions completes at different moments."""
+    def participants(handles: list[int], data: Any) -> set[Any]:
+        keys = set()
+        for handle in handles:
+            endpoint = data(handle)
+            if endpoint is not None:
+                keys.add(endpoint.participant_key)
+        return keys
+    return bool(participants(writer.get_matched_subscriptions(),
+                             writer.get_matched_subscription_data)
+                & participants(reader.get_matched_publications(),
+                               reader.get_matched_publication_data))
+
