@@ -188,8 +188,13 @@ def test_replaying_the_bag_of_a_live_run_gives_its_observations_and_diagnoses(
             continue
         for name, value in rec["values"].items():
             replayed = other["values"][name]
-            if isinstance(value, float) and not near_change and name != "period_deviation":
-                assert replayed == pytest.approx(value, rel=0.05, abs=0.05), (key, name)
+            if not isinstance(value, float) or near_change or name == "period_deviation":
+                continue
+            # a message that landed within the live delivery lag before an evaluation is
+            # counted there in the bag but at the next evaluation live: ``silent_for`` may
+            # then differ by one period of the topic (at most 0.0667 s here)
+            slack = 0.075 if name == "silent_for" else 0.05
+            assert replayed == pytest.approx(value, rel=0.05, abs=slack), (key, name)
     print(f"{len(live)} observations compared, {tipped} verdicts differ within "
           f"{TRANSITION} s of a live verdict change")
     assert not differing, differing

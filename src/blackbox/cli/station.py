@@ -211,6 +211,7 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
         sock.bind((host, port))
+        sock.listen(2048)  # connections wait in the backlog from here on: "ready" is true
     except OSError as exc:
         follower.stop()
         return _usage_error(f"cannot listen on {host}:{port}: {exc.strerror}")
