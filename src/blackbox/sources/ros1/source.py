@@ -26,6 +26,7 @@ import psutil
 
 from blackbox.config.node import ConfigError
 from blackbox.events import (
+    ArrivalBatch,
     Event,
     Interest,
     MessageArrival,
@@ -42,6 +43,7 @@ from blackbox.sources.ros1.master import GraphPoller
 from blackbox.sources.ros1.resources import ResourceSampler
 from blackbox.sources.ros1.tcpros import (
     DEFAULT_MAX_MESSAGE_BYTES,
+    Arrivals,
     StreamKey,
     TcprosSubscriber,
 )
@@ -231,13 +233,17 @@ class Ros1Source:
     def _push_message(self, msg: MessageArrival) -> None:
         self._push_batch([msg])
 
-    def _push_batch(self, batch: list[MessageArrival]) -> None:
+    def _push_batch(self, batch: Arrivals) -> None:
         """Queue the arrivals of one read under one lock.
 
         They carry the kernel's receive time, which may be a little before the last
         ``until`` ``poll`` already handed out; such a stamp is raised to that ``until`` so
-        events keep coming in time order.
+        events keep coming in time order. :class:`ArrivalBatch` es go out as they are when
+        the interest takes them, else as one arrival per message.
         """
+        if not self._interest.arrival_batches:
+            batch = [a for item in batch for a in
+                     (item.arrivals() if type(item) is ArrivalBatch else (item,))]
         with self._lock:
             floor = self._floor
             room = self._queue_limit - len(self._queue)

@@ -37,7 +37,7 @@ from typing import Any, cast
 
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from blackbox.events import MessageArrival, TopicSchema
+from blackbox.events import ArrivalBatch, MessageArrival, TopicSchema
 from blackbox.sources.ros1.callerid import unique_caller_id
 from blackbox.sources.ros1.master import Report, RosApi, RosApiError
 
@@ -146,8 +146,8 @@ class _Stream:
     """Reading state of one established connection."""
 
     __slots__ = ("body", "closed", "decode_as", "key", "last_rx", "lenbuf", "lenfill",
-                 "lowat", "max_bytes", "messages", "publisher", "remaining", "size", "sock",
-                 "topic")
+                 "lowat", "max_bytes", "messages", "pending", "pending_bytes", "publisher",
+                 "remaining", "size", "sock", "topic")
 
     def __init__(self, key: StreamKey, sock: socket.socket, max_bytes: int,
                  decode_as: str | None) -> None:
@@ -166,6 +166,12 @@ class _Stream:
         self.messages = 0
         self.closed = False
         self.lowat = 1
+        self.pending = 0  # compact: timing-only messages completed in the current receive
+        self.pending_bytes = 0
+
+
+Arrivals = list[MessageArrival | ArrivalBatch]
+"""What one wake-up of a reader hands on."""
 
 
 class TcprosReader:
@@ -174,11 +180,17 @@ class TcprosReader:
     def __init__(self, on_message: Callable[[MessageArrival], None],
                  on_closed: Callable[[StreamKey, str, int], None],
                  on_first: Callable[[StreamKey], None], decoder: MessageDecoder,
-                 on_batch: Callable[[list[MessageArrival]], None] | None = None) -> None:
+                 on_batch: Callable[[Arrivals], None] | None = None,
+                 compact: bool = False) -> None:
         """``on_batch`` receives the arrivals of one read together (preferred, one call
-        per wake-up); without it ``on_message`` is called per message."""
+        per wake-up); without it ``on_message`` is called per message.
+
+        ``compact``: the messages of a timing-only connection that one receive got are
+        handed on as one :class:`ArrivalBatch` (no object per message); otherwise as
+        one :class:`MessageArrival` each (``on_message`` always gets arrivals)."""
         self._on_message = on_message
         self._on_batch = on_batch
+        self._compact = compact
         self._on_closed = on_closed
         self._on_first = on_first
         self._decoder = decoder
@@ -300,7 +312,7 @@ class TcprosReader:
 
     def _read(self, s: _Stream) -> None:
         view = self._view
-        batch: list[MessageArrival] = []
+        batch: Arrivals = []
         try:
             for _ in range(_READS_PER_WAKEUP):
                 if s.body is None and s.remaining > 0:
@@ -313,12 +325,16 @@ class TcprosReader:
                     s.remaining -= n
                     if s.remaining == 0:
                         self._complete(s, now, batch)
+                        if s.pending:
+                            self._flush(s, now, batch)
                     continue
                 got = self._recv(s, view, 0)
                 if got is None:
                     break
                 n, now = got
                 self._split(s, n, now, batch)
+                if s.pending:
+                    self._flush(s, now, batch)
                 if s.closed or n < len(view):
                     break
         finally:
@@ -329,8 +345,18 @@ class TcprosReader:
                 if self._on_batch is not None:
                     self._on_batch(batch)
                 else:
-                    for arrival in batch:
-                        self._on_message(arrival)
+                    for item in batch:
+                        if type(item) is ArrivalBatch:
+                            for arrival in item.arrivals():
+                                self._on_message(arrival)
+                        else:
+                            self._on_message(cast(MessageArrival, item))
+
+    @staticmethod
+    def _flush(s: _Stream, now: float, batch: Arrivals) -> None:
+        batch.append(ArrivalBatch(now, s.topic, s.publisher, s.pending, s.pending_bytes))
+        s.pending = 0
+        s.pending_bytes = 0
 
     def _wake_at(self, s: _Stream) -> None:
         """Be woken only once the rest of the current message is there (``SO_RCVLOWAT``):
@@ -342,19 +368,24 @@ class TcprosReader:
                 s.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVLOWAT, want)
                 s.lowat = want
 
-    def _complete(self, s: _Stream, now: float, batch: list[MessageArrival]) -> None:
+    def _complete(self, s: _Stream, now: float, batch: Arrivals) -> None:
         s.remaining = -1
         s.messages += 1
         if s.messages == 1:
             self._on_first(s.key)
-        if s.body is None:
-            batch.append(MessageArrival(now, s.topic, s.publisher, s.size))
-        else:
+        if s.body is not None:
             batch.append(self._decodable(s, now))
+        elif self._compact:
+            s.pending += 1
+            s.pending_bytes += s.size
+        else:
+            batch.append(MessageArrival(now, s.topic, s.publisher, s.size))
 
-    def _split(self, s: _Stream, n: int, now: float, batch: list[MessageArrival]) -> None:
+    def _split(self, s: _Stream, n: int, now: float, batch: Arrivals) -> None:
         view = self._view
         pos = 0
+        if self._compact and s.decode_as is None and s.remaining < 0 and not s.lenfill:
+            pos = self._count_whole(s, n)
         while pos < n:
             if s.remaining < 0:
                 if s.lenfill == 0 and n - pos >= 4:
@@ -390,6 +421,31 @@ class TcprosReader:
                 if s.remaining:
                     continue
             self._complete(s, now, batch)
+
+    def _count_whole(self, s: _Stream, n: int) -> int:
+        """Count the whole timing-only messages at the start of the scratch buffer without
+        a call per message; returns where the first incomplete one (or a bad prefix)
+        starts, for :meth:`_split` to go on from."""
+        unpack = _LEN.unpack_from
+        view = self._view
+        cap = s.max_bytes
+        pos = count = total = 0
+        while n - pos >= 4:
+            (size,) = unpack(view, pos)
+            end = pos + 4 + size
+            if size > cap or end > n:
+                break
+            pos = end
+            count += 1
+            total += size
+        if count:
+            first = s.messages == 0
+            s.messages += count
+            s.pending += count
+            s.pending_bytes += total
+            if first:
+                self._on_first(s.key)
+        return pos
 
     def _decodable(self, s: _Stream, now: float) -> MessageArrival:
         body = s.body
@@ -494,7 +550,7 @@ class TcprosSubscriber:
                  backoff_min: float = 0.1, backoff_max: float = 2.0,
                  default_max_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
                  caller_id: str | None = None,
-                 on_batch: Callable[[list[MessageArrival]], None] | None = None) -> None:
+                 on_batch: Callable[[Arrivals], None] | None = None) -> None:
         self.topics = topics | decoded
         self.caller_id = caller_id or unique_caller_id()
         self.decoded = decoded
@@ -506,7 +562,7 @@ class TcprosSubscriber:
         self._backoff_max = backoff_max
         self.decoder = MessageDecoder()
         self.reader = TcprosReader(on_message, self._closed, self._first, self.decoder,
-                                   on_batch)
+                                   on_batch, compact=on_batch is not None)
         self._pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="ros1-connect")
         self._lock = threading.Lock()
         self._active: set[StreamKey] = set()
