@@ -45,6 +45,7 @@ _CLOSED = struct.Struct("<IQ")  # stream id, messages on the connection
 _PACKET = 1 << 16
 _MAX_RECORDS = (_PACKET - 1) // _RECORD.size
 DEFAULT_HAND_OVER = 0.002
+_CHILD = "import sys; from blackbox.sources.ros1.readers import main; sys.exit(main(sys.argv[1:]))"
 RESTART_DELAY = 0.5
 
 
@@ -127,8 +128,8 @@ class ReaderProcesses:
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         try:
             proc = subprocess.Popen(
-                [sys.executable, "-m", "blackbox.sources.ros1.readers", str(theirs.fileno()),
-                 repr(self._hand_over), repr(self._coalesce)],
+                [sys.executable, "-c", _CHILD, str(theirs.fileno()), repr(self._hand_over),
+                 repr(self._coalesce)],
                 pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL)
         finally:
             theirs.close()

@@ -40,6 +40,7 @@ from blackbox.sources.handout import overflow_event, split_due, wait_until
 from blackbox.sources.ros1.busstats import BusStatsRates, TopicCounts
 from blackbox.sources.ros1.callerid import DEFAULT_PREFIX, unique_caller_id, valid_caller_id
 from blackbox.sources.ros1.master import GraphPoller
+from blackbox.sources.ros1.readers import ReaderProcesses
 from blackbox.sources.ros1.resources import ResourceSampler
 from blackbox.sources.ros1.tcpros import (
     DEFAULT_MAX_MESSAGE_BYTES,
@@ -249,6 +250,11 @@ class Ros1Source:
                                          self.name))
         due, self._held = split_due(events, until)
         return due
+
+    @property
+    def reader_processes(self) -> ReaderProcesses | None:
+        """The child processes reading timing-only topics (``readers`` > 0), once started."""
+        return self._subscriber.processes if self._subscriber else None
 
     def schema(self, topic: str) -> TopicSchema | None:
         return self._subscriber.schemas.get(topic) if self._subscriber else None
