@@ -196,13 +196,13 @@ class TcprosReader:
         ``hand_over``: hand on at most every this many seconds what the wake-ups since
         read (fewer wake-ups of whoever takes them; arrival times are unchanged).
 
-        ``coalesce``: after a wake-up that read something, wait until this many seconds
-        have passed before looking again, so a fast topic's messages are read several
-        at a time instead of one wake-up each. Arrival times are the kernel's per
-        receive, so messages of one topic that arrive within ``coalesce`` of each other
-        share the time of the last of them (a 5 kHz topic with 1 ms: five per receive,
-        periods of 1 ms and four of 0, the mean unchanged); topics slower than
-        ``1 / coalesce`` keep exact times."""
+        ``coalesce``: at least this many seconds between two wake-ups (a quiet reader is
+        woken at once, a busy one waits out the rest), so a fast topic's messages are
+        read several at a time instead of one wake-up each. Arrival times are the
+        kernel's per receive, so messages of one connection that arrive within
+        ``coalesce`` of each other share the time of the last of them (a 5 kHz topic
+        with 1 ms: five per receive, periods of 1 ms and four of 0, the mean unchanged);
+        topics slower than ``1 / coalesce`` keep exact times."""
         self._on_message = on_message
         self._on_batch = on_batch
         self._compact = compact
@@ -276,8 +276,12 @@ class TcprosReader:
         every = self._hand_over_every
         coalesce = self._coalesce
         stop = self._stop
-        handed = 0.0
+        handed = woke = 0.0
         while not stop.is_set():
+            if coalesce > 0:  # only a busy reader waits: a quiet one is woken at once
+                rest = woke + coalesce - clock()
+                if rest > 0:
+                    stop.wait(rest)
             timeout = 1.0
             if self._held and every > 0:
                 timeout = max(0.0, handed + every - clock())
@@ -299,10 +303,6 @@ class TcprosReader:
                 self._hand_over()
             while self._closed_notes:
                 self._on_closed(*self._closed_notes.pop(0))
-            if coalesce > 0 and ready:
-                rest = coalesce - (clock() - woke)
-                if rest > 0:
-                    stop.wait(rest)
         if self._held:
             self._hand_over()
 
