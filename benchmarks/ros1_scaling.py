@@ -3,7 +3,7 @@ published, and the hz observer's reading against the true rate, side by side in 
 
     .venv/bin/python benchmarks/ros1_scaling.py [--seconds 10] [--warmup 4]
         [--cases 1x100,10x100,50x100,200x100,1x1000,1x5000,1x20000] [--repeat 1]
-        [--readers 0,1,2] [--before SRC] [--json out.json]
+        [--options ';readers=1;coalesce=0.001'] [--before SRC] [--json out.json]
 
 Each case ``TxR`` starts a real roscore and rospy publishers (``benchmarks/ros1/
 paced_publisher.py``, at most 50 topics or 5,000 msg/s per process) publishing ``T``
@@ -12,14 +12,18 @@ std_msgs/Float64 topics at ``R`` Hz; ``TxRf`` uses the fast publisher instead
 handshake, pre-built frames written in one send per tick, at most ``--fast-load`` msg/s
 per process), which can offer 100k msg/s here where rospy stops near 6-11k. Then
 ``blackbox run`` with one hz observer per topic (window: 50 periods, or one second of
-messages above 50 Hz) on ``--source ros1://127.0.0.1:PORT?readers=N --observations FILE``,
-once per ``--readers`` value (and with ``--before``, also from an older ``src/``).
+messages above 50 Hz) on ``--source ros1://127.0.0.1:PORT?OPTIONS --observations FILE``,
+once per ``--options`` entry (and with ``--before``, also from an older ``src/``).
 Over the same window it reads:
 
 - CPU of the black box (user+system of the process and its reader processes / wall time;
   100 % = one core) and CPU per message received;
-- messages received (``blackbox run``'s closing summary) against messages published
-  (the publishers' own counters);
+- messages published per second over the window (the publishers' own counters; below the
+  offered rate when a publisher cannot keep pace or the black box does not take the data
+  and TCP pushes back), received per second over the black box's whole run, and
+  ``got/sent``: messages the black box counted (its closing summary) over the messages the
+  publishers wrote to its connections (their ``getBusStats``, asked just before the black
+  box is stopped, so a few more may still arrive: slightly above 1 is normal);
 - every hz reading (``rate_hz``) against the publisher's true rate over the same second,
   and how many observations were faulty (a healthy run has none) and how many readings
   counted a silence as a provisional period (``prov``).
@@ -38,6 +42,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import xmlrpc.client
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -63,6 +68,7 @@ class Case:
     publishers_cpu_percent: float
     published_per_s: float
     received_per_s: float
+    received_of_sent: float
     us_cpu_per_message: float
     rate_error_median_pct: float
     rate_error_max_pct: float
@@ -127,7 +133,7 @@ def _config(path: Path, names: list[str], rate: float) -> None:
 
 
 def run_case(topics: int, rate: float, seconds: float, warmup: float, work: Path,
-             src: Path | None = None, readers: int | None = None, fast: bool = False,
+             src: Path | None = None, options: str = "", fast: bool = False,
              fast_load: float = 50_000.0, variant: str = "") -> Case:
     work.mkdir(parents=True, exist_ok=True)
     robot = ThesisRobot(free_port(), log_dir=work)
@@ -142,8 +148,8 @@ def run_case(topics: int, rate: float, seconds: float, warmup: float, work: Path
         if src is not None:
             env["PYTHONPATH"] = str(src)
         spec = f"ros1://127.0.0.1:{robot.port}"
-        if readers is not None:
-            spec += f"?readers={readers}"
+        if options:
+            spec += f"?{options}"
         with log.open("wb") as out:
             bb = subprocess.Popen([*BLACKBOX, "run", "--config", str(config), "--source",
                                    spec, "--observations",
@@ -161,13 +167,15 @@ def run_case(topics: int, rate: float, seconds: float, warmup: float, work: Path
             pc1 = _cpu(pp)
             load = os.getloadavg()[0]
             time.sleep(1.2)  # one more publisher report after the window
+            sent = _sent_to_subscribers(robot, len(pubs))
         finally:
             stop(bb)
         text = log.read_text(errors="replace")
         m = re.search(r"([\d.,]+) s observed, ([\d,]+) messages", text)
         if not m:
             raise RuntimeError(f"no summary from blackbox run:\n{text[-2000:]}")
-        received = int(m.group(2).replace(",", "")) / float(m.group(1).replace(",", ""))
+        got = int(m.group(2).replace(",", ""))
+        received = got / float(m.group(1).replace(",", ""))
         published = sum(n * _sent_between(_sent(out), w0, w1) for _, out, n in pubs) / (w1 - w0)
         errors: list[float] = []
         faulty = provisional = 0
@@ -190,7 +198,7 @@ def run_case(topics: int, rate: float, seconds: float, warmup: float, work: Path
         cpu = 100.0 * (c1 - c0) / (w1 - w0)
         return Case(topics, rate, "fast" if fast else "rospy", variant, w1 - w0, cpu,
                     100.0 * (pc1 - pc0) / (w1 - w0), published,
-                    received, 1e6 * (c1 - c0) / max(1.0, received * (w1 - w0)),
+                    received, got / max(1, sent), 1e6 * (c1 - c0) / max(1.0, received * (w1 - w0)),
                     statistics.median(errors) if errors else float("nan"),
                     max(errors) if errors else float("nan"), len(errors), faulty, provisional,
                     load)
@@ -198,6 +206,21 @@ def run_case(topics: int, rate: float, seconds: float, warmup: float, work: Path
         for proc, _, _ in pubs:
             stop(proc, group=True)
         robot.stop()
+
+
+def _sent_to_subscribers(robot: ThesisRobot, publishers: int) -> int:
+    """Messages the publishers wrote to their subscriber connections (the black box's)
+    since those opened, from their own ``getBusStats``."""
+    total = 0
+    master = xmlrpc.client.ServerProxy(robot.master_uri)
+    for p in range(publishers):
+        code, _, uri = master.lookupNode("/scaling", f"/pace{p}")
+        if code != 1:
+            continue
+        stats = xmlrpc.client.ServerProxy(uri).getBusStats("/scaling")
+        for _topic, _bytes, conns in stats[2][0]:
+            total += sum(int(c[2]) for c in conns)
+    return total
 
 
 def _cpu(procs: list[psutil.Process]) -> float:
@@ -210,9 +233,9 @@ def _cpu(procs: list[psutil.Process]) -> float:
 
 
 def _print(name: str, c: Case) -> None:
-    print(f"{name:>17} {c.bb_cpu_percent:6.1f}% {c.publishers_cpu_percent:6.1f}% "
+    print(f"{name:>28} {c.bb_cpu_percent:6.1f}% {c.publishers_cpu_percent:6.1f}% "
           f"{c.published_per_s:10.0f} {c.received_per_s:10.0f} "
-          f"{c.received_per_s / c.published_per_s:8.3f} {c.us_cpu_per_message:7.1f} "
+          f"{c.received_of_sent:8.3f} {c.us_cpu_per_message:7.1f} "
           f"{c.rate_error_median_pct:8.2f} / {c.rate_error_max_pct:7.2f} "
           f"{c.faulty:3d}/{c.readings:<3d} {c.provisional:4d} {c.load_average:5.2f}",
           flush=True)
@@ -228,9 +251,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--before", type=Path, metavar="SRC",
                         help="also run every case with the black box from this src/ "
                              "directory (e.g. an older checkout), alternating, same window")
-    parser.add_argument("--readers", default="",
-                        help="comma-separated reader-process counts to run every case with "
-                             "(source option readers=N); empty: the source's default")
+    parser.add_argument("--options", default="",
+                        help="';'-separated source options to run every case with, e.g. "
+                             "';readers=1;coalesce=0.001' (empty entry: the defaults)")
     parser.add_argument("--fast-load", type=float, default=50_000.0,
                         help="msg/s per fast publisher process")
     args = parser.parse_args(argv)
@@ -240,16 +263,15 @@ def main(argv: list[str] | None = None) -> int:
         fast = r.endswith("f")
         cases.append((int(t), float(r.removesuffix("f")), fast))
     results: list[Case] = []
-    print(f"{'case':>17} {'bb CPU':>7} {'pub CPU':>7} {'published':>10} {'received':>10} "
-          f"{'recv/pub':>8} {'us/msg':>7} {'rate err med/max %':>18} {'faulty':>7} "
+    print(f"{'case':>28} {'bb CPU':>7} {'pub CPU':>7} {'published':>10} {'received':>10} "
+          f"{'got/sent':>8} {'us/msg':>7} {'rate err med/max %':>18} {'faulty':>7} "
           f"{'prov':>4} {'load':>5}")
     print(f"load average at start: {os.getloadavg()[0]:.2f}, {os.cpu_count()} cores")
-    readers: list[int | None] = [int(n) for n in args.readers.split(",") if n] or [None]
     with tempfile.TemporaryDirectory(prefix="ros1-scaling-") as tmp:
-        variants: list[tuple[str, Path | None, int | None]] = [
-            (f"r{n} " if n is not None else "", None, n) for n in readers]
+        variants: list[tuple[str, Path | None, str]] = [
+            (f"{o} " if o else "", None, o) for o in args.options.split(";")]
         if args.before is not None:
-            variants.insert(0, ("before ", args.before.resolve(), None))
+            variants.insert(0, ("before ", args.before.resolve(), ""))
         for r in range(args.repeat):
             for topics, rate, fast in cases:
                 for label, src, n in variants:

@@ -284,13 +284,19 @@ class _ChildReader:
     def __init__(self, ctrl: socket.socket, hand_over: float, coalesce: float) -> None:
         self.ctrl = ctrl
         self.send_lock = threading.Lock()
+        self.gone = False
         self.reader = TcprosReader(self._unexpected, self._closed, self._first,
                                    MessageDecoder(), on_batch=self._batch, compact=True,
                                    hand_over=hand_over, coalesce=coalesce)
 
     def _send(self, packet: bytes) -> None:
-        with self.send_lock:
-            self.ctrl.sendall(packet)
+        if self.gone:
+            return
+        try:
+            with self.send_lock:
+                self.ctrl.sendall(packet)
+        except OSError:  # the black box is gone: the main thread sees EOF and exits
+            self.gone = True
 
     def _batch(self, batch: Arrivals) -> None:
         records = [_RECORD.pack(int(b.topic), b.count, b.bytes, b.time)

@@ -281,7 +281,7 @@ class TcprosReader:
             if coalesce > 0:  # only a busy reader waits: a quiet one is woken at once
                 rest = woke + coalesce - clock()
                 if rest > 0:
-                    stop.wait(rest)
+                    time.sleep(rest)
             timeout = 1.0
             if self._held and every > 0:
                 timeout = max(0.0, handed + every - clock())
