@@ -193,7 +193,10 @@ def run_case(topics: int, rate: float, seconds: float, warmup: float, work: Path
             hz = o["values"].get("rate_hz")
             if hz is None:
                 continue
-            true = _sent_between(topic_rows[o["resource"]["topic"]], t - window, t) / window
+            try:
+                true = _sent_between(topic_rows[o["resource"]["topic"]], t - window, t) / window
+            except ValueError:  # a window reaching back before the publisher started
+                continue
             errors.append(100.0 * abs(hz - true) / true)
         cpu = 100.0 * (c1 - c0) / (w1 - w0)
         return Case(topics, rate, "fast" if fast else "rospy", variant, w1 - w0, cpu,
