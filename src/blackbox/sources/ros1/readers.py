@@ -151,8 +151,10 @@ class ReaderProcesses:
         with self._lock:
             old = self._ids.pop(key, None)
             live = [c for c in self._children if c is not None]
+            old_child = None
             if old is not None:
-                self._forget(old)
+                gone = self._forget(old)
+                old_child = self._children[gone.child] if gone is not None else None
             if not live:
                 sock.close()
                 self._on_closed(key, "no reader process running", 0)
@@ -173,8 +175,9 @@ class ReaderProcesses:
                                  f"{child.proc.pid}: {exc}", 0)
         finally:
             sock.close()
-        if old is not None:
-            self._send_drop(old, "replaced by a new connection")
+        if old is not None and old_child is not None:
+            with contextlib.suppress(OSError), old_child.send_lock:
+                old_child.ctrl.send(b"D" + _ID.pack(old) + b"replaced by a new connection")
 
     def drop(self, key: StreamKey, reason: str) -> None:
         with self._lock:
