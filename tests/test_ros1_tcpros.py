@@ -235,6 +235,9 @@ def test_arrival_time_is_when_the_bytes_reached_the_socket_not_when_they_were_re
     peer, _ = server.accept()
     try:
         peer.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+        # the first timestamping socket on the machine switches stamping on through
+        # deferred kernel work; until then arrivals are stamped when read
+        time.sleep(0.1)
         sent = time.time()
         client.sendall(b"\x00" * 8)
         time.sleep(0.3)  # a reader that is late
