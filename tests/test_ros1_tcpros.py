@@ -235,6 +235,9 @@ def test_arrival_time_is_when_the_bytes_reached_the_socket_not_when_they_were_re
     peer, _ = server.accept()
     try:
         peer.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+        # the first timestamping socket on the machine switches stamping on through
+        # deferred kernel work; until then arrivals are stamped when read
+        time.sleep(0.1)
         sent = time.time()
         client.sendall(b"\x00" * 8)
         time.sleep(0.3)  # a reader that is late
@@ -262,3 +265,42 @@ def test_the_arrivals_of_one_read_are_handed_on_together() -> None:
     finally:
         reader.close()
         a.close()
+
+
+def test_compact_reader_hands_on_one_batch_per_receive_and_counts_every_message() -> None:
+    from blackbox.events import ArrivalBatch
+
+    handed: list[list[Any]] = []
+    got = _Collected()
+    reader = TcprosReader(got.on_message, got.on_closed, got.first.append, MessageDecoder(),
+                          on_batch=handed.append, compact=True, coalesce=0.02)
+    reader.start()
+    a, b = socket.socketpair()
+    try:
+        reader.add(StreamKey("/t", "/pub"), b, 1 << 20, None)
+        for i in range(40):  # one message per write, as rospy sends them
+            a.sendall(_frames([bytes(i % 7)]))
+            time.sleep(0.002)
+        assert wait_for(lambda: sum(x.count for h in handed for x in h) == 40, timeout=5.0)
+        items = [x for h in handed for x in h]
+        assert all(type(x) is ArrivalBatch and x.topic == "/t" for x in items)
+        assert sum(x.bytes for x in items) == sum(i % 7 for i in range(40))
+        # at most one wake-up per 20 ms: far fewer receives than messages
+        assert len(items) < 20 and got.messages == []
+        assert got.first == [StreamKey("/t", "/pub")]
+    finally:
+        reader.close()
+        a.close()
+
+
+def test_source_options_for_reader_processes_and_coalescing() -> None:
+    from blackbox.sources.ros1.source import Ros1Settings, parse_source_spec
+
+    base, s = parse_source_spec("ros1://127.0.0.1:11311?readers=2&coalesce=0.001",
+                                Ros1Settings())
+    assert base == "ros1://127.0.0.1:11311" and (s.readers, s.coalesce) == (2, 0.001)
+    for bad, why in (("readers=-1", "bad readers"), ("readers=x", "bad readers"),
+                     ("readers=1000", "bad readers"), ("coalesce=1", "bad coalesce"),
+                     ("coalesce=abc", "bad coalesce")):
+        with pytest.raises(ConfigError, match=why):
+            parse_source_spec(f"ros1?{bad}", Ros1Settings())

@@ -15,6 +15,7 @@ from typing import Any
 from blackbox.model import BlackBoxEvent
 
 __all__ = [
+    "ArrivalBatch",
     "Event",
     "GraphSnapshot",
     "Interest",
@@ -99,6 +100,46 @@ class MessageArrival:
                 f"{self.size} B)")
 
 
+class ArrivalBatch:
+    """``count`` messages on a topic from one publisher that one receive got together.
+
+    The compact form of ``count`` :class:`MessageArrival` s that all carry the same
+    ``time`` (when the last of their bytes reached the black box) and no value: a fast
+    topic observed only for its timing then costs no Python object per message. ``bytes``
+    is the sum of the messages' sizes. A source hands these out only to a consumer that
+    asked for them (``Interest.arrival_batches``); an observer that declares
+    ``on_batch(batch)`` takes one in a single call, every other observer gets the
+    equivalent arrivals one by one (:meth:`arrivals`), so both see the same counts and
+    times.
+    """
+
+    __slots__ = ("bytes", "count", "publisher", "time", "topic")
+
+    def __init__(self, time: float, topic: str, publisher: str, count: int,
+                 bytes: int) -> None:
+        self.time = time
+        self.topic = topic
+        self.publisher = publisher
+        self.count = count
+        self.bytes = bytes
+
+    def arrivals(self) -> list[MessageArrival]:
+        """The same messages as arrivals; sizes are the batch's mean (the exact size when
+        ``count`` is 1), the last one taking the remainder."""
+        n = self.count
+        if n <= 0:
+            return []
+        size, extra = divmod(self.bytes, n)
+        out = [MessageArrival(self.time, self.topic, self.publisher, size)
+               for _ in range(n)]
+        out[-1].size += extra
+        return out
+
+    def __repr__(self) -> str:
+        return (f"ArrivalBatch(t={self.time:.6f}, {self.topic} from {self.publisher}, "
+                f"{self.count} messages, {self.bytes} B)")
+
+
 @dataclass(frozen=True, slots=True)
 class ResourceSample:
     """CPU and memory of one node. ``None`` values come with a ``reason``."""
@@ -135,9 +176,11 @@ class TopicSchema:
     md5sum: str = ""
 
 
-Event = GraphSnapshot | MessageArrival | ResourceSample | NetworkSample | BlackBoxEvent
+Event = (GraphSnapshot | MessageArrival | ArrivalBatch | ResourceSample | NetworkSample
+         | BlackBoxEvent)
 """What ``Source.poll`` returns; a ``BlackBoxEvent`` reports trouble on the robot side
-(a lost master, a garbage publisher) and goes to every sink."""
+(a lost master, a garbage publisher) and goes to every sink. ``ArrivalBatch`` only when
+the interest asked for it."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -146,6 +189,9 @@ class Interest:
 
     ``topics`` are read for arrival time and size; ``decoded`` additionally need values.
     ``max_message_bytes`` caps a single message per topic (default applies otherwise).
+    ``arrival_batches``: the consumer takes :class:`ArrivalBatch` events for topics not in
+    ``decoded`` (the pipeline does); a source may then hand those out instead of one
+    arrival per message. Sources that do not batch ignore it.
     """
 
     topics: frozenset[str] = frozenset()
@@ -154,6 +200,7 @@ class Interest:
     resources: frozenset[str] = frozenset()
     network: bool = False
     max_message_bytes: Mapping[str, int] = field(default_factory=dict)
+    arrival_batches: bool = False
 
 
 def merge_interests(interests: Iterable[Interest]) -> Interest:

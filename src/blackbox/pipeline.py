@@ -13,6 +13,7 @@ goes on, because the black box must keep watching whatever else breaks.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import heapq
 import threading
 import traceback
@@ -22,6 +23,7 @@ from dataclasses import dataclass
 from typing import Protocol, cast
 
 from blackbox.events import (
+    ArrivalBatch,
     Event,
     GraphSnapshot,
     Interest,
@@ -75,6 +77,8 @@ class Pipeline:
         self.diagnoser = diagnoser
         self.stats = RunStats()
         self._by_topic: dict[str, list[Callable[[MessageArrival], None]]] = defaultdict(list)
+        self._batches_by_topic: dict[str, list[Callable[[ArrivalBatch], None]]] = \
+            defaultdict(list)
         self._by_node_resources: dict[str, list[Observer]] = defaultdict(list)
         self._network: list[Observer] = []
         self._graph: list[Observer] = []
@@ -92,13 +96,16 @@ class Pipeline:
 
     def _index_observers(self) -> None:
         self._by_topic.clear()
+        self._batches_by_topic.clear()
         self._by_node_resources.clear()
         self._network = []
         self._graph = []
         for obs in self.observers:
             interest = obs.interest()
+            on_batch = _batch_handler(obs)
             for topic in interest.topics | interest.decoded:
                 self._by_topic[topic].append(obs.on_message)
+                self._batches_by_topic[topic].append(on_batch)
             for node in interest.resources:
                 self._by_node_resources[node].append(obs)
             if interest.network:
@@ -138,7 +145,8 @@ class Pipeline:
         if self._started:
             return
         self._started = True
-        interest = merge_interests(o.interest() for o in self.observers)
+        interest = dataclasses.replace(merge_interests(o.interest() for o in self.observers),
+                                       arrival_batches=True)
         self._interest = interest
         self.source.start(interest)
         now = self.source.now()
@@ -222,6 +230,7 @@ class Pipeline:
 
     def _dispatch(self, events: list[Event]) -> None:
         by_topic = self._by_topic
+        batches_by_topic = self._batches_by_topic
         message_sinks = self._message_sinks
         stats = self.stats
         i = 0
@@ -237,6 +246,14 @@ class Pipeline:
                             handler(event)
                         for sink in message_sinks:
                             sink.on_message(event)
+                    elif type(event) is ArrivalBatch:
+                        stats.messages += event.count
+                        for on_batch in batches_by_topic.get(event.topic, ()):
+                            on_batch(event)
+                        if message_sinks:
+                            for arrival in event.arrivals():
+                                for sink in message_sinks:
+                                    sink.on_message(arrival)
                     elif type(event) is GraphSnapshot:
                         stats.graphs += 1
                         self._on_graph(event)
@@ -324,3 +341,17 @@ class Pipeline:
             for sink in self.sinks:
                 with contextlib.suppress(Exception):
                     sink.on_event(event)
+
+
+def _batch_handler(observer: Observer) -> Callable[[ArrivalBatch], None]:
+    """``observer.on_batch`` if it declares one, else its ``on_message`` per arrival."""
+    on_batch: Callable[[ArrivalBatch], None] | None = getattr(observer, "on_batch", None)
+    if on_batch is not None:
+        return on_batch
+    on_message = observer.on_message
+
+    def expand(batch: ArrivalBatch) -> None:
+        for arrival in batch.arrivals():
+            on_message(arrival)
+
+    return expand

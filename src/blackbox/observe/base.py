@@ -82,6 +82,11 @@ class Observer(Protocol):
     ``interval`` is the time between evaluations in seconds (tug ``main_loop_rate`` is its
     inverse). The pipeline feeds events in time order and calls ``evaluate(now)`` every
     ``interval`` seconds; ``evaluate`` returns the observations made at ``now`` (usually one).
+
+    An observer may also define ``on_batch(batch: ArrivalBatch)`` to take the messages of
+    one receive in one call (see :class:`~blackbox.events.ArrivalBatch`; ``hz`` and
+    ``timeout`` do); without it the pipeline hands it those messages one by one through
+    ``on_message``, so it must behave exactly like that many calls.
     """
 
     type_name: ClassVar[str]

@@ -21,7 +21,7 @@ from typing import ClassVar
 
 from blackbox.config import tug
 from blackbox.config.node import ConfigNode
-from blackbox.events import Interest, MessageArrival
+from blackbox.events import ArrivalBatch, Interest, MessageArrival
 from blackbox.model import Observation
 from blackbox.observe.base import OBSERVERS, ObserverKind, Quantity, Subject
 from blackbox.observe.observers.entry import PublisherGroup, read_filtered_group
@@ -57,6 +57,25 @@ class HzObserver(JudgedObserver):
         elif t >= last:
             self._update(t - last)
             self._last = t
+
+    def on_batch(self, batch: ArrivalBatch) -> None:
+        """``batch.count`` arrivals at one time in one call: the first ends the running
+        period, the others are periods of zero, exactly as they would be one by one."""
+        group = self._group
+        if group and batch.publisher not in group:
+            return
+        t = batch.time
+        last = self._last
+        update = self._update
+        if last is None:
+            self._last = t
+        elif t >= last:
+            update(t - last)
+            self._last = t
+        else:
+            return
+        for _ in range(batch.count - 1):
+            update(0.0)
 
     def evaluate(self, now: float) -> list[Observation]:
         last = self._last

@@ -22,7 +22,7 @@ from typing import ClassVar
 
 from blackbox.config import tug
 from blackbox.config.node import ConfigNode
-from blackbox.events import Interest, MessageArrival
+from blackbox.events import ArrivalBatch, Interest, MessageArrival
 from blackbox.model import Code, Observation
 from blackbox.observe.base import (
     OBSERVERS,
@@ -77,6 +77,14 @@ class TimeoutObserver(ObserverBase):
         last = self._last
         if last is None or msg.time > last:
             self._last = msg.time
+
+    def on_batch(self, batch: ArrivalBatch) -> None:
+        group = self._group
+        if group and batch.publisher not in group:
+            return
+        last = self._last
+        if batch.count > 0 and (last is None or batch.time > last):
+            self._last = batch.time
 
     def evaluate(self, now: float) -> list[Observation]:
         if self._started is None:

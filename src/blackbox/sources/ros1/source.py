@@ -26,6 +26,7 @@ import psutil
 
 from blackbox.config.node import ConfigError
 from blackbox.events import (
+    ArrivalBatch,
     Event,
     Interest,
     MessageArrival,
@@ -39,14 +40,18 @@ from blackbox.sources.handout import overflow_event, split_due, wait_until
 from blackbox.sources.ros1.busstats import BusStatsRates, TopicCounts
 from blackbox.sources.ros1.callerid import DEFAULT_PREFIX, unique_caller_id, valid_caller_id
 from blackbox.sources.ros1.graph import GraphPoller
+from blackbox.sources.ros1.readers import ReaderProcesses
 from blackbox.sources.ros1.resources import ResourceSampler
 from blackbox.sources.ros1.tcpros import (
     DEFAULT_MAX_MESSAGE_BYTES,
+    Arrivals,
     StreamKey,
     TcprosSubscriber,
 )
 
 log = logging.getLogger("blackbox.sources.ros1")
+
+MAX_READERS = 64
 
 
 def master_uri_from_spec(spec: str, environ: dict[str, str] | os._Environ[str] = os.environ
@@ -76,18 +81,37 @@ def master_uri_from_spec(spec: str, environ: dict[str, str] | os._Environ[str] =
 
 
 def parse_source_spec(spec: str, settings: Ros1Settings) -> tuple[str, Ros1Settings]:
-    """``ros1[://HOST:PORT][?caller_id=/NAME][&counters=0|1]`` -> (the spec without its
-    options, ``settings`` with them). ``caller_id`` fixes the black box's name on the
-    publishers' connections; ``counters=0`` measures every rate through a subscription (as
-    the thesis's black box did) instead of the publishers' counters."""
+    """``ros1[://HOST:PORT][?caller_id=/NAME][&counters=0|1][&readers=N][&coalesce=S]``
+    -> (the spec without its options, ``settings`` with them). ``caller_id`` fixes the
+    black box's name on the publishers' connections; ``counters=0`` measures every rate
+    through a subscription (as the thesis's black box did) instead of the publishers'
+    counters; ``readers=N`` reads timing-only topics in N child processes (0: a thread of
+    the black box); ``coalesce=S`` reads a busy connection at most every S seconds (see
+    :class:`Ros1Settings`)."""
     base, sep, query = spec.partition("?")
     if not sep:
         return spec, settings
     params = parse_qs(query, keep_blank_values=True)
-    unknown = sorted(set(params) - {"caller_id", "counters"})
+    unknown = sorted(set(params) - {"caller_id", "counters", "readers", "coalesce"})
     if unknown:
         raise ConfigError(f"unknown ROS 1 source option {unknown[0]!r} in {spec!r}; "
-                          "known: caller_id, counters", "--source")
+                          "known: caller_id, counters, readers, coalesce", "--source")
+    if "readers" in params:
+        values = params["readers"]
+        if len(values) != 1 or not values[0].isdigit() or int(values[0]) > MAX_READERS:
+            raise ConfigError(f"bad readers in {spec!r}: expected readers=N with N from 0 "
+                              f"to {MAX_READERS} (reader processes; 0 = none)", "--source")
+        settings = dataclasses.replace(settings, readers=int(values[0]))
+    if "coalesce" in params:
+        values = params["coalesce"]
+        try:
+            coalesce = float(values[0]) if len(values) == 1 else -1.0
+        except ValueError:
+            coalesce = -1.0
+        if not 0.0 <= coalesce <= 0.1:
+            raise ConfigError(f"bad coalesce in {spec!r}: expected coalesce=SECONDS from 0 "
+                              "to 0.1 (for example coalesce=0.001)", "--source")
+        settings = dataclasses.replace(settings, coalesce=coalesce)
     if "caller_id" in params:
         values = params["caller_id"]
         if len(values) != 1 or not valid_caller_id(values[0]):
@@ -136,6 +160,18 @@ class Ros1Settings:
     """Fraction of a subscribed topic's messages the black box may miss (against an
     on-robot subscriber, over ``behind_window`` s) before it says it cannot keep up."""
     behind_window: float = 5.0
+    readers: int = 0
+    """Child processes reading the timing-only topics (:mod:`blackbox.sources.ros1.readers`);
+    0 reads every topic in a thread of the black box. One reader thread takes about
+    100k msg/s when publishers write several messages per send but pays a wake-up per
+    message for publishers that send each alone (rospy, roscpp); processes spread that
+    over the cores (see docs/benchmarks.md, "Scaling over real TCPROS")."""
+    coalesce: float = 0.0
+    """Seconds a reader waits after a wake-up before reading again (0: read at once). A
+    fast topic is then read several messages at a time, saving a wake-up per message;
+    messages of one topic closer together than this share one arrival time (the mean
+    period stays right, single periods do not; topics slower than ``1 / coalesce`` keep
+    exact times)."""
 
 
 class Ros1Source:
@@ -189,7 +225,8 @@ class Ros1Source:
             interest.topics, interest.decoded, interest.max_message_bytes, self._push_message,
             self._report, backoff_min=self._backoff[0], backoff_max=self._backoff[1],
             default_max_bytes=self._default_cap, caller_id=self.caller_id,
-            on_batch=self._push_batch)
+            on_batch=self._push_batch, readers=self.settings.readers,
+            coalesce=self.settings.coalesce)
         self._subscriber.start()
         self._thread = threading.Thread(target=self._graph_loop, name="ros1-graph",
                                         daemon=True)
@@ -214,6 +251,11 @@ class Ros1Source:
         due, self._held = split_due(events, until)
         return due
 
+    @property
+    def reader_processes(self) -> ReaderProcesses | None:
+        """The child processes reading timing-only topics (``readers`` > 0), once started."""
+        return self._subscriber.processes if self._subscriber else None
+
     def schema(self, topic: str) -> TopicSchema | None:
         return self._subscriber.schemas.get(topic) if self._subscriber else None
 
@@ -230,13 +272,17 @@ class Ros1Source:
     def _push_message(self, msg: MessageArrival) -> None:
         self._push_batch([msg])
 
-    def _push_batch(self, batch: list[MessageArrival]) -> None:
+    def _push_batch(self, batch: Arrivals) -> None:
         """Queue the arrivals of one read under one lock.
 
         They carry the kernel's receive time, which may be a little before the last
         ``until`` ``poll`` already handed out; such a stamp is raised to that ``until`` so
-        events keep coming in time order.
+        events keep coming in time order. :class:`ArrivalBatch` es go out as they are when
+        the interest takes them, else as one arrival per message.
         """
+        if not self._interest.arrival_batches:
+            batch = [a for item in batch for a in
+                     (item.arrivals() if type(item) is ArrivalBatch else (item,))]
         with self._lock:
             floor = self._floor
             room = self._queue_limit - len(self._queue)
@@ -378,4 +424,8 @@ def open_ros1_source(spec: str, options: SourceOptions) -> Ros1Source:
 
 
 SOURCES.add("ros1", SourceKind("ros1", open_ros1_source, ROS1_CAPABILITIES,
-                               "ros1 or ros1://HOST:PORT[?caller_id=/NAME&counters=0]"))
+                               "ros1 or ros1://HOST:PORT[?caller_id=/NAME&counters=0"
+                               "&readers=N&coalesce=SECONDS] (readers: child processes "
+                               "reading timing-only topics, default 0 = a thread; "
+                               "coalesce: read busy topics at most every SECONDS, "
+                               "default 0)"))

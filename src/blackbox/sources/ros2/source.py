@@ -45,7 +45,14 @@ from cyclonedds.topic import Topic
 from rosbags.typesys.store import Typestore
 
 from blackbox.config.node import ConfigError
-from blackbox.events import Event, GraphSnapshot, Interest, MessageArrival, TopicSchema
+from blackbox.events import (
+    ArrivalBatch,
+    Event,
+    GraphSnapshot,
+    Interest,
+    MessageArrival,
+    TopicSchema,
+)
 from blackbox.model import BlackBoxEvent
 from blackbox.sources.base import SOURCES, Capabilities, SourceKind, SourceOptions
 from blackbox.sources.handout import overflow_event, split_due, wait_until
@@ -261,7 +268,8 @@ class Ros2Source:
 
     def _push(self, event: Event) -> None:
         with self._lock:
-            if event.time < self._handed_out and not isinstance(event, MessageArrival):
+            if event.time < self._handed_out and not isinstance(event, (MessageArrival,
+                                                                       ArrivalBatch)):
                 event = dataclasses.replace(event, time=self._handed_out)  # keep time order
             if len(self._queue) < self.settings.queue_limit:
                 self._queue.append(event)
