@@ -137,10 +137,13 @@ def overhead(args: argparse.Namespace) -> int:
         variants.insert(0, ("before", args.before.resolve(), ""))
     if args.subscribed:
         variants.append(("after-subscribed", None, "?counters=0"))
+    for spec in args.variant:
+        label, _, query = spec.partition("=")
+        variants.append((label, None, query))
     if args.robot_alone:
         variants.append(("no black box", None, None))
     rows: dict[str, list[dict[str, Any]]] = {label: [] for label, _, _ in variants}
-    print(f"{'round':>5} {'variant':>16} {'blackbox':>9} {'rostopic hz':>11} {'ratio':>6} "
+    print(f"{'round':>5} {'variant':>20} {'blackbox':>9} {'rostopic hz':>11} {'ratio':>6} "
           f"{'RSS MB':>7} {'faulty/obs':>10} {'camera':>10} {'robot nodes':>11} {'load':>5}")
     with tempfile.TemporaryDirectory(prefix="thesis-bench-") as tmp, \
             ThesisRobot(free_port(), log_dir=Path(tmp) / "robot") as robot:
@@ -150,7 +153,7 @@ def overhead(args: argparse.Namespace) -> int:
                 row = overhead_round(robot, Path(tmp) / f"{label}{r}", args.seconds,
                                      args.warmup, args.domain, src, query)
                 rows[label].append(row)
-                print(f"{r:5d} {label:>16} {row['bb_cpu']:8.2f}% {row['hz_cpu']:10.2f}% "
+                print(f"{r:5d} {label:>20} {row['bb_cpu']:8.2f}% {row['hz_cpu']:10.2f}% "
                       f"{row['ratio']:6.2f} {row['rss_mb']:7.1f} "
                       f"{row['faulty']:>4.0f}/{row['observations']:<5.0f} "
                       f"{row['camera']:>10} {row['nodes_cpu']:10.2f}% {row['load']:5.2f}",
@@ -222,6 +225,9 @@ def main(argv: list[str] | None = None) -> int:
     o.add_argument("--seconds", type=float, default=20.0)
     o.add_argument("--warmup", type=float, default=6.0)
     o.add_argument("--before", type=Path, metavar="SRC")
+    o.add_argument("--variant", action="append", default=[], metavar="LABEL=QUERY",
+                   help="also the black box with this source query, e.g. "
+                        "'coalesced=?counters=0&coalesce=0.05'")
     o.add_argument("--robot-alone", action="store_true",
                    help="also a window with rostopic hz alone: the robot nodes' CPU "
                         "without a black box")
