@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 
 import blackbox.observe.observers  # noqa: F401  (registers the observer types)
+import ros1_watch
 from blackbox.config.node import ConfigNode
 from blackbox.events import ArrivalBatch, Event, Interest, MessageArrival
 from blackbox.model import BlackBoxEvent
@@ -40,20 +41,8 @@ def settings(readers: int = 0) -> Ros1Settings:
                         backoff_max=0.4)
 
 
-class Watch:
-    """Polls a source in small steps, keeping every event, until a condition holds."""
-
-    def __init__(self, source: Ros1Source) -> None:
-        self.source = source
-        self.events: list[Event] = []
-
-    def until(self, cond: Callable[[], bool], timeout: float = 10.0) -> bool:
-        deadline = time.time() + timeout
-        while time.time() < deadline:
-            self.events.extend(self.source.poll(time.time() + 0.1))
-            if cond():
-                return True
-        return False
+class Watch(ros1_watch.Watch):
+    """The shared poller, with this file's views of the events."""
 
     def count(self, topic: str, since: float = 0.0) -> int:
         return sum(e.count if type(e) is ArrivalBatch else 1 for e in self.events

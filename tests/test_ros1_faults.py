@@ -18,6 +18,7 @@ from xmlrpc.server import SimpleXMLRPCServer
 
 import pytest
 
+import ros1_watch
 from blackbox.events import GraphSnapshot, Interest, MessageArrival
 from blackbox.model import BlackBoxEvent
 from blackbox.sources.ros1 import Ros1Settings, Ros1Source
@@ -32,20 +33,8 @@ pytestmark = [pytest.mark.ros1,
 IMAGE = "/usb_cam/image_raw"
 
 
-class Watch:
-    """Polls a source in small steps, keeping every event, until a condition holds."""
-
-    def __init__(self, source: Ros1Source) -> None:
-        self.source = source
-        self.events: list[object] = []
-
-    def until(self, cond: Callable[[], bool], timeout: float = 10.0) -> bool:
-        deadline = time.time() + timeout
-        while time.time() < deadline:
-            self.events.extend(self.source.poll(time.time() + 0.1))
-            if cond():
-                return True
-        return False
+class Watch(ros1_watch.Watch):
+    """The shared poller, with this file's views of the events."""
 
     def graphs(self, since: float = 0.0) -> list[GraphSnapshot]:
         return [e for e in self.events if isinstance(e, GraphSnapshot) and e.time >= since]
