@@ -90,32 +90,34 @@ def overhead_round(robot: ThesisRobot, work: Path, seconds: float, warmup: float
     """One window; ``query`` ``None`` runs ``rostopic hz`` alone (no black box)."""
     work.mkdir(parents=True, exist_ok=True)
     obs = work / "obs.jsonl"
-    if query is None:
-        obs.write_text("")
-        (work / "bb.log").write_text("")
-        bb = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(3600)"])
-    else:
-        bb = _blackbox(robot, work, domain, ["--record", str(work / "health.db"),
-                                             "--observations", str(obs)], src, query)
+    bb = None if query is None else _blackbox(
+        robot, work, domain, ["--record", str(work / "health.db"), "--observations", str(obs)],
+        src, query)
     hz = subprocess.Popen(["rostopic", "hz", CAMERA], env=ros_env(robot.port, robot.home),
                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    watched = [hz] if bb is None else [hz, bb]
     try:
-        pb, ph = psutil.Process(bb.pid), psutil.Process(hz.pid)
+        procs = [psutil.Process(p.pid) for p in watched]
         nodes = [psutil.Process(pid) for name, pid in robot.pids().items()
                  if name in NODES]
         time.sleep(warmup)
-        if bb.poll() is not None or hz.poll() is not None:
+        if any(p.poll() is not None for p in watched):
             raise RuntimeError(f"exited early; see {work / 'bb.log'}")
-        t0, b0, h0 = time.time(), _cpu(pb), _cpu(ph)
-        n0 = sum(_cpu(n) for n in nodes)
+        t0, before = time.time(), [_cpu(p) for p in procs + nodes]
         time.sleep(seconds)
-        t1, b1, h1 = time.time(), _cpu(pb), _cpu(ph)
-        n1 = sum(_cpu(n) for n in nodes)
-        rss = pb.memory_info().rss / 1e6
+        t1, after = time.time(), [_cpu(p) for p in procs + nodes]
+        rss = procs[-1].memory_info().rss / 1e6 if bb is not None else 0.0
         load = os.getloadavg()[0]
     finally:
-        stop(hz, timeout=15)
-        stop(bb, timeout=15)
+        for p in watched:
+            stop(p, timeout=15)
+    used = [100 * (b - a) / (t1 - t0) for a, b in zip(before, after, strict=True)]
+    hz_cpu, nodes_cpu = used[0], sum(used[len(procs):])
+    row: dict[str, Any] = {"hz_cpu": hz_cpu, "nodes_cpu": nodes_cpu, "load": load,
+                           "bb_cpu": None, "ratio": None, "rss_mb": None, "faulty": 0,
+                           "observations": 0, "camera": "-"}
+    if bb is None:
+        return row
     faulty = total = 0
     for line in obs.read_text().splitlines():
         o = json.loads(line)
@@ -124,11 +126,13 @@ def overhead_round(robot: ThesisRobot, work: Path, seconds: float, warmup: float
             faulty += bool(o["faulty"])
             if o["faulty"]:
                 print(f"      faulty: {line[:300]}", flush=True)
-    bb_cpu, hz_cpu = 100 * (b1 - b0) / (t1 - t0), 100 * (h1 - h0) / (t1 - t0)
-    return {"bb_cpu": bb_cpu, "hz_cpu": hz_cpu, "ratio": bb_cpu / hz_cpu, "rss_mb": rss,
-            "faulty": faulty, "observations": total, "load": load,
-            "nodes_cpu": 100 * (n1 - n0) / (t1 - t0),
-            "camera": camera_mode(work / "bb.log")}
+    return {**row, "bb_cpu": used[1], "ratio": used[1] / hz_cpu, "rss_mb": rss,
+            "faulty": faulty, "observations": total, "camera": camera_mode(work / "bb.log")}
+
+
+def _shown(value: float | None, spec: str) -> str:
+    """``value`` formatted, or a dash as wide for a window without a black box."""
+    return "-".rjust(int(spec.split(".")[0])) if value is None else format(value, spec)
 
 
 def overhead(args: argparse.Namespace) -> int:
@@ -153,17 +157,19 @@ def overhead(args: argparse.Namespace) -> int:
                 row = overhead_round(robot, Path(tmp) / f"{label}{r}", args.seconds,
                                      args.warmup, args.domain, src, query)
                 rows[label].append(row)
-                print(f"{r:5d} {label:>20} {row['bb_cpu']:8.2f}% {row['hz_cpu']:10.2f}% "
-                      f"{row['ratio']:6.2f} {row['rss_mb']:7.1f} "
+                print(f"{r:5d} {label:>20} {_shown(row['bb_cpu'], '8.2f')}% "
+                      f"{row['hz_cpu']:10.2f}% {_shown(row['ratio'], '6.2f')} "
+                      f"{_shown(row['rss_mb'], '7.1f')} "
                       f"{row['faulty']:>4.0f}/{row['observations']:<5.0f} "
                       f"{row['camera']:>10} {row['nodes_cpu']:10.2f}% {row['load']:5.2f}",
                       flush=True)
     for label, got in rows.items():
-        ratios = sorted(x["ratio"] for x in got)
         nodes = statistics.median(x["nodes_cpu"] for x in got)
-        print(f"{label}: black box / rostopic hz over {len(got)} rounds: min "
-              f"{ratios[0]:.2f}  median {statistics.median(ratios):.2f}  max {ratios[-1]:.2f}"
-              f"; robot nodes median {nodes:.2f} %"
+        ratios = sorted(x["ratio"] for x in got if x["ratio"] is not None)
+        spread = (f"black box / rostopic hz over {len(got)} rounds: min {ratios[0]:.2f}  "
+                  f"median {statistics.median(ratios):.2f}  max {ratios[-1]:.2f}; "
+                  if ratios else "")
+        print(f"{label}: {spread}robot nodes median {nodes:.2f} %"
               f"; faulty observations {sum(x['faulty'] for x in got):.0f}")
     return 0
 

@@ -32,7 +32,7 @@ import xmlrpc.client
 import xmlrpc.server
 from typing import Any
 
-from blackbox.sources.ros1.tcpros import decode_header, encode_header
+from blackbox.sources.ros1.tcpros import encode_header, read_header
 
 TYPE = "std_msgs/Float64"
 MD5 = "fdb28210bfa9d7c91146260178d9a584"
@@ -100,8 +100,7 @@ class FastPublisher:
     def _handshake(self, sock: socket.socket) -> None:
         try:
             sock.settimeout(2.0)
-            (size,) = struct.unpack("<I", _exact(sock, 4))
-            fields = decode_header(_exact(sock, min(size, 65536)))
+            fields = read_header(sock, 65536)
             topic = fields.get("topic", "")
             if topic not in self.connections:
                 sock.sendall(encode_header({"error": f"{self.name} does not publish {topic}"}))
@@ -175,16 +174,6 @@ class FastPublisher:
 
     def paramUpdate(self, caller: str, key: str, value: Any) -> list[Any]:
         return [1, "", 0]
-
-
-def _exact(sock: socket.socket, n: int) -> bytes:
-    buf = b""
-    while len(buf) < n:
-        chunk = sock.recv(n - len(buf))
-        if not chunk:
-            raise ConnectionError("closed during the handshake")
-        buf += chunk
-    return buf
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from blackbox.sources.ros1.master import RosApi, RosApiError
-from blackbox.sources.ros1.tcpros import HeaderError, decode_header, encode_header
+from blackbox.sources.ros1.tcpros import HeaderError, encode_header, read_header
 
 log = logging.getLogger("blackbox.output.ros1")
 
@@ -199,7 +199,7 @@ class Ros1TopicPublisher:
     def _handshake(self, sock: socket.socket) -> None:
         try:
             sock.settimeout(self.handshake_timeout)
-            fields = decode_header(_read_header(sock))
+            fields = read_header(sock, _MAX_HEADER)
             error = self._check(fields)
             if error is not None:
                 sock.sendall(encode_header({"error": error}))
@@ -323,23 +323,6 @@ class Ros1TopicPublisher:
         log.warning("%s asked the /diagnostics publisher to shut down: %s", caller_id, msg)
         threading.Thread(target=self.close, name="ros1-pub-shutdown", daemon=True).start()
         return [1, "shutdown", 0]
-
-
-def _read_header(sock: socket.socket) -> bytes:
-    (size,) = _LEN.unpack(_recv_exact(sock, 4))
-    if size > _MAX_HEADER:
-        raise HeaderError(f"connection header of {size} bytes")
-    return _recv_exact(sock, size)
-
-
-def _recv_exact(sock: socket.socket, n: int) -> bytes:
-    buf = bytearray()
-    while len(buf) < n:
-        chunk = sock.recv(n - len(buf))
-        if not chunk:
-            raise HeaderError("closed during the handshake")
-        buf += chunk
-    return bytes(buf)
 
 
 def _close(sock: socket.socket) -> None:

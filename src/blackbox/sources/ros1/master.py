@@ -59,12 +59,20 @@ class RosApi:
         except Exception as exc:  # garbage on the wire can raise anything from the parser
             raise RosApiError(f"{method} on {self.uri}: malformed reply ({describe_error(exc)})"
                               ) from None
-        if not (isinstance(reply, list) and len(reply) == 3 and isinstance(reply[0], int)):
-            raise RosApiError(f"{method} on {self.uri}: unexpected reply {str(reply)[:80]!r}")
-        code, message, value = reply
-        if code != 1:
-            raise RosApiError(f"{method} on {self.uri}: error {code}: {message}")
+        value = ros_value(f"{method} on {self.uri}", reply)
+        if isinstance(value, RosApiError):
+            raise value
         return value
+
+
+def ros_value(what: str, reply: Any) -> Any:
+    """The value of a ``[code, message, value]`` reply, or the :class:`RosApiError` that
+    says why there is none (not raised: a batch of replies keeps the others)."""
+    if not (isinstance(reply, list) and len(reply) == 3 and isinstance(reply[0], int)):
+        return RosApiError(f"{what}: unexpected reply {str(reply)[:80]!r}")
+    if reply[0] != 1:
+        return RosApiError(f"{what}: error {reply[0]}: {reply[1]}")
+    return reply[2]
 
 
 def describe_error(exc: BaseException) -> str:

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any, cast
 from urllib.parse import urlsplit
 
-from blackbox.sources.ros1.master import CALLER_ID, RosApiError, describe_error
+from blackbox.sources.ros1.master import CALLER_ID, RosApiError, describe_error, ros_value
 
 _MAX_REPLY = 256 * 1024
 _GET_PID = xmlrpc.client.dumps((CALLER_ID,), "getPid").encode()
@@ -99,15 +99,6 @@ def _complete_response(what: str, data: bytes | bytearray) -> _Response | None:
     return _Response(bytes(data[end + 4:end + 4 + int(length)]), keep)
 
 
-def _ros_value(what: str, reply: Any) -> Any:
-    """The value of a ``[code, message, value]`` reply, or a :class:`RosApiError`."""
-    if not (isinstance(reply, list) and len(reply) == 3 and isinstance(reply[0], int)):
-        return RosApiError(f"{what}: unexpected reply {str(reply)[:80]!r}")
-    if reply[0] != 1:
-        return RosApiError(f"{what}: error {reply[0]}: {reply[1]}")
-    return reply[2]
-
-
 def _pid_of(what: str, value: Any) -> int | RosApiError:
     if isinstance(value, RosApiError):
         return value
@@ -137,7 +128,7 @@ def parse_reply(uri: str, body: bytes, methods: tuple[str, ...]) -> NodeReply:
             value = _loads(what, body)
         except _BatchFault as fault:
             raise RosApiError(str(fault)) from None
-        pid = _pid_of(what, _ros_value(what, value))
+        pid = _pid_of(what, ros_value(what, value))
         if isinstance(pid, RosApiError):
             raise pid
         return NodeReply(pid)
@@ -150,7 +141,7 @@ def parse_reply(uri: str, body: bytes, methods: tuple[str, ...]) -> NodeReply:
     for name, answer in zip(names, answers, strict=True):
         call = f"{name} on {uri}"
         if isinstance(answer, list) and len(answer) == 1:
-            values.append(_ros_value(call, answer[0]))
+            values.append(ros_value(call, answer[0]))
         else:
             values.append(RosApiError(f"{call}: {str(answer)[:80]!r}"))
     return NodeReply(_pid_of(f"getPid on {uri}", values[0]),
@@ -314,7 +305,7 @@ class _Round:
             self.faults[ex.name] = RosApiError(str(fault))
             self.start(ex.name, ex.uri, (), fresh=False)
             return
-        if ex.methods and ex.name not in self.faults:
+        if ex.methods:  # the batch itself answered (a faulted one is retried without)
             self.results[ex.name] = outcome
         else:
             self.answer(ex.name, outcome.pid)

@@ -107,6 +107,16 @@ def _recv_exact(sock: socket.socket, n: int) -> bytes:
     return bytes(buf)
 
 
+def read_header(sock: socket.socket, cap: int, peer: str = "") -> dict[str, str]:
+    """One length-prefixed TCPROS connection header from a blocking ``sock``, refused
+    (:class:`HeaderError`) when its length prefix says more than ``cap`` bytes."""
+    (size,) = _LEN.unpack(_recv_exact(sock, 4))
+    if size > cap:
+        origin = f" from {peer}" if peer else ""
+        raise HeaderError(f"connection header of {size} bytes{origin} exceeds {cap} bytes")
+    return decode_header(_recv_exact(sock, size))
+
+
 def ros2_style_type(ros1_type: str) -> str:
     """``sensor_msgs/Image`` -> ``sensor_msgs/msg/Image`` (the name rosbags uses)."""
     pkg, _, name = ros1_type.partition("/")
@@ -544,11 +554,7 @@ def connect(publisher_uri: str, topic: str, caller_id: str, timeout: float = 1.0
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.sendall(encode_header({"callerid": caller_id, "topic": topic, "md5sum": "*",
                                     "type": "*", "tcp_nodelay": "1"}))
-        (size,) = _LEN.unpack(_recv_exact(sock, 4))
-        if size > header_cap:
-            raise HeaderError(f"connection header of {size} bytes from {host}:{port} exceeds "
-                              f"{header_cap} bytes")
-        header = decode_header(_recv_exact(sock, size))
+        header = read_header(sock, header_cap, f"{host}:{port}")
         if "error" in header:
             raise HeaderError(f"publisher refused {topic}: {header['error']}")
         if "type" not in header:
