@@ -3,7 +3,7 @@ through the real recorder when ``--store`` is given), driven line by line on std
 
 Commands: ``ok`` (one round of healthy observations of the thesis robot), ``fault`` (the
 camera's rate fails and the diagnosis names ``/usb_cam``), ``burst N`` (N faults and N
-recoveries at once), ``quit``. Each command is
+recoveries at once), ``unpublished N`` (as many, lost on the network), ``quit``. Each command is
 answered with ``done <command>`` on stdout once written. Observation times are wall-clock
 so that log requests by time range work.
 """
@@ -90,6 +90,19 @@ def main() -> int:
                 s.on_observations(t, obs)
                 s.on_diagnosis(Diagnosis(t, (frozenset({"/usb_cam"}),), (obs[0],),
                                          "camera publishes too slowly"))
+        elif command.startswith("unpublished "):
+            # N faults and recoveries whose samples are lost on the way (mapped and
+            # numbered, never written): only the robot's log has them.
+            for _ in range(int(command.split()[1])):
+                for obs, diagnosis in ((faulty(t), True), (healthy(t), False)):
+                    d = Diagnosis(t, (frozenset({"/usb_cam"}),), (obs[0],), "too slow") \
+                        if diagnosis else Diagnosis(t, ())
+                    sink.mapper.observations(t, obs)
+                    sink.mapper.diagnosis(d)
+                    if recorder is not None:
+                        recorder.on_observations(t, obs)
+                        recorder.on_diagnosis(d)
+                    t = time.time()
         elif command.startswith("burst "):
             # N failures and N rectifications of /usb_cam as fast as they can be made:
             # many share a millisecond, each is a distinct event.

@@ -4,7 +4,6 @@ tells the operator when a robot's numbered events did not all arrive."""
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -14,20 +13,16 @@ import pytest
 from blackbox.health.identity import EventId, EventLedger
 from blackbox.station.sequence import EventSequences
 from blackbox.station.store import StationStore, UnknownRobot
-from test_station_follow import NewBox, following, fresh_domain, new_box  # noqa: F401
+from conftest import wait_until
+from isolation import fresh_domain
+from test_station_follow import NewBox, following, new_box  # noqa: F401
 
 BURST = 500
 """Fault/recovery pairs in one burst: 1,000 failure and rectification events."""
 
 
 def wait(condition: Callable[[], Any], what: str, timeout: float = 60.0) -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError(f"waited {timeout:.0f} s for {what}")
+    return wait_until(condition, what, timeout)
 
 
 def counts(store: StationStore, robot: str) -> dict[str, int]:
@@ -134,6 +129,29 @@ def test_a_burst_fetched_from_the_robots_log_is_stored_exactly_once_each(
         wait(lambda: _follower.stats.backfilled >= 2 * 5 * BURST, "both backfill rounds")
         assert counts(store, "burst") == {"failure": BURST, "rectification": BURST,
                                           "exceedance": BURST}
+
+
+@pytest.mark.dds
+def test_events_lost_on_the_network_are_noticed_by_number_and_fetched_from_the_log(
+        tmp_path: Path, new_box: NewBox) -> None:  # noqa: F811
+    domain = fresh_domain()
+    box = new_box("lossy", domain, "ok", "fault", "ok", store=tmp_path / "robot.db")
+    with following(tmp_path / "station.db", domain, backfill=600) as (store, follower):
+        wait(lambda: counts(store, "lossy").get("rectification") == 1, "the live recovery")
+        robot = next(r for r in follower._robots.values() if r.robot_id == "lossy")
+        # The backfills on first sight are over: from now on only a hole brings the log.
+        wait(lambda: not robot.backfill_due and follower._backfills.jobs.empty()
+             and not follower._backfills.lock.locked(), "the first backfills to end")
+        fetched_before = follower.stats.backfilled
+        box.send("unpublished 3")
+        box.send("fault")
+        box.send("ok")
+        wait(lambda: counts(store, "lossy").get("failure") == 5
+             and counts(store, "lossy").get("rectification") == 5,
+             "the 3 lost failures and recoveries, and the 2 heard after them")
+        assert follower.stats.backfilled > fetched_before
+        assert follower.stats.events_lost == 0
+        assert not [p for p in store.problems() if p.source.startswith("lost events")]
 
 
 def _entities(store: StationStore, robot: str) -> Iterator[Any]:
