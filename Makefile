@@ -20,9 +20,7 @@ demo: setup
 	$(BIN)/blackbox demo $(DEMO_ARGS)
 
 test: setup system-deps
-	$(BIN)/ruff check src tests benchmarks
-	$(BIN)/mypy
-	$(BIN)/python -m pytest -q
+	VENV=$(VENV) scripts/test.sh
 
 lint: setup
 	$(BIN)/ruff check src tests benchmarks

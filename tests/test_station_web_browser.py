@@ -30,6 +30,7 @@ from isolation import fresh_domain
 CHROMIUM = Path("/usr/bin/chromium")
 playwright_api = pytest.importorskip("playwright.sync_api")
 pytestmark = [
+    pytest.mark.xdist_group("test_station_web_browser"),  # its module fixture: one worker
     pytest.mark.dds, pytest.mark.slow,
     pytest.mark.skipif(not CHROMIUM.exists(),
                        reason="needs Debian's chromium (scripts/install-system-deps.sh)"),
