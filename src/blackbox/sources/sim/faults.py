@@ -46,6 +46,8 @@ FAULT_KINDS: Mapping[str, FaultKind] = MappingProxyType({k.name: k for k in (
     FaultKind("scale", "value", ("factor",), doc="value * factor"),
     FaultKind("stuck", "value", doc="value frozen at the last value before the fault"),
     FaultKind("drift", "value", ("rate",), doc="value + rate * (t - start)"),
+    FaultKind("noise", "value", ("sigma",), positive=True,
+              doc="value + gaussian noise of std sigma (a noisy sensor inside its range)"),
     FaultKind("cpu_hog", "node", ("percent",), positive=True, doc="node CPU raised to percent"),
     FaultKind("memory_growth", "node", ("rate",), positive=True,
               doc="node memory grows by rate bytes per second"),
@@ -166,6 +168,27 @@ def _components(topology: Topology, kind: str) -> list[str]:
     return [t.name for t in topology.topics.values() if isinstance(t.value, ScalarModel)]
 
 
+def noise_std(model: ScalarModel) -> float:
+    """Standard deviation of a value model's own measurement noise."""
+    if model.distribution == "gauss":
+        return model.noise
+    return model.noise / math.sqrt(3.0)
+
+
+def healthy_spread(model: ScalarModel, topology: Topology, horizon: float = 600.0,
+                   step: float = 0.5) -> float:
+    """Standard deviation of a healthy value over ``horizon`` seconds: its noise and the
+    motion it follows (sampled, so modes, trends and derived signals count as they move)."""
+    if not model.follows:
+        return noise_std(model)
+    n = int(horizon / step)
+    total = [sum(gain * topology.motion[signal].at(k * step) for signal, gain in model.follows)
+             for k in range(n)]
+    mean = sum(total) / n
+    var = sum((x - mean) ** 2 for x in total) / n
+    return math.sqrt(var + noise_std(model) ** 2)
+
+
 def _random_params(rng: random.Random, kind: str, topology: Topology,
                    component: str) -> dict[str, float]:
     """Parameters large enough to be a real fault, drawn around the component's nominal."""
@@ -187,6 +210,15 @@ def _random_params(rng: random.Random, kind: str, topology: Topology,
         return {"rate": round(sign() * rng.uniform(0.5, 2.0) * unit, 4)}
     if kind == "scale":
         return {"factor": round(either((0.5, 0.8), (1.2, 1.6)), 3)}
+    if kind == "noise":
+        model = topology.topics[component].value
+        assert isinstance(model, ScalarModel)
+        # Inside the normal range: a fraction of the signal's healthy spread, but always a
+        # few times its own measurement noise so it is a fault and not more of the same.
+        own = noise_std(model)
+        spread = healthy_spread(model, topology)
+        return {"sigma": round(max(rng.uniform(0.2, 0.5) * spread, rng.uniform(3.0, 6.0) * own,
+                                   1e-3), 4)}
     if kind == "cpu_hog":
         return {"percent": round(rng.uniform(85.0, 100.0), 1)}
     if kind == "memory_growth":

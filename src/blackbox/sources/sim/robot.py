@@ -68,6 +68,7 @@ class _TopicState:
     messages: TopicMessages
     timing: random.Random
     values: random.Random
+    fault_noise: random.Random
     generation: int = 0
     seq: int = 0
     last_publish: float | None = None
@@ -151,7 +152,8 @@ class SimulatedSource:
             for n in topology.nodes.values()}
         self._topics = {
             t.name: _TopicState(t, TopicMessages(topology.store, t.type, t.value, t.frame_id),
-                                self._rng("timing", t.name), self._rng("values", t.name))
+                                self._rng("timing", t.name), self._rng("values", t.name),
+                                self._rng("fault_noise", t.name))
             for t in topology.topics.values()}
         self._last_heard = {t: self.start_time for t in topology.topics}
 
@@ -291,6 +293,10 @@ class SimulatedSource:
                 value *= fault.params["factor"]
             elif fault.kind == "drift":
                 value += fault.params["rate"] * (t - self.start_time - fault.start)
+            elif fault.kind == "noise":
+                # Its own generator: the healthy values after the fault are those of the
+                # fault-free run with the same seed.
+                value += state.fault_noise.gauss(0.0, fault.params["sigma"])
             else:
                 value = frozen
         return value
