@@ -195,6 +195,7 @@ def test_noise_is_deterministic_per_seed():
 
 def test_random_noise_stays_inside_the_normal_range_of_a_moving_signal():
     from blackbox.sources.sim.faults import healthy_spread, noise_std
+    from blackbox.sources.sim.messages import scalars_of
     from blackbox.sources.sim.robot import BUILTIN_ROBOTS
 
     robot = Topology.load(BUILTIN_ROBOTS["diffdrive"])
@@ -202,7 +203,8 @@ def test_random_noise_stays_inside_the_normal_range_of_a_moving_signal():
               for f in random_campaign(robot, 900.0, seed=seed, kinds=["noise"])]
     assert len(faults) > 100
     for f in faults:
-        model = robot.topics[f.component].value
+        scalars = scalars_of(robot.topics[f.component].value)
+        model = next(s for s in scalars if f.field in (None, s.field))
         sigma = f.params["sigma"]
         assert sigma >= 3.0 * noise_std(model) - 1e-4          # a fault, not more of the same
         assert sigma <= 0.5 * healthy_spread(model, robot) + 1e-4 or (
