@@ -194,3 +194,27 @@ def test_the_diffdrive_uri_still_opens_and_publishes_its_battery() -> None:
     source = open_sim("sim:diffdrive", seed=2)
     rows = series(source, "/battery", ["voltage"], 10.0)
     assert 45 <= len(rows) <= 55 and 24.0 < rows[:, 1].min() < rows[:, 1].max() < 25.5
+
+
+def test_skidsteer_is_a_different_correlated_sensor_robot() -> None:
+    robot = Topology.load(BUILTIN_ROBOTS["skidsteer"])
+    rates = {t.name: t.rate for t in robot.topics.values()}
+    assert rates["/imu/data"] == 200.0 and rates["/joint_states"] == 50.0
+    assert rates["/gps/vel"] == 10.0 and rates["/battery_state"] == 1.0
+    source = open_sim("sim:skidsteer", seed=1)
+    joints = series(source, "/joint_states", ["velocity[0]", "velocity[1]", "position[1]"],
+                    300.0)
+    t, left, right, angle = joints.T
+    speed = (left + right) / 2 * 0.15                     # v, from the wheels
+    yaw = (right - left) / 2 * 0.15 / 0.3                 # w, from the wheels
+    motion = source.motion
+    v = np.array([motion.at("v", x - 0.02) for x in t])
+    w = np.array([motion.at("w", x - 0.02) for x in t])
+    assert np.corrcoef(speed, v)[0, 1] > 0.99 and np.corrcoef(yaw, w)[0, 1] > 0.95
+    assert angle[-1] > angle[0] + 50                      # the wheels turned many times
+    odo = series(open_sim("sim:skidsteer", seed=1), "/odometer", ["data"], 300.0)
+    assert np.all(np.diff(odo[:, 1]) >= 0) and odo[-1, 1] > odo[0, 1] + 1000
+    assert np.all(odo[:, 1] == np.round(odo[:, 1]))       # whole centimetres
+    temp = series(open_sim("sim:skidsteer", seed=1), "/motor_temperature",
+                  ["temperature"], 900.0)
+    assert np.mean(temp[-60:, 1]) > np.mean(temp[:60, 1]) + 5.0   # the motors warm

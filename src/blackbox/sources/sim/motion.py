@@ -158,11 +158,21 @@ class Motion:
         self.signals = signals
         self.schedule = ModeSchedule(plan, seed) if plan is not None else None
         self._grids: dict[str, list[float]] = {}
+        self._memo: dict[str, tuple[float, float]] = {}
 
     def at(self, name: str, t: float) -> float:
-        signal = self.signals[name]
         if t < 0.0:
             t = 0.0
+        # The fields of one message ask for the same signals at the same time.
+        memo = self._memo.get(name)
+        if memo is not None and memo[0] == t:
+            return memo[1]
+        value = self._compute(name, t)
+        self._memo[name] = (t, value)
+        return value
+
+    def _compute(self, name: str, t: float) -> float:
+        signal = self.signals[name]
         if signal.integral:
             return signal.mean + self._integral(signal, t)
         if signal.load:

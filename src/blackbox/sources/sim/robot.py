@@ -426,6 +426,7 @@ class SimulatedSource:
 BUILTIN_ROBOTS: Mapping[str, Path] = MappingProxyType({
     "thesis": Path(__file__).with_name("thesis.yaml"),
     "diffdrive": Path(__file__).with_name("diffdrive.yaml"),
+    "skidsteer": Path(__file__).with_name("skidsteer.yaml"),
 })
 
 
