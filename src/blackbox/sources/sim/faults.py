@@ -18,7 +18,7 @@ from typing import Any
 
 from blackbox.config.node import ConfigNode
 
-from .messages import ScalarModel, scalars_of
+from .messages import ScalarModel, ValueModel, scalars_of
 from .motion import Motion
 from .topology import Topology
 
@@ -179,13 +179,17 @@ def read_ground_truth(path: str | Path) -> list[GroundTruth]:
 
 # ---- random campaigns ------------------------------------------------------------------------
 
-def _components(topology: Topology, kind: str) -> list[str]:
+def _components(topology: Topology, kind: str, moving_only: bool = False) -> list[str]:
     target = FAULT_KINDS[kind].target
     if target == "node":
         return list(topology.nodes)
     if target == "topic":
         return list(topology.topics)
-    return [t.name for t in topology.topics.values() if scalars_of(t.value)]
+    return [t.name for t in topology.topics.values() if _faultable(t.value, moving_only)]
+
+
+def _faultable(model: ValueModel | None, moving_only: bool) -> list[ScalarModel]:
+    return [s for s in scalars_of(model) if s.follows or not moving_only]
 
 
 def noise_std(model: ScalarModel) -> float:
@@ -235,7 +239,14 @@ def _random_params(rng: random.Random, kind: str, topology: Topology,
         return {"factor": round(either((0.3, 0.6), (1.6, 2.5)), 3)}
     if kind in ("offset", "drift"):
         assert model is not None
-        unit = max(model.noise, 0.05 * abs(model.mean), 1e-3)
+        if model.follows:
+            # A moving signal's mean says nothing about its scale: its noise does, or for a
+            # noiseless counter a hundredth of its healthy spread.
+            unit = max(model.noise, 1e-3)
+            if model.noise == 0.0:
+                unit = max(unit, 0.01 * healthy_spread(model, topology))
+        else:
+            unit = max(model.noise, 0.05 * abs(model.mean), 1e-3)
         if kind == "offset":
             return {"value": round(sign() * rng.uniform(4.0, 10.0) * unit, 4)}
         return {"rate": round(sign() * rng.uniform(0.5, 2.0) * unit, 4)}
@@ -265,6 +276,7 @@ def random_campaign(
     duration_range: tuple[float, float] = (5.0, 15.0),
     warmup: float = 5.0,
     min_separation: float = 0.0,
+    moving_only: bool = False,
 ) -> list[Fault]:
     """Random faults over ``[warmup, duration)``, reproducible for a ``seed``.
 
@@ -273,7 +285,8 @@ def random_campaign(
     parameters (random, or fixed when ``kinds`` maps a kind to its parameters). Faults never
     overlap on the same node, counting a topic as part of its publisher, and the next fault
     on a node starts at least ``min_separation`` seconds after the previous one ended.
-    A start with no free component is skipped.
+    A start with no free component is skipped. ``moving_only``: value faults only on
+    fields that follow the robot's motion (its correlated signals), not on constants.
     """
     if duration <= 0 or mean_gap <= 0 or warmup < 0 or min_separation < 0:
         raise ValueError("duration and mean_gap must be > 0, warmup and min_separation >= 0")
@@ -296,7 +309,7 @@ def random_campaign(
             return faults
         choices: dict[str, list[str]] = {}
         for kind in fixed:
-            free = [c for c in _components(topology, kind)
+            free = [c for c in _components(topology, kind, moving_only)
                     if free_at[owner.get(c, c)] <= t]
             if free:
                 choices[kind] = free
@@ -310,9 +323,10 @@ def random_campaign(
         if FAULT_KINDS[kind].target == "value":
             # A topic with several fields: one of them lies (drawn only then, so campaigns
             # on single-field robots stay as they were).
-            scalars = scalars_of(topology.topics[component].value)
+            every = scalars_of(topology.topics[component].value)
+            scalars = _faultable(topology.topics[component].value, moving_only)
             model = scalars[0] if len(scalars) == 1 else rng.choice(scalars)
-            field_name = None if len(scalars) == 1 else model.field
+            field_name = None if len(every) == 1 else model.field
         params = dict(fixed[kind]) or _random_params(rng, kind, topology, model)
         start = round(t, 3)
         end = round(t + length, 3)
