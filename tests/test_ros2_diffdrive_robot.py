@@ -11,12 +11,11 @@ from pathlib import Path
 import pytest
 
 from blackbox.events import Interest
-
 from ros2_support import Watched, fresh_domain, needs_rclpy, ros2_robot
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "ros2_robot"))
-import diffdrive_robot  # noqa: E402
-from diffdrive_motion import DiffdriveMotion  # noqa: E402
+import diffdrive_robot
+from diffdrive_motion import DiffdriveMotion
 
 
 @pytest.fixture
