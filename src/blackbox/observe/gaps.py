@@ -16,8 +16,18 @@ from datetime import UTC, datetime
 from blackbox.events import MeasurementGap
 from blackbox.model import Code, Observation, Resource
 
+UNMEASURED = "unmeasured_since"
+"""The value key that marks an observation left unjudged for a measurement gap (its value is
+the gap's start): a ``NOT_AVAILABLE`` that is the black box's own blind spot, not the
+robot's, so campaigns never count it as an alarm (:func:`unmeasured`)."""
+
 _EPOCH_LIKE = 1e8
 """Times above this are seconds since the epoch (a live source); below, a simulated clock."""
+
+
+def unmeasured(observation: Observation) -> bool:
+    """Whether ``observation`` is no verdict because of a measurement gap."""
+    return UNMEASURED in observation.values
 
 
 def moment(t: float) -> str:
@@ -42,11 +52,12 @@ class Unmeasured:
     (a topic's own and the black box's pause); the observer is unjudged while any is.
     """
 
-    __slots__ = ("_open", "ended", "reason")
+    __slots__ = ("_open", "ended", "last_start", "reason")
 
     def __init__(self) -> None:
         self._open: dict[tuple[float, str | None, str | None], MeasurementGap] = {}
         self.ended = -math.inf
+        self.last_start = -math.inf
         self.reason = ""
 
     def apply(self, gap: MeasurementGap) -> bool:
@@ -57,6 +68,7 @@ class Unmeasured:
             return False
         self._open.pop(key, None)
         self.ended = max(self.ended, gap.end)
+        self.last_start = gap.start
         self.reason = gap.reason
         return True
 
@@ -76,6 +88,6 @@ class Unmeasured:
             return None
         gap = min(self._open.values(), key=lambda g: g.start)
         return Observation(now, observer, resource, Code.NOT_AVAILABLE,
-                           values={"unmeasured_since": gap.start},
+                           values={UNMEASURED: gap.start},
                            message=f"not measured since {moment(gap.start)} ({gap.reason}); "
                                    "no verdict until measurement resumes")

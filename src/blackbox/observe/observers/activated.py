@@ -31,7 +31,7 @@ from blackbox.observe.base import (
     Quantity,
     Subject,
 )
-from blackbox.observe.gaps import Unmeasured, moment
+from blackbox.observe.gaps import UNMEASURED, Unmeasured, moment
 from blackbox.observe.observers.entry import COMMON_KEYS, read_every, read_name
 
 
@@ -74,10 +74,11 @@ class ActivatedObserver(ObserverBase):
         if unmeasured is not None:
             return [unmeasured]
         if self._stale:
-            return [self._observation(
-                now, Code.NOT_AVAILABLE, "not measured until "
-                f"{moment(self._gaps.ended)} ({self._gaps.reason}); waiting for a graph "
-                "snapshot after that")]
+            return [Observation(
+                now, self.type_name, self.resource, Code.NOT_AVAILABLE,
+                values={UNMEASURED: self._gaps.last_start},
+                message=f"not measured until {moment(self._gaps.ended)} "
+                        f"({self._gaps.reason}); waiting for a graph snapshot after that")]
         info = self._info
         if not self._seen_graph:
             return [self._observation(now, Code.NOT_AVAILABLE,
