@@ -422,6 +422,13 @@ class Ros1Source:
                     self._report("rate_from_counters", r.topic,
                                  f"{r.topic} from {r.publisher}: rate from the publisher's "
                                  "own counters (getBusStats); not subscribed")
+                span = r.arrivals[-1].time - now if r.arrivals else 0.0
+                if not switched and span > 2 * self._graph_period + 0.5:
+                    # a late round (the black box stalled): its counts cover a stretch
+                    # nobody measured live; replayed, they would overlap the next round's
+                    self._open_gap(key, f"a late round of the publisher's counters "
+                                   f"({span:.3g} s)", start=now - span)
+                    continue
                 self._push_counted(now, r.arrivals, key if switched else None)
             else:
                 self._check_behind(now, r)
@@ -458,13 +465,15 @@ class Ros1Source:
             self.behind.discard(r.topic)
             self._report("keeping_up", r.topic, f"keeping up with {r.topic} again")
 
-    def _open_gap(self, key: tuple[str, str], reason: str) -> None:
-        """``key``'s rate is not measured from now until its first message on the new path."""
+    def _open_gap(self, key: tuple[str, str], reason: str, start: float | None = None) -> None:
+        """``key``'s rate is not measured from now (or ``start``, a round-start time) until
+        its next message, subscribed or counted."""
         with self._lock:
             if key in self._waiting:
                 return
             now = self._wall()
-            gap = MeasurementGap(now, now, None, f"{reason} for {key[1]}", topic=key[0])
+            begin = now if start is None else start + self.clock_offset
+            gap = MeasurementGap(now, begin, None, f"{reason} for {key[1]}", topic=key[0])
             self._waiting[key] = gap
             self._queue.append(gap)
 
@@ -501,6 +510,9 @@ class Ros1Source:
                 self._queue.append(MeasurementGap(
                     end, now, end, f"switching from a subscription to the publisher's "
                     f"counters for {switched[1]}", topic=switched[0]))
+            if arrivals and self._waiting:
+                self._resume((arrivals[0].topic, arrivals[0].publisher),
+                             arrivals[0].time + shift)
             for msg in arrivals:
                 if len(self._queue) < self._queue_limit:
                     msg.time += shift
