@@ -27,6 +27,7 @@ from blackbox.config.tug import TugForm
 from blackbox.events import (
     GraphSnapshot,
     Interest,
+    MeasurementGap,
     MessageArrival,
     NetworkSample,
     ResourceSample,
@@ -103,6 +104,11 @@ class Observer(Protocol):
 
     def on_network(self, sample: NetworkSample) -> None: ...
 
+    def on_gap(self, gap: MeasurementGap) -> None:
+        """The source could not measure what this observer observes from ``gap.start`` (to
+        ``gap.end`` once it is known); each type's rule is in docs/observations.md."""
+        ...
+
     def evaluate(self, now: float) -> list[Observation]: ...
 
     def describe(self) -> str:
@@ -133,6 +139,11 @@ class ObserverBase:
         return None
 
     def on_network(self, sample: NetworkSample) -> None:
+        return None
+
+    def on_gap(self, gap: MeasurementGap) -> None:
+        """Value observers keep judging what arrives: a gap in measurement does not make a
+        message's values wrong, only fewer."""
         return None
 
 
