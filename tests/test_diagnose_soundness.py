@@ -181,7 +181,8 @@ class Reference:
         forced = self.holds(abnormal)
         for spec, value in self.robot.observations:
             if value is False and spec.type == RELATION:
-                if all(("right", t) in forced for t in (spec.resource.topic, spec.resource.topic_b)):
+                pair = (spec.resource.topic, spec.resource.topic_b)
+                if all(("right", t) in forced for t in pair):
                     return False
             elif value is False:
                 comps, needs = self.obs_cause(spec)
