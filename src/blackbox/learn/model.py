@@ -240,8 +240,12 @@ def _topic_block(topic: TopicRecord, rec: Recording, related: RelationsLearned) 
     periods = _rate_entries(topic, block)
     trends = related.trends.get(topic.name, [])
     block.comments.extend(trends)
+    related_fields = related.related.get(topic.name, set())
+    if related_fields:
+        block.comments.append("judged by relations, no band (its range depends on the "
+                              "operating mode): " + ", ".join(sorted(related_fields)))
     _value_entries(topic, block, periods,
-                   frozenset(t.split(" trend:", 1)[0] for t in trends))
+                   frozenset(t.split(" trend:", 1)[0] for t in trends) | related_fields)
     lives = related.liveness.get(topic.name)
     if lives:
         block.comments.extend(liveness_comments(lives))

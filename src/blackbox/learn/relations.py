@@ -131,6 +131,10 @@ class RelationsLearned:
     """topic -> comment per trend signal (their envelopes are not written)."""
     notes: list[str]
     signals: int = 0
+    related: dict[str, set[str]] = field(default_factory=dict)
+    """topic -> fields judged by a relation (their envelopes are not written: two minutes
+    of learning cannot know the operating range, a relation does not need it)."""
+
 
 
 # ---- signals ------------------------------------------------------------------------------------
@@ -415,11 +419,16 @@ def learn_relations(rec: Recording) -> RelationsLearned:
         for j, live in enumerate(ls):
             if live.z is not None:
                 per_hour = 3600.0 / (live.signal.period * live.block)
-                live.calibration = calibrate(live.z, per_hour, rate, seed=1000 + j)
+                live.calibration = calibrate(live.z, per_hour, rate, two_sided=False,
+                                             seed=1000 + j)
     if not relations and len(related) >= 2:
         notes.append(f"no relation between signals of different topics reached a held-out "
                      f"R2 of {R2_MIN:g} in {rec.duration:.0f} s")
-    return RelationsLearned(relations, liveness, trends, notes, len(signals))
+    related_fields: dict[str, set[str]] = {}
+    for r in relations:
+        for s in (r.target, *(i for i, _ in r.inputs)):
+            related_fields.setdefault(s.ref.topic, set()).add(s.ref.field)
+    return RelationsLearned(relations, liveness, trends, notes, len(signals), related_fields)
 
 
 def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:

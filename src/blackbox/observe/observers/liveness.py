@@ -7,9 +7,10 @@ A healthy sensor's reading moves a little from one message to the next (noise, m
   ``repeats`` equal samples (at least twice the healthy one) is a *stuck* value. A signal
   that repeated a lot while healthy (quantised, a command held constant) gets no such check;
 * **noise**: per block of ``block`` samples, ``ln(mean squared difference)`` of consecutive
-  samples, standardised by its healthy ``mean`` and ``std``; a two-sided CUSUM (``k``, ``h``
-  calibrated for a stated false-alarm rate) finds a *noise burst* (up) and a *variance
-  collapse* (down: a frozen or heavily filtered value that still moves a little).
+  samples, standardised by its healthy ``mean`` and ``std``; an upward CUSUM (``k``, ``h``
+  calibrated for a stated false-alarm rate) finds a *noise burst*. Only upward: a signal
+  moves less when the robot stands still, so a variance collapse is no fault by itself
+  (a frozen value is caught by ``repeats`` and by the relations).
 
 Angles (``wrap: true``) take differences the short way round, so a heading crossing +-pi is
 not a jump. A failed ``liveness`` accuses the topic's producers; a passing one clears
@@ -74,7 +75,8 @@ class _Signal:
     def __init__(self, spec: LivenessSpec) -> None:
         self.spec = spec
         self.reader = SignalReader(spec.signal)
-        self.cusum = Cusum(spec.noise.cusum) if spec.noise is not None else None
+        self.cusum = (Cusum(spec.noise.cusum, two_sided=False) if spec.noise is not None
+                      else None)
         self.last = math.nan
         self.run = 0
         self.sq = 0.0
@@ -104,11 +106,11 @@ class _Signal:
     def problem(self) -> str | None:
         spec = self.spec
         if spec.repeats is not None and self.run + 1 >= spec.repeats:
-            return f"{spec.name} stuck: {self.run + 1} equal samples in a row ({self.last:.6g})"
+            return (f"{spec.name} stuck: {self.run + 1} equal samples in a row "
+                    f"({self.last:.6g})")
         if self.cusum is not None and self.cusum.alarm:
-            kind = "noise burst" if self.cusum.up >= self.cusum.down else "variance collapse"
-            return (f"{spec.name} {kind}: log squared difference {self.last_z:+.1f} std, CUSUM "
-                    f"{self.cusum.statistic:.1f} >= {self.cusum.spec.h:.1f}")
+            return (f"{spec.name} noise burst: log squared difference {self.last_z:+.1f} "
+                    f"std, CUSUM {self.cusum.statistic:.1f} >= {self.cusum.spec.h:.1f}")
         return None
 
 
