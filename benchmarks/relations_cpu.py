@@ -15,6 +15,7 @@ The acceptance line of issue 22 is that relations add at most 10 % to the black 
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import statistics
 import time
@@ -47,7 +48,7 @@ def relation_entries() -> list[str]:
     for t in TOPICS:
         out.append(f"{{type: liveness, topic: {t}, signals: [{{name: x, field: x, repeats: 5, "
                    "noise: {block: 50, mean: -7.0, std: 0.3, cusum: {k: 0.5, h: 12}}}]}")
-    for a, b in zip(TOPICS, TOPICS[1:], strict=False):
+    for a, b in itertools.pairwise(TOPICS):
         out.append(
             f"{{type: relation, topic: {a}, topic_b: {b}, relations: [{{name: r, target: "
             f"{{topic: {b}, field: x}}, inputs: [{{topic: {a}, field: x, lags: [0.0, 0.05, "
