@@ -208,6 +208,13 @@ class ObserverKind:
     aliases: tuple[str, ...] = ()
     tug: TugForm | None = None
     tug_names: tuple[str, ...] = ()
+    exonerates: bool = True
+    """Whether OK observations of this type clear the mode they judge (all of them OK, see
+    docs/diagnosis.md). A learned envelope cannot see an offset inside its range, so a
+    passing one is no proof of health: its type says ``False`` and it only accuses."""
+    relation: bool = False
+    """A relation between the values of its topics (``relation``): failed, the values of
+    one of its topics are wrong; held, each of its topics' values is cleared by it alone."""
 
     def unit(self, quantity: str) -> str:
         return next((q.unit for q in self.quantities if q.name == quantity), "")
