@@ -206,4 +206,4 @@ def moving_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
 
 OBSERVERS.add("moving", ObserverKind(
     "moving", moving_from_config, Subject.TOPIC, AXIS_QUANTITIES, judges=Mode.RIGHT,
-    tug=moving_from_tug, tug_names=("moving", "moveing")))
+    tug=moving_from_tug, tug_names=("moving", "moveing"), logged_values=6))

@@ -75,4 +75,4 @@ def network_from_config(node: ConfigNode) -> NetworkObserver:
 
 OBSERVERS.add("network", ObserverKind(
     "network", network_from_config, Subject.INTERFACE,
-    (Quantity("rx", "B/s"), Quantity("tx", "B/s"))))
+    (Quantity("rx", "B/s"), Quantity("tx", "B/s")), logged_values=4))

@@ -88,4 +88,4 @@ def resources_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
 
 OBSERVERS.add("resources", ObserverKind(
     "resources", resources_from_config, Subject.NODE,
-    (Quantity("cpu", "%"), Quantity("memory", "B")), tug=resources_from_tug))
+    (Quantity("cpu", "%"), Quantity("memory", "B")), tug=resources_from_tug, logged_values=4))

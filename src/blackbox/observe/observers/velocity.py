@@ -197,4 +197,4 @@ def velocity_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
 
 OBSERVERS.add("velocity", ObserverKind(
     "velocity", velocity_from_config, Subject.TOPIC_PAIR, AXIS_QUANTITIES, judges=Mode.RIGHT,
-    aliases=("movement",), tug=velocity_from_tug))
+    aliases=("movement",), tug=velocity_from_tug, logged_values=6))
