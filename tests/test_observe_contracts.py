@@ -243,6 +243,16 @@ SPAN = 4.0
 PUBLISHER = "/publisher"
 
 
+class AnyField(float):
+    """A decoded message whose every field, at any depth, reads this number (so any field
+    path of any example finds a value)."""
+
+    def __getattr__(self, name: str) -> AnyField:
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return self
+
+
 class NanMessage:
     """A decoded message whose every field, at any depth, is NaN (a broken sensor)."""
 
@@ -259,7 +269,11 @@ def build_observer_kind(name: str) -> Observer:
 Event = MessageArrival | ArrivalBatch | GraphSnapshot | ResourceSample | NetworkSample
 
 
-def events_for(observer: Observer, value: Callable[[int], Any] = lambda i: None,
+def steady(i: int) -> AnyField:
+    return AnyField(1.0 + 0.01 * (i % 3))
+
+
+def events_for(observer: Observer, value: Callable[[int], Any] = steady,
                number: Callable[[int], float] = float) -> list[Event]:
     """What a robot would send for ``observer.interest()`` over ``SPAN`` seconds: its
     topics at 10 Hz (decoded values from ``value``), its nodes alive, their resources and
@@ -332,6 +346,15 @@ def test_an_observer_reports_under_its_type_and_resource(name: str) -> None:
     observations = run(observer, events_for(observer))
     assert observations, f"{name} made no observation in {SPAN} s"
     assert_well_formed(name, observer, observations)
+    assert any(o.code is not Code.NOT_AVAILABLE for o in observations), \
+        f"{name} never judged its input: {observations[-1].message}"
+
+
+@pytest.mark.parametrize("name", registered("observer"))
+def test_an_observer_says_not_available_for_undecodable_messages(name: str) -> None:
+    """A source that cannot decode a topic hands out ``None`` values."""
+    observer = build_observer_kind(name)
+    assert_well_formed(name, observer, run(observer, events_for(observer, value=lambda i: None)))
 
 
 @pytest.mark.parametrize("name", registered("observer"))
