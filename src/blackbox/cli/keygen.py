@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -21,14 +20,10 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from blackbox.transport.auth import AuthError, generate_key_pair
+    from blackbox.transport.auth import generate_key_pair
 
     name = args.name or args.file.stem
-    try:
-        public = generate_key_pair(args.file, name)
-    except AuthError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    public = generate_key_pair(args.file, name)  # a refusal is a BlackBoxError: exit 2
     key = public.read_text().split()[1]
     print(f"station key {args.file} (private, mode 0600) and {public} (public)\n"
           "allow it on a robot with, in the robot's configuration:\n"

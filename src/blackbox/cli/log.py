@@ -293,6 +293,9 @@ def _capacity(args: argparse.Namespace) -> int:
 
 
 def _characteristic(node: ConfigNode) -> ObservedCharacteristic:
+    """The log's view of one observer entry: its size and subject come from its type."""
+    from blackbox.observe.base import Subject, observer_kind
+
     kind = node["type"].str() if "type" in node else "observer"
     entity = "robot"
     for key in ("node", "topic", "topic_a", "interface"):
@@ -301,6 +304,8 @@ def _characteristic(node: ConfigNode) -> ObservedCharacteristic:
             entity = str(child.raw)
             break
     every = node["every"].float(min=0, min_exclusive=True) if node.get("every") else 1.0
-    values = {"activated": 0, "timeout": 1, "resources": 4, "network": 4, "velocity": 6,
-              "moving": 6}.get(kind, 2)
-    return ObservedCharacteristic(entity, kind, every, values)
+    registered = observer_kind(kind)
+    if registered is None:  # not built, so not checked: size it as a typical observer
+        return ObservedCharacteristic(entity, kind, every)
+    return ObservedCharacteristic(entity, kind, every, registered.logged_values,
+                                  on_node=registered.subject is Subject.NODE)

@@ -34,6 +34,7 @@ from typing import Any, NamedTuple
 import lz4.frame  # type: ignore[import-untyped]
 import msgspec
 
+from blackbox.errors import BlackBoxError
 from blackbox.model import Code, Observation
 
 SCHEMA_VERSION = 4
@@ -54,7 +55,7 @@ KINDS: dict[str, int] = {
 KIND_NAMES: dict[int, str] = {v: k for k, v in KINDS.items()}
 
 
-class StorageError(Exception):
+class StorageError(BlackBoxError):
     """The store cannot be opened or written; the message says what and where."""
 
 
