@@ -227,13 +227,19 @@ def _help_interface(help_text: str) -> ScriptInterface:
 #: Runs ``benchmarks/SCRIPT [SUBCOMMAND] --help`` for every pair given as JSON, in one
 #: interpreter (an interpreter start per script would cost seconds each on this machine),
 #: and prints each help text and exit code as JSON. argparse prints the help and exits
-#: before a script measures anything.
+#: before a script measures anything. Helper modules the scripts import from the
+#: repository's own directories (``support``, two different ``robot`` modules) are
+#: forgotten between scripts, as a fresh interpreter would.
 HELP_READER = """
 import contextlib, io, json, runpy, sys
 from pathlib import Path
 base = list(sys.path)
+local = tuple(str(Path(d).resolve()) for d in ("benchmarks", "scripts", "tests"))
 found = {}
 for script, sub in json.loads(sys.argv[1]):
+    for name, module in list(sys.modules.items()):
+        if str(getattr(module, "__file__", None) or "").startswith(local):
+            del sys.modules[name]
     sys.argv = [script, *([sub] if sub else []), "--help"]
     sys.path[:] = [str(Path(script).parent), *base]
     text, code = io.StringIO(), None
