@@ -407,3 +407,49 @@ def test_the_documents_show_commands_of_every_kind() -> None:
     otherwise pass every test above by finding nothing)."""
     assert len(BLACKBOX) >= 40 and len(BENCHMARKS) >= 15 and len(MAKE) >= 2, (
         len(BLACKBOX), len(BENCHMARKS), len(MAKE))
+
+
+# --- links between the documents resolve -----------------------------------------------------
+
+LINK = re.compile(r"\]\(([^)\s]+)\)")
+
+
+def heading_anchors(document: Path) -> set[str]:
+    """GitHub's anchors of a document's headings (lower case, punctuation dropped, spaces
+    to hyphens; a repeated heading gets ``-1``, ``-2``, ...) and its ``<a id>`` anchors."""
+    anchors: set[str] = set()
+    fenced = False
+    for line in document.read_text(encoding="utf-8").splitlines():
+        if line.startswith("```"):
+            fenced = not fenced
+        anchors.update(re.findall(r'<a id="([^"]+)"></a>', line))
+        if fenced or not line.startswith("#"):
+            continue
+        text = line.lstrip("#").strip().lower()
+        slug = re.sub(r"[^\w\- ]", "", text).replace(" ", "-")
+        candidate, n = slug, 0
+        while candidate in anchors:
+            n += 1
+            candidate = f"{slug}-{n}"
+        anchors.add(candidate)
+    return anchors
+
+
+def broken_links(document: Path) -> list[str]:
+    broken = []
+    for target in LINK.findall(document.read_text(encoding="utf-8")):
+        if re.match(r"^[a-z]+:", target):
+            continue  # http(s), mailto: not checked here
+        path, _, anchor = target.partition("#")
+        file = (document.parent / path).resolve() if path else document
+        if not file.exists():
+            broken.append(f"{target}: no such file")
+        elif anchor and file.suffix == ".md" and anchor not in heading_anchors(file):
+            broken.append(f"{target}: no heading with anchor #{anchor}")
+    return broken
+
+
+@pytest.mark.parametrize("document", [*DOCUMENTS, ROOT / "CHANGELOG.md"],
+                         ids=lambda d: str(d.relative_to(ROOT)))
+def test_every_link_between_documents_resolves(document: Path) -> None:
+    assert not broken_links(document), "\n".join(broken_links(document))
