@@ -23,9 +23,7 @@ demo: setup
 	$(BIN)/blackbox demo $(DEMO_ARGS)
 
 test: setup system-deps
-	$(BIN)/ruff check src tests benchmarks
-	$(BIN)/mypy
-	$(BIN)/python -m pytest -q
+	VENV=$(VENV) scripts/test.sh
 
 # Stops at the first failing run and names it; pytest's exit code 5 (nothing selected) is an
 # error too, so a mistyped K cannot pass N times by running nothing.

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -15,6 +16,28 @@ from blackbox.sinks import SinkBase
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT / "data" / "shared"
 """Vendored copies of the shared reference inputs (tug configs, thesis setup, DXC)."""
+
+
+def described(condition: Callable[[], object]) -> str:
+    """The source text of a waited-for condition (a lambda), for the failure message."""
+    try:
+        return inspect.getsource(condition).strip()
+    except (OSError, TypeError):
+        return repr(condition)
+
+
+def wait_until(condition: Callable[[], object], what: str = "", timeout: float = 15.0,
+               step: float = 0.05) -> object:
+    """Poll ``condition`` until it returns something true (and return that); fail the test
+    with what it waited for (``what``, else the condition's source) after ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = condition()
+        if value:
+            return value
+        if time.monotonic() >= deadline:
+            raise AssertionError(f"waited {timeout:g} s for {what or described(condition)}")
+        time.sleep(step)
 
 
 def wait_for(condition: Callable[[], bool], timeout: float, step: float = 0.05) -> bool:

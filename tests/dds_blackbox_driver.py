@@ -2,7 +2,8 @@
 through the real recorder when ``--store`` is given), driven line by line on stdin.
 
 Commands: ``ok`` (one round of healthy observations of the thesis robot), ``fault`` (the
-camera's rate fails and the diagnosis names ``/usb_cam``), ``quit``. Each command is
+camera's rate fails and the diagnosis names ``/usb_cam``), ``burst N`` (N faults and N
+recoveries at once), ``unpublished N`` (as many, lost on the network), ``quit``. Each command is
 answered with ``done <command>`` on stdout once written. Observation times are wall-clock
 so that log requests by time range work.
 """
@@ -13,6 +14,7 @@ import argparse
 import sys
 import time
 
+from blackbox.health.identity import EventLedger
 from blackbox.model import Code, Diagnosis, Observation, Resource, State
 from blackbox.transport.publisher import DdsHealthSink
 
@@ -58,19 +60,20 @@ def main() -> int:
         text = Path(pub).read_text()
         stations.append(StationAccess(text.split()[2], parse_public_key(text),
                                       frozenset(rights.split(","))))
+    ledger = EventLedger()  # shared, as blackbox.app composes them
     recorder = None
     if args.store:
         from blackbox.record import Recorder
         from blackbox.record.settings import RecorderSettings
 
         recorder = Recorder(RecorderSettings(args.store, commit_interval=0.1),
-                            robot_id=args.robot)
+                            robot_id=args.robot, ledger=ledger)
     from blackbox.transport.auth import AccessPolicy
 
     sink = DdsHealthSink(args.robot, domain_id=args.domain, partition=args.partition,
                          log_store_path=args.store, on_ibit=lambda: healthy(time.time()),
-                         access=AccessPolicy.of(stations))
-    sinks = [s for s in (recorder, sink) if s is not None]
+                         access=AccessPolicy.of(stations), ledger=ledger)
+    sinks = [s for s in (sink, recorder) if s is not None]  # the publisher assigns ids first
     print("ready", flush=True)
     for line in sys.stdin:
         command = line.strip()
@@ -87,12 +90,36 @@ def main() -> int:
                 s.on_observations(t, obs)
                 s.on_diagnosis(Diagnosis(t, (frozenset({"/usb_cam"}),), (obs[0],),
                                          "camera publishes too slowly"))
+        elif command.startswith("unpublished "):
+            # N faults and recoveries whose samples are lost on the way (mapped and
+            # numbered, never written): only the robot's log has them.
+            for _ in range(int(command.split()[1])):
+                for obs, diagnosis in ((faulty(t), True), (healthy(t), False)):
+                    d = Diagnosis(t, (frozenset({"/usb_cam"}),), (obs[0],), "too slow") \
+                        if diagnosis else Diagnosis(t, ())
+                    sink.mapper.observations(t, obs)
+                    sink.mapper.diagnosis(d)
+                    if recorder is not None:
+                        recorder.on_observations(t, obs)
+                        recorder.on_diagnosis(d)
+                    t = time.time()
+        elif command.startswith("burst "):
+            # N failures and N rectifications of /usb_cam as fast as they can be made:
+            # many share a millisecond, each is a distinct event.
+            for _ in range(int(command.split()[1])):
+                for obs, diagnosis in ((faulty(t), True), (healthy(t), False)):
+                    for s in sinks:
+                        s.on_observations(t, obs)
+                        s.on_diagnosis(Diagnosis(t, (frozenset({"/usb_cam"}),), (obs[0],),
+                                                 "camera publishes too slowly")
+                                       if diagnosis else Diagnosis(t, ()))
+                    t = time.time()
         else:
             print(f"unknown {command}", flush=True)
             continue
         if recorder is not None:
             deadline = time.monotonic() + 5
-            while recorder.written == 0 and time.monotonic() < deadline:
+            while (recorder.written == 0 or recorder.pending) and time.monotonic() < deadline:
                 time.sleep(0.02)
         print(f"done {command}", flush=True)
     for s in sinks:

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import importlib.util
-import os
-import random
 import sys
 import time
 from collections.abc import Callable
@@ -44,12 +42,6 @@ except ImportError:  # the wheels exist for x86_64 only
 
 needs_rclpy = pytest.mark.skipif(not HAVE_RCLPY, reason="needs the ros-rclpy wheels (x86_64)")
 
-_rng = random.Random(os.getpid() ^ int(time.time()))
-
-
-def fresh_domain() -> int:
-    """A ROS 2 domain id for one test (100..199), so parallel tests never see each other."""
-    return _rng.randrange(100, 200)
 
 
 class Watched:

@@ -27,6 +27,8 @@ from blackbox.sources.bag import BagSource, placeholder_publisher
 from blackbox.sources.base import SourceOptions
 from blackbox.sources.sim import Fault, SimulatedSource, Topology
 
+pytestmark = pytest.mark.xdist_group("test_bag_source")  # its module fixture: one worker
+
 T0 = 1_700_000_000.0  # recordings carry epoch times
 SMALL = frozenset({"/audio", "/signal"})
 

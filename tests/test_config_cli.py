@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.xdist_group("test_config_cli")  # its module fixture: one worker
+
 DATA = Path(__file__).parent / "data" / "configs"
 BAD = DATA / "bad"
 THESIS = Path("/work/shared/reference/thesis-setup")

@@ -17,6 +17,7 @@ from blackbox.transport.auth import RequestSigner
 from blackbox.transport.ibit import request_ibit
 from blackbox.transport.logservice import LogClient
 from blackbox.transport.participant import Bus, TransportSettings
+from isolation import fresh_domain
 
 pytestmark = [pytest.mark.dds]
 
@@ -25,7 +26,7 @@ THESIS = Path(__file__).resolve().parent.parent / "src/blackbox/configs/thesis.y
 
 
 def test_station_sees_state_runs_ibit_and_fetches_failures(tmp_path: Path) -> None:
-    domain = 150 + os.getpid() % 50
+    domain = fresh_domain()
     faults = tmp_path / "faults.yaml"
     faults.write_text("faults:\n  - {kind: kill, component: /usb_cam, start: 3, end: 8}\n")
     env = {k: v for k, v in os.environ.items() if k != "CYCLONEDDS_URI"}

@@ -7,7 +7,6 @@ recorder); the station side is the real ``blackbox listen --json``.
 
 from __future__ import annotations
 
-import itertools
 import json
 import os
 import queue
@@ -22,16 +21,13 @@ from typing import Any
 import psutil
 import pytest
 
+from isolation import fresh_domain
 from station_support import DriverBlackBox, dds_env
 
 pytestmark = pytest.mark.dds
 
 HERE = Path(__file__).parent
-_counter = itertools.count()
 
-
-def fresh_domain() -> int:
-    return 100 + (os.getpid() * 7 + next(_counter)) % 120
 
 
 def station_key(directory: Path, name: str = "depot") -> Path:

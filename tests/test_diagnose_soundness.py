@@ -36,8 +36,10 @@ from blackbox.diagnose.robot_model import (
 from blackbox.model import Code, Observation, Resource
 
 RATE = ("hz", "timeout", "timestamp")
-VALUE = ("scores", "moving")
+VALUE = ("scores", "moving", "fields")
+ENVELOPES = ("fields",)  # judge values, accuse when failed, never clear (issue 22 item 8)
 RATE_PAIR, VALUE_PAIR = "timing", "velocity"
+RELATION = "relation"  # learned: failed, one topic's values are wrong; held, both are right
 NODE_KINDS = ("activated", "resources")
 MAX_CARDINALITY = 3
 CASES = 600
@@ -146,11 +148,15 @@ class Reference:
         """The modes that must hold: the least fixpoint of the documented rules."""
         forced: set[tuple[str, str]] = set()
         for t in self.topics:
-            for mode, kinds in (("live", (*RATE, RATE_PAIR)), ("right", (*VALUE, VALUE_PAIR))):
+            clearing = tuple(k for k in VALUE if k not in ENVELOPES)
+            for mode, kinds in (("live", (*RATE, RATE_PAIR)), ("right", (*clearing, VALUE_PAIR))):
                 judging = [v for s, v in self.robot.observations
                            if s.type in kinds and self.judges(s, t)]
                 if judging and all(v is True for v in judging):
                     forced.add((mode, t))
+            if any(v is True and s.type == RELATION and t in (s.resource.topic, s.resource.topic_b)
+                   for s, v in self.robot.observations):
+                forced.add(("right", t))
             timeouts = [v for s, v in self.robot.observations
                         if s.type == "timeout" and self.judges(s, t)]
             activated = {s.resource.node: v for s, v in self.robot.observations
@@ -174,7 +180,11 @@ class Reference:
     def consistent(self, abnormal: frozenset[str]) -> bool:
         forced = self.holds(abnormal)
         for spec, value in self.robot.observations:
-            if value is False:
+            if value is False and spec.type == RELATION:
+                pair = (spec.resource.topic, spec.resource.topic_b)
+                if all(("right", t) in forced for t in pair):
+                    return False
+            elif value is False:
                 comps, needs = self.obs_cause(spec)
                 if not comps & abnormal and all(n in forced for n in needs):
                     return False
@@ -204,12 +214,13 @@ def random_robot(rng: random.Random) -> Robot:
     pubs = {t: [n.name for n in nodes if t in n.pub] for t in topics}
     obs: list[ObservationSpec] = []
     for _ in range(rng.randint(1, 8)):
-        kind = rng.choice((*RATE, *VALUE, RATE_PAIR, VALUE_PAIR, *NODE_KINDS, "network"))
+        kind = rng.choice((*RATE, *VALUE, RATE_PAIR, VALUE_PAIR, RELATION, *NODE_KINDS,
+                           "network"))
         if kind in NODE_KINDS:
             obs.append(ObservationSpec(kind, Resource(node=rng.choice(nodes).name)))
         elif kind == "network":
             obs.append(ObservationSpec(kind, Resource(interface="eth0")))
-        elif kind in (RATE_PAIR, VALUE_PAIR):
+        elif kind in (RATE_PAIR, VALUE_PAIR, RELATION):
             if len(topics) > 1:
                 a, b = rng.sample(topics, 2)
                 obs.append(ObservationSpec(kind, Resource(topic=a, topic_b=b)))

@@ -13,6 +13,8 @@ from blackbox.cli import main
 from blackbox.evaluate import KIND_SETS, CampaignSettings, Confusion, parse_kinds, run_campaign
 from blackbox.sources.sim import FAULT_KINDS, THESIS_FAULT_KINDS, Topology, random_campaign
 
+pytestmark = pytest.mark.xdist_group("test_evaluate_campaign")  # its module fixture: one worker
+
 EXTENDED = DEFAULT_CONFIG.with_name("thesis-extended.yaml")
 
 

@@ -96,7 +96,7 @@ def test_learned_model_is_the_graph(tmp_path: Path) -> None:
 
 def test_learned_configuration_is_quiet_on_another_healthy_run(tmp_path: Path) -> None:
     observations = run(write_learned(tmp_path), 600.0, seed=9)
-    assert len({o.key() for o in observations}) == 14
+    assert len({o.key() for o in observations}) == 15  # + liveness of /signal
     assert [o for o in observations if o.faulty] == []
 
 

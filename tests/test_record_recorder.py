@@ -12,6 +12,7 @@ import pytest
 from blackbox.cli import main
 from blackbox.config.node import ConfigError, ConfigNode
 from blackbox.events import MessageArrival, TopicSchema
+from blackbox.health.identity import EventId
 from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource, State
 from blackbox.record import ConfigVersion, Recorder, SnapshotConfig, Store
 from blackbox.record.settings import RecorderSettings, SnapshotSettings, parse_size
@@ -301,6 +302,8 @@ def test_logged_observation_payloads_are_complete_changes_and_lean_samples(
     assert (sample.kind, sample.payload) == ("sample", {"values": {"period": 0.5},
                                                         "states": [2, 5]})
     assert (fault.kind, fault.code) == ("exceedance", -4)
+    event_id = EventId.parse(fault.payload.pop("event_id"))
+    assert event_id is not None and event_id.sequence == 1  # a fault's onset is an event
     assert fault.payload == {"values": {}, "states": [], "state_names": [],
                              "code_name": "TIMEOUT"}
 

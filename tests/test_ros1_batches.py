@@ -29,7 +29,8 @@ from test_ros1_faults import FakePublisher, _float_header
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros1_robot"))
 from robot import ThesisRobot, free_port
 
-pytestmark = [pytest.mark.ros1,
+pytestmark = [pytest.mark.xdist_group("test_ros1_batches"),  # its module fixture: one worker
+              pytest.mark.ros1,
               pytest.mark.skipif(shutil.which("roscore") is None, reason="needs Debian's ROS 1")]
 
 IMAGE = "/usb_cam/image_raw"

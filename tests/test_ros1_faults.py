@@ -27,7 +27,8 @@ from blackbox.sources.ros1.tcpros import encode_header
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros1_robot"))
 from robot import ThesisRobot, free_port
 
-pytestmark = [pytest.mark.ros1,
+pytestmark = [pytest.mark.xdist_group("test_ros1_faults"),  # its module fixture: one worker
+              pytest.mark.ros1,
               pytest.mark.skipif(shutil.which("roscore") is None, reason="needs Debian's ROS 1")]
 
 IMAGE = "/usb_cam/image_raw"

@@ -20,7 +20,8 @@ import itertools
 
 from robot import ThesisRobot, free_port
 
-pytestmark = [pytest.mark.ros1,
+pytestmark = [pytest.mark.xdist_group("test_ros1_source"),  # its module fixture: one worker
+              pytest.mark.ros1,
               pytest.mark.skipif(shutil.which("roscore") is None, reason="needs Debian's ROS 1")]
 
 IMAGE = "/usb_cam/image_raw"

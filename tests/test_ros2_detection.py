@@ -14,7 +14,8 @@ import pytest
 from blackbox.app import RunOptions
 from blackbox.model import Resource
 from conftest import Collected, black_box_running, wait_for
-from ros2_support import fresh_domain, needs_rclpy, ros2_robot
+from isolation import fresh_domain
+from ros2_support import needs_rclpy, ros2_robot
 
 pytestmark = [pytest.mark.ros2, needs_rclpy]
 

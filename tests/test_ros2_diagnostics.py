@@ -15,7 +15,8 @@ from blackbox.app import RunOptions
 from blackbox.health.status import Health
 from blackbox.output.diagnostics import LEVEL_OF_HEALTH
 from conftest import black_box_running
-from ros2_support import fresh_domain, needs_rclpy, ros2_robot
+from isolation import fresh_domain
+from ros2_support import needs_rclpy, ros2_robot
 
 CONFIG = """
 version: 1

@@ -16,7 +16,8 @@ from blackbox.sources import open_source
 from blackbox.sources.ros2 import Ros2Settings, Ros2Source, domain_id_from_spec
 from blackbox.sources.ros2.idl import IdlTypes, ros_type_name
 from blackbox.sources.ros2.qos import EndpointQos, incompatibilities
-from ros2_support import Watched, fresh_domain, needs_rclpy, ros2_robot
+from isolation import fresh_domain
+from ros2_support import Watched, needs_rclpy, ros2_robot
 
 THESIS_TOPICS = frozenset({"/usb_cam/image_raw", "/audio", "/signal"})
 

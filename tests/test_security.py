@@ -20,8 +20,9 @@ from blackbox.transport.auth import (
     StationAccess,
 )
 from blackbox.transport.logservice import check_request, request_fields
+from isolation import fresh_domain
 from station_support import dds_env
-from test_dds_health import BlackBox, fresh_domain, station_key
+from test_dds_health import BlackBox, station_key
 
 ROBOT = "thesis"
 

@@ -13,8 +13,9 @@ from pathlib import Path
 import psutil
 import pytest
 
+from isolation import fresh_domain
 from station_support import dds_env
-from test_dds_health import BlackBox, fresh_domain
+from test_dds_health import BlackBox
 
 pytestmark = pytest.mark.dds
 

@@ -173,6 +173,44 @@ def test_drift_grows_with_time():
     assert min(v for _, v in values(events, 25.0, 30.0)) > 15.5  # out of band after 10 s
 
 
+
+def test_noise_adds_gaussian_noise_of_sigma_and_leaves_the_mean():
+    _, events = run([Fault("noise", "/signal", 10.0, 30.0, {"sigma": 0.4})], seconds=45.0)
+    base = dict(values(run([], seconds=45.0)[1]))
+    added = [v - base[t] for t, v in values(events, 10.0, 30.0)]
+    assert len(added) == pytest.approx(300, abs=3)
+    mean = sum(added) / len(added)
+    std = (sum((a - mean) ** 2 for a in added) / len(added)) ** 0.5
+    assert abs(mean) < 0.1 and std == pytest.approx(0.4, rel=0.2)
+    # before and after the fault the values are the fault-free run's, sample for sample
+    assert values(events, 0.0, 10.0) == values(BASELINE, 0.0, 10.0)
+    assert values(events, 30.0) == [(t, base[t]) for t, _ in values(events, 30.0)]
+
+
+def test_noise_is_deterministic_per_seed():
+    fault = [Fault("noise", "/signal", 5.0, 15.0, {"sigma": 0.3})]
+    assert values(run(fault, seconds=20.0)[1]) == values(run(fault, seconds=20.0)[1])
+    assert values(run(fault, seconds=20.0)[1]) != values(run(fault, seconds=20.0, seed=12)[1])
+
+
+def test_random_noise_stays_inside_the_normal_range_of_a_moving_signal():
+    from blackbox.sources.sim.faults import healthy_spread, noise_std
+    from blackbox.sources.sim.messages import scalars_of
+    from blackbox.sources.sim.robot import BUILTIN_ROBOTS
+
+    robot = Topology.load(BUILTIN_ROBOTS["diffdrive"])
+    faults = [f for seed in range(5)
+              for f in random_campaign(robot, 900.0, seed=seed, kinds=["noise"])]
+    assert len(faults) > 100
+    for f in faults:
+        scalars = scalars_of(robot.topics[f.component].value)
+        model = next(s for s in scalars if f.field in (None, s.field))
+        sigma = f.params["sigma"]
+        assert sigma >= 3.0 * noise_std(model) - 1e-4          # a fault, not more of the same
+        assert sigma <= 0.5 * healthy_spread(model, robot) + 1e-4 or (
+            sigma <= 6.0 * noise_std(model) + 1e-4)            # inside the signal's range
+
+
 # ---- node resources ----
 
 def test_cpu_hog_raises_cpu_of_that_node_only():

@@ -15,6 +15,8 @@ from blackbox.events import GraphSnapshot, Interest, MessageArrival, NetworkSamp
 from blackbox.sources.sim import SimulatedSource, Topology, open_sim
 from blackbox.sources.sim.topology import THESIS_FILE
 
+pytestmark = pytest.mark.xdist_group("test_sim_robot")  # its module fixture: one worker
+
 THESIS = Topology.thesis()
 EVERYTHING = Interest(topics=frozenset(THESIS.topics), decoded=frozenset({"/signal"}),
                       resources=frozenset(THESIS.nodes), network=True)

@@ -4,7 +4,6 @@ loss or duplicates, log requests, built-in tests, bad input and a full disk."""
 
 from __future__ import annotations
 
-import itertools
 import json
 import os
 import signal
@@ -25,6 +24,8 @@ from blackbox.record import Store
 from blackbox.station.follow import StationFollower
 from blackbox.station.store import StationStore, UnknownRobot
 from blackbox.transport.participant import TransportSettings
+from conftest import wait_until
+from isolation import fresh_domain
 from station_support import (
     FULL_DISK_VARIANTS,
     ScriptedBlackBox,
@@ -37,21 +38,11 @@ from station_support import (
 pytestmark = pytest.mark.dds
 
 HERE = Path(__file__).parent
-_counter = itertools.count()
 
-
-def fresh_domain() -> int:
-    return 1 + (os.getpid() * 13 + next(_counter)) % 99
 
 
 def wait(condition: Callable[[], Any], timeout: float = 15.0) -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError("condition not met in time")
+    return wait_until(condition, timeout=timeout)
 
 
 def health(store: StationStore, robot: str) -> dict[str, str]:

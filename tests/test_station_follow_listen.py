@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from isolation import fresh_domain
 from station_support import ScriptedBlackBox, dds_env
 
 pytestmark = pytest.mark.dds
@@ -37,7 +38,7 @@ def _read_all(fd: int, proc: subprocess.Popen[bytes], timeout: float) -> bytes:
 
 
 def test_listen_on_a_terminal_redraws_one_table_in_place(tmp_path: Path) -> None:
-    domain = 200 + os.getpid() % 30
+    domain = fresh_domain()
     box = ScriptedBlackBox("thesis", domain)
     try:
         box.send("ok")

@@ -25,10 +25,12 @@ import pytest
 
 from blackbox.transport.auth import station_trusted_by
 from conftest import ROOT, wait_for
+from isolation import fresh_domain
 
 CHROMIUM = Path("/usr/bin/chromium")
 playwright_api = pytest.importorskip("playwright.sync_api")
 pytestmark = [
+    pytest.mark.xdist_group("test_station_web_browser"),  # its module fixture: one worker
     pytest.mark.dds, pytest.mark.slow,
     pytest.mark.skipif(not CHROMIUM.exists(),
                        reason="needs Debian's chromium (scripts/install-system-deps.sh)"),
@@ -69,7 +71,7 @@ def _stop(proc: subprocess.Popen[bytes]) -> None:
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
     tmp = tmp_path_factory.mktemp("station")
-    domain = 200 + os.getpid() % 30
+    domain = fresh_domain()
     env = {k: v for k, v in os.environ.items() if k != "CYCLONEDDS_URI"}
     db = tmp / "station.db"
     for name, password in PASSWORDS.items():

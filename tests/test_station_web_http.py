@@ -20,6 +20,7 @@ from blackbox.health.ids import robot_resource_id
 from blackbox.station.auth import Auth, Role
 from blackbox.station.store import StationStore
 from blackbox.station.web.app import create_app
+from isolation import fresh_domain
 from station_support import Unreachable, quick_auth
 
 PASSWORD = "station password 1"
@@ -249,7 +250,7 @@ def test_over_tls_cookies_are_secure(tmp_path: Path) -> None:
                          capture_output=True, text=True, timeout=60, env=env)
     assert add.returncode == 0, add.stderr
     station = subprocess.Popen([sys.executable, "-m", "blackbox", "station", "--db", str(db),
-                                "--bind", "127.0.0.1:0", "--domain", str(180 + os.getpid() % 20),
+                                "--bind", "127.0.0.1:0", "--domain", str(fresh_domain()),
                                 "--tls-cert", str(cert), "--tls-key", str(key),
                                 "--ready-file", str(ready), "--duration", "60"], env=env,
                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)

@@ -19,6 +19,7 @@ from blackbox.config.loader import LoadedConfig
 from blackbox.config.node import ConfigError
 from blackbox.diagnose.hybrid import make_diagnoser
 from blackbox.diagnose.live import DiagnosisSettings
+from blackbox.health.identity import EventLedger
 from blackbox.model import BlackBoxEvent, Observation
 from blackbox.observe.build import build_observers, load_config, load_config_text
 from blackbox.output.jsonlines import JsonLinesSink
@@ -141,8 +142,12 @@ def build(options: RunOptions) -> BlackBox:
     if options.publish_diagnostics:
         sinks.append(open_ros_diagnostics(options, config, source))
     recorder = None
+    publishes = options.dds or "transport" in config.sections
+    # One ledger for the health publisher and the recorder: a logged event carries the
+    # identity it was published with (blackbox.health.identity).
+    ledger = EventLedger() if publishes else None
     if options.record is not None or "recorder" in config.sections:
-        recorder = open_recorder(options, config, source)
+        recorder = open_recorder(options, config, source, ledger)
         sinks.append(recorder)
         observers.append(recorder_probe(recorder))
     base_dir = Path(options.config).parent
@@ -155,9 +160,11 @@ def build(options: RunOptions) -> BlackBox:
             raise ConfigError(str(exc), str(options.config)) from None
         observers.extend(extra)
     pipelines: list[Pipeline] = []
-    if options.dds or "transport" in config.sections:
-        sinks.append(open_dds(options, config, recorder,
-                              lambda: pipelines[0].evaluate_all() if pipelines else []))
+    if publishes:
+        dds = open_dds(options, config, recorder,
+                       lambda: pipelines[0].evaluate_all() if pipelines else [], ledger)
+        # Before the recorder: the publisher assigns the identities the recorder looks up.
+        sinks.insert(sinks.index(recorder) if recorder is not None else len(sinks), dds)
     pipeline = Pipeline(source, observers, sinks, diagnoser=diagnoser)
     pipelines.append(pipeline)
     if recorder is not None:
@@ -190,7 +197,8 @@ def apply_config(pipeline: Pipeline, text: str, name: str) -> None:
 
 
 def open_dds(options: RunOptions, config: LoadedConfig, recorder: Recorder | None,
-             on_ibit: Callable[[], Sequence[Observation]]) -> Sink:
+             on_ibit: Callable[[], Sequence[Observation]],
+             ledger: EventLedger | None = None) -> Sink:
     """The UCMS health publisher; log requests are answered from the recorder's store."""
     from blackbox.health.describe import describe_observer
     from blackbox.transport.publisher import DdsHealthSink, transport_options
@@ -201,7 +209,8 @@ def open_dds(options: RunOptions, config: LoadedConfig, recorder: Recorder | Non
     if recorder is not None:
         kwargs.setdefault("log_store_path", recorder.path)
     descriptions = [describe_observer(entry) for entry in config.observers]
-    return DdsHealthSink(config.robot_id, descriptions=descriptions, on_ibit=on_ibit, **kwargs)
+    return DdsHealthSink(config.robot_id, descriptions=descriptions, on_ibit=on_ibit,
+                         ledger=ledger, **kwargs)
 
 
 def open_ros_diagnostics(options: RunOptions, config: LoadedConfig, source: Source) -> Sink:
@@ -231,7 +240,8 @@ def open_ros_diagnostics(options: RunOptions, config: LoadedConfig, source: Sour
     return RosDiagnosticsSink(config.robot_id, domain_id=domain, descriptions=descriptions)
 
 
-def open_recorder(options: RunOptions, config: LoadedConfig, source: Source) -> Recorder:
+def open_recorder(options: RunOptions, config: LoadedConfig, source: Source,
+                  ledger: EventLedger | None = None) -> Recorder:
     """The on-board store; snapshots are ROS 1 bags for ROS 1 robots, MCAP otherwise.
 
     A simulated clock waits for the disk when the recorder's queue is full (``block``);
@@ -247,7 +257,7 @@ def open_recorder(options: RunOptions, config: LoadedConfig, source: Source) -> 
         snapshot=snapshot, replace_foreign=options.force_record,
         overflow="block" if options.simulated_clock else "drop")
     return Recorder(settings, robot_id=config.robot_id, schema_lookup=source.schema,
-                    clock=source.now)
+                    clock=source.now, ledger=ledger)
 
 
 @contextmanager

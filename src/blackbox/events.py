@@ -19,6 +19,7 @@ __all__ = [
     "Event",
     "GraphSnapshot",
     "Interest",
+    "MeasurementGap",
     "MessageArrival",
     "NetworkSample",
     "NodeInfo",
@@ -176,8 +177,52 @@ class TopicSchema:
     md5sum: str = ""
 
 
+@dataclass(frozen=True, slots=True)
+class MeasurementGap:
+    """An interval in which the black box could not measure something as it normally does.
+
+    A rate source switching between the publishers' counters and its own subscription, a
+    reconnection, a restarted master or DDS participant, or the black box itself paused,
+    starved of CPU or its wall clock stepped: what arrived (or did not) in such an interval
+    says nothing about the robot, so observers leave it unjudged (docs/observations.md,
+    "Measurement gaps") instead of reporting a wrong rate, a time-out or a wrong value.
+
+    ``topic`` or ``node`` names what was not measured; neither means everything (the black
+    box's own pause or clock step). ``graph``: only the robot's graph was not followed (a
+    ROS master restarting: publishers that appear or re-register meanwhile are not found,
+    but topics already connected and node liveness are still measured), so no observer
+    leaves anything unjudged; the operator is told all the same.
+
+    A source reports a gap when it starts (``end`` is ``None``) and again, with the same
+    ``start``, when measurement resumes (``end`` set); a gap known only afterwards (a
+    pause) comes once with both. ``time`` is when the source says so, as for every event.
+    """
+
+    time: float
+    start: float
+    end: float | None
+    reason: str
+    topic: str | None = None
+    node: str | None = None
+    graph: bool = False
+
+    @property
+    def everything(self) -> bool:
+        return self.topic is None and self.node is None and not self.graph
+
+    def subject(self) -> str:
+        """What was not measured, in words."""
+        if self.graph:
+            return "the robot's graph"
+        if self.topic is not None:
+            return self.topic
+        if self.node is not None:
+            return f"node {self.node}"
+        return "everything"
+
+
 Event = (GraphSnapshot | MessageArrival | ArrivalBatch | ResourceSample | NetworkSample
-         | BlackBoxEvent)
+         | MeasurementGap | BlackBoxEvent)
 """What ``Source.poll`` returns; a ``BlackBoxEvent`` reports trouble on the robot side
 (a lost master, a garbage publisher) and goes to every sink. ``ArrivalBatch`` only when
 the interest asked for it."""

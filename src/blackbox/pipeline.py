@@ -6,6 +6,11 @@ observers that are due, passes the observations to the diagnosis engine and ever
 the sinks. Nothing here reads a clock: the source's ``poll`` decides whether time is
 simulated or real.
 
+A :class:`~blackbox.events.MeasurementGap` goes to the observers of what it names (every
+observer for a gap of everything) and to the sinks as a black-box event saying "not
+measured from ... to ..."; after a gap of everything the evaluations restart at its end
+instead of catching up on times the black box did not see.
+
 A failing observer or sink is isolated: the error becomes a black-box event and the loop
 goes on, because the black box must keep watching whatever else breaks.
 """
@@ -27,6 +32,7 @@ from blackbox.events import (
     Event,
     GraphSnapshot,
     Interest,
+    MeasurementGap,
     MessageArrival,
     NetworkSample,
     ResourceSample,
@@ -34,6 +40,7 @@ from blackbox.events import (
 )
 from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource
 from blackbox.observe.base import Observer
+from blackbox.observe.gaps import describe_gap
 from blackbox.sinks import Sink
 from blackbox.sources.base import ReplaySource, Source
 
@@ -80,11 +87,14 @@ class Pipeline:
         self._batches_by_topic: dict[str, list[Callable[[ArrivalBatch], None]]] = \
             defaultdict(list)
         self._by_node_resources: dict[str, list[Observer]] = defaultdict(list)
+        self._gaps_by_topic: dict[str, list[Observer]] = defaultdict(list)
+        self._gaps_by_node: dict[str, list[Observer]] = defaultdict(list)
         self._network: list[Observer] = []
         self._graph: list[Observer] = []
         self._message_sinks = [s for s in self.sinks if getattr(s, "wants_messages", False)]
         self._queue: list[tuple[float, int]] = []
         self._reported: set[tuple[str, str]] = set()
+        self._restart_at: float | None = None
         self._started = False
         self._closed = False
         self._interest = Interest()
@@ -98,6 +108,8 @@ class Pipeline:
         self._by_topic.clear()
         self._batches_by_topic.clear()
         self._by_node_resources.clear()
+        self._gaps_by_topic.clear()
+        self._gaps_by_node.clear()
         self._network = []
         self._graph = []
         for obs in self.observers:
@@ -106,8 +118,12 @@ class Pipeline:
             for topic in interest.topics | interest.decoded:
                 self._by_topic[topic].append(obs.on_message)
                 self._batches_by_topic[topic].append(on_batch)
+            for topic in interest.topics | interest.decoded:
+                self._gaps_by_topic[topic].append(obs)
             for node in interest.resources:
                 self._by_node_resources[node].append(obs)
+            for node in interest.nodes | interest.resources:
+                self._gaps_by_node[node].append(obs)
             if interest.network:
                 self._network.append(obs)
             self._graph.append(obs)
@@ -200,7 +216,11 @@ class Pipeline:
         """Dispatch all events up to ``until`` and evaluate the observers due by then."""
         events = self.source.poll(until)
         with self.lock:
+            self._restart_at = None
             self._dispatch(events)
+            restart = self._restart()
+            if restart is not None:  # a clock stepped back: ``until`` is stale
+                until = min(until, restart)
             observations: list[Observation] = []
             while self._queue and self._queue[0][0] <= until:
                 due, index = heapq.heappop(self._queue)
@@ -265,6 +285,8 @@ class Pipeline:
                         stats.samples += 1
                         for obs in self._network:
                             obs.on_network(event)
+                    elif type(event) is MeasurementGap:
+                        self._on_gap(event)
                     elif isinstance(event, BlackBoxEvent):
                         self._emit_event(event)
             except Exception as exc:
@@ -272,6 +294,31 @@ class Pipeline:
                 where = (getattr(bad, "topic", None) or getattr(bad, "node", None)
                          or type(bad).__name__)
                 self._report_error("event", str(where), exc, getattr(bad, "time", 0.0))
+
+    def _restart(self) -> float | None:
+        """The end of a gap of everything the last dispatch met (evaluations restart there)."""
+        return self._restart_at
+
+    def _on_gap(self, gap: MeasurementGap) -> None:
+        """Tell the observers of what ``gap`` names and the sinks; after a gap of everything,
+        evaluate from its end on (no catching up on times nobody measured)."""
+        if gap.everything:
+            affected: list[Observer] = self.observers
+        elif gap.topic is not None:
+            affected = self._gaps_by_topic.get(gap.topic, [])
+        elif gap.node is not None:
+            affected = self._gaps_by_node.get(gap.node, [])
+        else:
+            affected = []
+        for obs in affected:
+            obs.on_gap(gap)
+        if gap.everything and gap.end is not None:
+            self._restart_at = gap.end
+            self._queue = [(gap.end + o.interval, i) for i, o in enumerate(self.observers)]
+            heapq.heapify(self._queue)
+        component = gap.topic or gap.node or "blackbox"
+        kind = "not_measured" if gap.end is None else "measured_again"
+        self._emit_event(BlackBoxEvent(gap.time, kind, describe_gap(gap), component))
 
     def _on_graph(self, graph: GraphSnapshot) -> None:
         self.latest_graph = graph

@@ -49,7 +49,9 @@ from blackbox.diagnose.robot_model import (
     TopicStructure,
     build_model,
     derive_robot_model,
+    exonerates,
     is_rate_type,
+    is_relation_type,
     load_robot_model,
 )
 from blackbox.diagnose.sat import ConsistencyChecker, Theory
@@ -150,6 +152,14 @@ class DiagnosisEngine:
             if not ex.components and not ex.inputs:
                 ex = Explanation(tuple(t for t in (spec.resource.topic, spec.resource.topic_b)
                                        if t), ())
+            if is_relation_type(spec.type):
+                # Failed: the values of one of its topics are wrong. Held: each is right
+                # (faults that cancel out exactly are not assumed).
+                topics = [t for t in (spec.resource.topic, spec.resource.topic_b) if t]
+                th.add([ok, *(-th.var(("right", t)) for t in topics)])
+                for t in topics:
+                    th.add([th.var(("right", t)), -ok])
+                continue
             if (ex.components and not ex.inputs and not ex.edges
                     and diagnosable.issuperset(ex.components)):
                 # The clause is "ok or one of these is abnormal": failed, it is a conflict.
@@ -162,7 +172,9 @@ class DiagnosisEngine:
                 mentions.setdefault(t, []).append(spec)
         for t, specs in mentions.items():
             rate = [s for s in specs if is_rate_type(s.type)]
-            value = [s for s in specs if not is_rate_type(s.type)]
+            # A passing envelope is no proof of right values: only types that see every
+            # fault of the mode clear it (docs/diagnosis.md, issue 22 item 8).
+            value = [s for s in specs if not is_rate_type(s.type) and exonerates(s.type)]
             self._exonerate(th.var(("live", t)), rate)
             self._exonerate(th.var(("right", t)), value)
         self._carries_nothing(mentions)

@@ -54,6 +54,19 @@ def is_rate_type(observer: str) -> bool:
     return kind is None or kind.judges is Mode.LIVE
 
 
+def is_relation_type(observer: str) -> bool:
+    """Whether observations of this type relate the values of their topics (a failed one
+    needs a wrong value on one of them; a held one clears each of them)."""
+    kind = observer_kind(observer)
+    return kind is not None and kind.relation
+
+
+def exonerates(observer: str) -> bool:
+    """Whether OK observations of this type clear the mode they judge when all are OK."""
+    kind = observer_kind(observer)
+    return kind is None or (kind.exonerates and not kind.relation)
+
+
 def _subject(observer: str) -> Subject | None:
     kind = observer_kind(observer)
     return kind.subject if kind is not None else None

@@ -8,7 +8,9 @@ The units, fixed here once and described in ``docs/evaluation.md``:
 - an observation is *related* to a fault when its resource (node, topic, second topic or
   publisher group) names one of the fault's components;
 - an **episode** is a maximal run of consecutive faulty observations (code < 0) of one
-  observer key (observer type and resource);
+  observer key (observer type and resource); an observation left unjudged for a
+  measurement gap (the black box's own blind spot, docs/observations.md) is no alarm and
+  neither starts nor ends one;
 - **TP**: a fault with a related episode that *starts* inside its window
   ``[start, end + grace]``; the delay is the start of the earliest such episode minus the
   fault's start. **FN**: every other fault;
@@ -29,6 +31,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from blackbox.model import Diagnosis, Observation, Resource
+from blackbox.observe.gaps import unmeasured
 from blackbox.sources.sim import FAULT_KINDS, GroundTruth
 
 DEFAULT_GRACE = 2.0
@@ -127,6 +130,8 @@ def episodes(observations: Iterable[Observation]) -> list[Episode]:
     open_: dict[Key, list[float]] = {}
     found: list[Episode] = []
     for obs in sorted(observations, key=lambda o: o.time):
+        if unmeasured(obs):
+            continue
         key = obs.key()
         run = open_.get(key)
         if obs.faulty:

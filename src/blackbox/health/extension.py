@@ -20,10 +20,15 @@ from blackbox.health.types import T_DateTimeType, T_IdentifierType
 
 
 class T_EventKind(IdlEnum, typename="P_BlackBox_Ext.T_EventKind"):
-    """Why a threshold was crossed: a fault, or a change between healthy states."""
+    """What an event is: a threshold crossed by a fault or by a change between healthy
+    states, a component diagnosed faulty (``FAILURE``, extends a ``C_Failure_Event``), or a
+    component no longer diagnosed faulty (``RECTIFICATION``, an event of its own: UCMS has no
+    type for it)."""
 
     L_EventKind_FAULT = 0
     L_EventKind_STATE_CHANGE = 1
+    L_EventKind_FAILURE = 2
+    L_EventKind_RECTIFICATION = 3
 
 
 @dataclass
@@ -74,7 +79,14 @@ class C_Characteristic_Extension(IdlStruct, typename="P_BlackBox_Ext.C_Character
 
 @dataclass
 class C_Event_Extension(IdlStruct, typename="P_BlackBox_Ext.C_Event_Extension"):
-    """Tells a Threshold Exceedence Event caused by a fault from one caused by a state change."""
+    """Every event's identity and kind.
+
+    Keyed by the ``A_sourceID`` of the UCMS event it extends (a Threshold Exceedence Event:
+    fault or state change; a Failure Event), or, for a rectification, its own id with the
+    recovered entity in ``A_entity_sourceID``. ``A_eventId`` is ``<boot>-<sequence>``
+    (``blackbox.health.identity``): unique per robot, and without holes per boot, so a
+    station deduplicates by it and notices what it missed.
+    """
 
     A_sourceID: T_IdentifierType
     key("A_sourceID")
@@ -85,6 +97,8 @@ class C_Event_Extension(IdlStruct, typename="P_BlackBox_Ext.C_Event_Extension"):
     A_fromStates: sequence[str] = field(default_factory=list)
     A_toStates: sequence[str] = field(default_factory=list)
     A_message: str = ""
+    A_eventId: str = ""
+    A_entity_sourceID: T_IdentifierType = field(default_factory=T_IdentifierType)
 
 
 EXTENSION_TOPICS: dict[str, type] = {

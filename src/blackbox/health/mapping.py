@@ -39,6 +39,7 @@ from blackbox.health.extension import (
     C_Parameter,
     T_EventKind,
 )
+from blackbox.health.identity import EventLedger
 from blackbox.health.ids import SourceIds
 from blackbox.health.status import (
     FAILING,
@@ -108,6 +109,11 @@ class _Entity:
     bit_in_progress: bool = False
 
 
+def event_key(observer: str, resource: Resource) -> str:
+    """The key of an observer's events on a resource in the :class:`EventLedger`."""
+    return f"{observer}|{resource_key(resource)}"
+
+
 def resource_key(resource: Resource) -> str:
     return json.dumps(resource.to_dict(), sort_keys=True, separators=(",", ":"))
 
@@ -128,9 +134,13 @@ class HealthMapper:
         failure_actions: Mapping[str, FailureActions] | None = None,
         hysteresis: Hysteresis | None = None,
         logging_interval: float | None = None,
+        ledger: EventLedger | None = None,
     ) -> None:
         self.robot_id = robot_id
         self.ids = SourceIds(robot_id)
+        self.ledger = ledger or EventLedger()
+        """Gives every published event its ``<boot>-<sequence>`` identity; shared with the
+        recorder so a logged event carries the identity it was published with."""
         self.owners = dict(owners or {})
         self.failure_actions = dict(failure_actions or {})
         self.rules = hysteresis or Hysteresis()
@@ -369,6 +379,9 @@ class HealthMapper:
         c, value, th_id = chosen
         ident = self.ids.of("exceedence", str(c.ident.A_instanceId), f"{obs.time:.9f}",
                             str(kind.value))
+        event_id = self.ledger.assign(
+            "exceedance" if kind == T_EventKind.L_EventKind_FAULT else "state_change",
+            event_key(obs.observer, obs.resource), obs.time)
         c.active_events.append(ident)
         t = datetime_of(obs.time)
         return [
@@ -379,7 +392,7 @@ class HealthMapper:
             C_Event_Extension(
                 A_sourceID=ident, A_timeOfDataGeneration=t, A_kind=kind, A_code=int(obs.code),
                 A_codeName=obs.code.name, A_fromStates=list(key.states or ()),
-                A_toStates=list(states), A_message=obs.message),
+                A_toStates=list(states), A_message=obs.message, A_eventId=str(event_id)),
         ]
 
     def diagnosis(self, diagnosis: Diagnosis) -> list[Any]:
@@ -390,14 +403,32 @@ class HealthMapper:
         gone = self._diagnosed - names
         self._diagnosed = frozenset(names)
         for name in sorted(gone):
-            entity = self._entities.get(name)
-            if entity is not None:
-                entity.failures.clear()
+            entity = self._entity(name, diagnosis.time, out)
+            entity.failures.clear()
+            out.append(self._rectification(diagnosis.time, entity))
         for name in sorted(new):
             entity = self._entity(name, diagnosis.time, out)
-            out.append(self._failure(diagnosis, entity))
+            failure = self._failure(diagnosis, entity)
+            # The identity first: a station that gets the event before its extension waits.
+            out.append(C_Event_Extension(
+                A_sourceID=failure.A_sourceID, A_timeOfDataGeneration=failure.A_eventOccurrenceDate,
+                A_kind=T_EventKind.L_EventKind_FAILURE, A_code=int(failure.A_standardFaultCode),
+                A_codeName=failure.A_proprietaryFaultCode, A_message=failure.A_failureDescription,
+                A_eventId=str(self.ledger.assign("failure", name, diagnosis.time)),
+                A_entity_sourceID=entity.ident))
+            out.append(failure)
         out.extend(self._refresh(diagnosis.time, (), force=new | gone))
         return out
+
+    def _rectification(self, time: float, entity: _Entity) -> C_Event_Extension:
+        """A component left the diagnosis: UCMS has no event for it, the extension does."""
+        t = datetime_of(time)
+        return C_Event_Extension(
+            A_sourceID=self.ids.of("rectification", entity.name, f"{time:.9f}"),
+            A_timeOfDataGeneration=t, A_kind=T_EventKind.L_EventKind_RECTIFICATION,
+            A_message=f"{entity.name} is no longer diagnosed faulty",
+            A_eventId=str(self.ledger.assign("rectification", entity.name, time)),
+            A_entity_sourceID=entity.ident)
 
     def _failure(self, diagnosis: Diagnosis, entity: _Entity) -> C_Failure_Event:
         ident = self.ids.of("failure", entity.name, f"{diagnosis.time:.9f}")

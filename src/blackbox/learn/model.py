@@ -35,6 +35,15 @@ import numpy as np
 
 from blackbox.learn.fields import classify
 from blackbox.learn.recording import FieldRecord, NodeRecord, Recording, TopicRecord
+from blackbox.learn.relations import (
+    Relation,
+    RelationsLearned,
+    learn_relations,
+    liveness_comments,
+    liveness_entry,
+    relation_comments,
+    relation_entry,
+)
 from blackbox.learn.stats import (
     MIN_SAMPLES,
     Bounds,
@@ -79,10 +88,12 @@ class Learned:
     graph: dict[str, tuple[tuple[str, ...], tuple[str, ...]]]
     """node -> (published topics, subscribed topics)"""
     notes: list[str]
+    relations: list[Block] = field(default_factory=list)
+    """One block per pair of topics with learned relations (``blackbox.learn.relations``)."""
 
     @property
     def blocks(self) -> list[Block]:
-        return [*self.nodes, *self.topics]
+        return [*self.nodes, *self.topics, *self.relations]
 
 
 def _s(x: float) -> str:
@@ -131,8 +142,11 @@ def learn_model(rec: Recording) -> Learned:
         notes.append(f"no message arrived on any topic during {rec.duration:.0f} s: no rate "
                      "or value observer could be learned")
     node_blocks = [_node_block(n, rec) for n in sorted(rec.nodes.values(), key=lambda n: n.name)]
-    topic_blocks = [_topic_block(t, rec) for t in sorted(rec.topics.values(),
-                                                          key=lambda t: t.name)]
+    related = learn_relations(rec)
+    topic_blocks = [_topic_block(t, rec, related) for t in sorted(rec.topics.values(),
+                                                                   key=lambda t: t.name)]
+    relation_blocks = _relation_blocks(related)
+    notes.extend(related.notes)
     for b in [*node_blocks, *topic_blocks]:
         notes.extend(f"{b.id}: {n}" for n in b.notes)
     if rec.late_topics:
@@ -143,7 +157,21 @@ def learn_model(rec: Recording) -> Learned:
         pub = tuple(sorted(t.name for t in rec.topics.values() if name in t.publishers))
         sub = tuple(sorted(t.name for t in rec.topics.values() if name in t.subscribers))
         graph[name] = (pub, sub)
-    return Learned(rec.source, rec.duration, node_blocks, topic_blocks, graph, notes)
+    return Learned(rec.source, rec.duration, node_blocks, topic_blocks, graph, notes,
+                   relation_blocks)
+
+
+def _relation_blocks(related: RelationsLearned) -> list[Block]:
+    pairs: dict[tuple[str, str], list[Relation]] = {}
+    for r in related.relations:
+        pairs.setdefault(r.topics, []).append(r)
+    blocks = []
+    for pair, relations in sorted(pairs.items()):
+        block = Block(f"relation {pair[0]} {pair[1]}")
+        block.comments.extend(relation_comments(relations))
+        block.entries.append(relation_entry(pair, relations))
+        blocks.append(block)
+    return blocks
 
 
 # ---- nodes -----------------------------------------------------------------------------------
@@ -194,7 +222,7 @@ def _band(x: np.ndarray) -> tuple[float, float]:
 
 # ---- topics ----------------------------------------------------------------------------------
 
-def _topic_block(topic: TopicRecord, rec: Recording) -> Block:
+def _topic_block(topic: TopicRecord, rec: Recording, related: RelationsLearned) -> Block:
     block = Block(f"topic {topic.name}")
     pubs = ", ".join(sorted(topic.publishers)) or "none"
     block.comments.append(f"{topic.type or 'type unknown'} from {pubs}: {topic.total:,} "
@@ -210,7 +238,18 @@ def _topic_block(topic: TopicRecord, rec: Recording) -> Block:
         block.comments.append(f"{topic.split_gaps} gap(s) while a publisher was not running "
                               "left out of the periods")
     periods = _rate_entries(topic, block)
-    _value_entries(topic, block, periods)
+    trends = related.trends.get(topic.name, [])
+    block.comments.extend(trends)
+    related_fields = related.related.get(topic.name, set())
+    if related_fields:
+        block.comments.append("judged by relations, no band (its range depends on the "
+                              "operating mode): " + ", ".join(sorted(related_fields)))
+    _value_entries(topic, block, periods,
+                   frozenset(t.split(" trend:", 1)[0] for t in trends) | related_fields)
+    lives = related.liveness.get(topic.name)
+    if lives:
+        block.comments.extend(liveness_comments(lives))
+        block.entries.append(liveness_entry(topic.name, lives))
     return block
 
 
@@ -254,7 +293,8 @@ def _rate_entries(topic: TopicRecord, block: Block) -> np.ndarray | None:
     return first
 
 
-def _value_entries(topic: TopicRecord, block: Block, periods: np.ndarray | None) -> None:
+def _value_entries(topic: TopicRecord, block: Block, periods: np.ndarray | None,
+                   trends: frozenset[str] = frozenset()) -> None:
     if topic.discovery is None:
         if topic.undecodable:
             block.notes.append(f"values not learned: {topic.decode_reason}")
@@ -282,6 +322,8 @@ def _value_entries(topic: TopicRecord, block: Block, periods: np.ndarray | None)
                 block.notes.append(f"{label}: only {0 if series is None else len(series)} "
                                    f"samples (need {MIN_SAMPLES}): not observed")
                 continue
+            if summary == "value" and rec.info.path in trends:
+                continue  # a trend leaves any band it was learned in (issue 22 item 7)
             x = series.array()
             cls = classify(x, rec.info.integer and summary != "mean")
             kinds.append(cls.kind)

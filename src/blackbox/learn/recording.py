@@ -22,6 +22,7 @@ import numpy as np
 
 from blackbox.events import GraphSnapshot, Interest, MessageArrival, ResourceSample
 from blackbox.learn.fields import Discovery, FieldInfo, discover
+from blackbox.learn.timed import MAX_ELEMENTS, TimedSeries
 from blackbox.model import BlackBoxEvent
 from blackbox.observe.fieldpath import compile_field_access
 from blackbox.observe.observers.fields import summarise
@@ -67,6 +68,9 @@ class FieldRecord:
     series: dict[str, Series] = field(default_factory=dict)
     """``value`` for scalars; ``mean``, ``min``, ``max``, ``finite`` for arrays; ``age``
     for the stamp."""
+    timed: dict[str, TimedSeries] = field(default_factory=dict)
+    """Time-stamped samples for relations: ``value`` for a scalar, ``[i]`` per element of a
+    short array (``blackbox.learn.timed``)."""
     element_low: float = math.inf
     element_high: float = -math.inf
     problems: int = 0
@@ -208,13 +212,29 @@ class Recorder:
                     if stamp != 0.0:
                         rec.series.setdefault("age", Series()).add(msg.time - stamp)
                 elif rec.info.kind == "scalar":
-                    rec.series.setdefault("value", Series()).add(
-                        summarise(raw, "value", rec.info.path))
+                    x = summarise(raw, "value", rec.info.path)
+                    rec.series.setdefault("value", Series()).add(x)
+                    rec.timed.setdefault("value", TimedSeries()).add(msg.time, x)
                 else:
                     self._array(rec, raw)
+                    self._elements(rec, raw, msg.time)
             except ValueError as exc:
                 rec.problems += 1
                 rec.last_problem = str(exc)
+
+    @staticmethod
+    def _elements(rec: FieldRecord, raw: Any, t: float) -> None:
+        """Each element of a short numeric array as a signal of its own (``[i]``)."""
+        if isinstance(raw, (bytes, bytearray, memoryview)):
+            return
+        try:
+            elements = np.asarray(raw, dtype=np.float64).ravel()
+        except (TypeError, ValueError):
+            return
+        if elements.size > MAX_ELEMENTS:
+            return
+        for i, x in enumerate(elements.tolist()):
+            rec.timed.setdefault(f"[{i}]", TimedSeries()).add(t, x)
 
     @staticmethod
     def _array(rec: FieldRecord, raw: Any) -> None:

@@ -27,6 +27,7 @@ from blackbox.config.tug import TugForm
 from blackbox.events import (
     GraphSnapshot,
     Interest,
+    MeasurementGap,
     MessageArrival,
     NetworkSample,
     ResourceSample,
@@ -103,6 +104,11 @@ class Observer(Protocol):
 
     def on_network(self, sample: NetworkSample) -> None: ...
 
+    def on_gap(self, gap: MeasurementGap) -> None:
+        """The source could not measure what this observer observes from ``gap.start`` (to
+        ``gap.end`` once it is known); each type's rule is in docs/observations.md."""
+        ...
+
     def evaluate(self, now: float) -> list[Observation]: ...
 
     def describe(self) -> str:
@@ -133,6 +139,11 @@ class ObserverBase:
         return None
 
     def on_network(self, sample: NetworkSample) -> None:
+        return None
+
+    def on_gap(self, gap: MeasurementGap) -> None:
+        """Value observers keep judging what arrives: a gap in measurement does not make a
+        message's values wrong, only fewer."""
         return None
 
 
@@ -197,6 +208,13 @@ class ObserverKind:
     aliases: tuple[str, ...] = ()
     tug: TugForm | None = None
     tug_names: tuple[str, ...] = ()
+    exonerates: bool = True
+    """Whether OK observations of this type clear the mode they judge (all of them OK, see
+    docs/diagnosis.md). A learned envelope cannot see an offset inside its range, so a
+    passing one is no proof of health: its type says ``False`` and it only accuses."""
+    relation: bool = False
+    """A relation between the values of its topics (``relation``): failed, the values of
+    one of its topics are wrong; held, each of its topics' values is cleared by it alone."""
 
     def unit(self, quantity: str) -> str:
         return next((q.unit for q in self.quantities if q.name == quantity), "")

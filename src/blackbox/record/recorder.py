@@ -22,6 +22,7 @@ from typing import Any
 
 from blackbox.config.node import ConfigNode
 from blackbox.events import MessageArrival, TopicSchema
+from blackbox.health.identity import EventLedger
 from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource
 from blackbox.record.handoff import Handoff, Pending
 from blackbox.record.logfile import check_record_path, safe_name
@@ -66,8 +67,14 @@ class Recorder(SinkBase):
         clock: Callable[[], float] = _time.time,
         on_self_event: Callable[[BlackBoxEvent], None] | None = None,
         on_config: Callable[[ConfigVersion], None] | None = None,
+        ledger: EventLedger | None = None,
     ) -> None:
         self.settings = settings
+        self.ledger = ledger if ledger is not None else EventLedger()
+        """Event identities: shared with the health publisher, which assigns them (the
+        recorder looks them up, so its own rows never open a hole in the sequence); without
+        one the recorder is the only consumer and assigns them itself."""
+        self._assigns_ids = ledger is None
         self.robot_id = robot_id
         self.schema_lookup = schema_lookup
         self.clock = clock
@@ -140,6 +147,12 @@ class Recorder(SinkBase):
         return self._writer.written
 
     @property
+    def pending(self) -> int:
+        """Rows handed to the writer and not yet committed (0: everything so far is in the
+        log file)."""
+        return self._handoff.pending
+
+    @property
     def snapshots_written(self) -> int:
         captures = self._writer.captures
         return captures.written if captures is not None else 0
@@ -171,11 +184,17 @@ class Recorder(SinkBase):
             d = decide(obs)
             if d is None:
                 continue
-            if d.snapshot and self.ring is not None:
+            event_id = self._event_id(obs, d.fault_started, d.channel[2]) \
+                if d.kind != "sample" else None
+            if (d.snapshot and self.ring is not None) or event_id is not None:
                 payload = observation_payload(obs, True)
-                path = self._trigger_snapshot(obs.time, f"{obs.observer} {obs.resource.label()}")
-                if path:
-                    payload["snapshot"] = path
+                if d.snapshot and self.ring is not None:
+                    path = self._trigger_snapshot(obs.time,
+                                                  f"{obs.observer} {obs.resource.label()}")
+                    if path:
+                        payload["snapshot"] = path
+                if event_id is not None:
+                    payload["event_id"] = event_id
                 rows.append((obs.time, d.kind, d.channel, int(obs.code), payload))
             else:
                 rows.append((obs.time, d.kind, d.channel, obs.code, obs))
@@ -207,10 +226,32 @@ class Recorder(SinkBase):
                 else:
                     payload["category"] = "rectification"
                     payload["components"] = sorted(self._last_failure)
+                payload["events"] = self._diagnosis_events(diagnosis.time, best)
                 self._last_failure = best
                 rows.append(Row(diagnosis.time, "failure", None, None, payload))
             self._queue_rows(rows)
         self._after_call(diagnosis.time)
+
+    def _event_id(self, obs: Observation, started: bool, resource: str) -> str | None:
+        """The identity of the event ``obs`` starts (a fault's onset, or a change of state
+        the health publisher announced), if it is one."""
+        key = f"{obs.observer}|{resource}"
+        if self._assigns_ids:
+            return str(self.ledger.assign("exceedance", key, obs.time)) if started else None
+        found = self.ledger.lookup("exceedance" if obs.code < 0 else "state_change", key,
+                                   obs.time)
+        return str(found) if found is not None else None
+
+    def _diagnosis_events(self, t: float, best: frozenset[str]) -> list[dict[str, str]]:
+        """The failures and rectifications this diagnosis caused, with their identities."""
+        if self._assigns_ids:
+            named = [("failure", c, self.ledger.assign("failure", c, t))
+                     for c in sorted(best - self._last_failure)]
+            named += [("rectification", c, self.ledger.assign("rectification", c, t))
+                      for c in sorted(self._last_failure - best)]
+        else:
+            named = self.ledger.at(t, ("failure", "rectification"))
+        return [{"kind": k, "entity": c, "id": str(i)} for k, c, i in named]
 
     def on_event(self, event: BlackBoxEvent) -> None:
         if event.component == COMPONENT:

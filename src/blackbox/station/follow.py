@@ -45,6 +45,7 @@ from blackbox.health.extension import (
     C_Event_Extension,
     T_EventKind,
 )
+from blackbox.health.identity import EventId
 from blackbox.health.ids import robot_resource_id
 from blackbox.health.types import (
     C_Failure_Event,
@@ -59,6 +60,7 @@ from blackbox.health.types import (
     seconds_of,
 )
 from blackbox.record.store import KINDS, LogEntry
+from blackbox.station.sequence import EventSequences, Gap
 from blackbox.station.store import (
     STATUSES,
     RobotRef,
@@ -153,6 +155,11 @@ class _Robot:
     backfill_due: list[float] = field(default_factory=list)
     held: list[tuple[float, Any]] = field(default_factory=list)
     first_held: float | None = None
+    sends_ids: bool = False
+    """The robot names its events (``<boot>-<sequence>``): the station then stores its
+    rectifications as the robot announces them instead of inferring them."""
+    sequences: EventSequences = field(default_factory=EventSequences)
+    gap_fetch: bool = False
 
     @property
     def name(self) -> str:
@@ -179,6 +186,8 @@ class FollowerStats:
     held: int = 0
     dropped_unknown: int = 0
     backfilled: int = 0
+    events_lost: int = 0
+    """Events a robot numbered that were neither received nor found in its log."""
     by_topic: dict[str, int] = field(default_factory=dict)
 
 
@@ -220,7 +229,10 @@ class StationFollower:
         self._waitset: WaitSet | None = None
         self._robots: dict[int, _Robot] = {}
         self._ext: dict[tuple[int, int], C_Event_Extension] = {}
-        self._exceedances: list[tuple[float, C_Threshold_Exceedence_Event]] = []
+        self._waiting: list[tuple[float, C_Threshold_Exceedence_Event | C_Failure_Event]] = []
+        """Events waiting (``EXT_WAIT`` at most) for their extension, which travels on
+        another topic."""
+        self._sequence_lock = threading.Lock()
         self._requests = _Lane("requests")
         self._backfills = _Lane("backfill")
         self._stop = threading.Event()
@@ -345,7 +357,8 @@ class StationFollower:
                 self._reject(name, f"sample not understood: {type(exc).__name__}: {exc}")
         for rid in heard:
             self.store.heard(rid, now)
-        self._resolve_exceedances(now)
+        self._resolve_waiting(now)
+        self._check_sequences(now)
         self._expire_held(now)
         self._drop_foreign_replies()
         self.store.flush()
@@ -466,13 +479,16 @@ class StationFollower:
                     "min" if s.A_type == T_ThresholdType.L_ThresholdType_MIN else "max",
                     float(s.A_value))
         elif isinstance(s, C_Event_Extension):
-            self._ext[_key(s.A_sourceID)] = s
-            while len(self._ext) > 10_000:
-                self._ext.pop(next(iter(self._ext)))
-        elif isinstance(s, C_Threshold_Exceedence_Event):
-            self._exceedances.append((now, s))
-        elif isinstance(s, C_Failure_Event):
-            self._failure(robot, s)
+            if s.A_eventId:
+                robot.sends_ids = True
+            if s.A_kind == T_EventKind.L_EventKind_RECTIFICATION:
+                self._rectification(robot, s, now)
+            else:
+                self._ext[_key(s.A_sourceID)] = s
+                while len(self._ext) > 10_000:
+                    self._ext.pop(next(iter(self._ext)))
+        elif isinstance(s, C_Threshold_Exceedence_Event | C_Failure_Event):
+            self._waiting.append((now, s))
         else:
             raise TypeError(f"unexpected sample {type(s).__name__}")
 
@@ -505,7 +521,8 @@ class StationFollower:
         first = iid not in robot.seen
         robot.seen.add(iid)
         component = e.kind not in ("robot", "") and bool(e.name)
-        if component and not first and e.failures > 0 and failures == 0 and online:
+        if component and not first and e.failures > 0 and failures == 0 and online \
+                and not robot.sends_ids:
             self.store.add_event(rid, t, "rectification",
                                  dedup=f"rectification|{_stamp(t)}|{e.name}", entity=e.name,
                                  text=f"{e.name} is no longer diagnosed faulty")
@@ -534,7 +551,30 @@ class StationFollower:
                              text=text, origin=origin,
                              details={"components": sorted(components)})
 
-    def _failure(self, robot: _Robot, s: C_Failure_Event) -> None:
+    def _identity(self, robot: _Robot, ext: C_Event_Extension | None, legacy: str, t: float,
+                  now: float) -> str:
+        """The dedup key of an event: its identity when the robot named it (and the station
+        notes the number as received), else the legacy key from kind, time and entity."""
+        ident = EventId.parse(ext.A_eventId) if ext is not None and ext.A_eventId else None
+        if ident is None:
+            return legacy
+        with self._sequence_lock:
+            robot.sequences.see(ident, t, now)
+        return f"id:{ident}"
+
+    def _rectification(self, robot: _Robot, s: C_Event_Extension, now: float) -> None:
+        rid = robot.resource_id
+        ent = s.A_entity_sourceID
+        e = robot.entities.get(int(ent.A_instanceId)) if int(ent.A_resourceId) == rid else None
+        name = e.name if e is not None else f"#{int(ent.A_instanceId)}"
+        t = seconds_of(s.A_timeOfDataGeneration)
+        dedup = self._identity(robot, s, f"rectification|{_stamp(t)}|{name}", t, now)
+        self.store.add_event(rid, t, "rectification", dedup=dedup, entity=name,
+                             text=f"{name} is no longer diagnosed faulty",
+                             details={"event_id": s.A_eventId[:40]})
+
+    def _failure(self, robot: _Robot, s: C_Failure_Event, ext: C_Event_Extension | None = None,
+                 now: float = 0.0) -> None:
         rid = robot.resource_id
         ent = s.A_monitoredEntity_sourceID
         e = robot.entities.get(int(ent.A_instanceId)) if int(ent.A_resourceId) == rid else None
@@ -546,8 +586,9 @@ class StationFollower:
         if e is not None:
             e.cause = cause
             self.store.put_entity(rid, int(ent.A_instanceId), cause=cause, actions=action)
+        dedup = self._identity(robot, ext, f"failure|{_stamp(t)}|{name}", t, now)
         self.store.add_event(
-            rid, t, "failure", dedup=f"failure|{_stamp(t)}|{name}", entity=name,
+            rid, t, "failure", dedup=dedup, entity=name,
             text=description + (f": {cause}" if cause else ""),
             details={"standard_fault_code": float(s.A_standardFaultCode)
                      if math.isfinite(s.A_standardFaultCode) else None,
@@ -556,21 +597,75 @@ class StationFollower:
                      "operator_action": action[:500],
                      "maintenance_action": s.A_maintenanceActionDescription[:500],
                      "complementary": s.A_complementaryInformation[:MAX_STRING],
-                     "documentation_uri": s.A_eventDocumentationURI[:500]})
+                     "documentation_uri": s.A_eventDocumentationURI[:500],
+                     "event_id": ext.A_eventId[:40] if ext is not None else ""})
 
-    def _resolve_exceedances(self, now: float) -> None:
-        waiting: list[tuple[float, C_Threshold_Exceedence_Event]] = []
-        for arrived, s in self._exceedances:
+    def _resolve_waiting(self, now: float) -> None:
+        waiting: list[tuple[float, C_Threshold_Exceedence_Event | C_Failure_Event]] = []
+        for arrived, s in self._waiting:
             ext = self._ext.pop(_key(s.A_sourceID), None)
             if ext is None and now - arrived < EXT_WAIT:
                 waiting.append((arrived, s))
                 continue
             robot = self._robot(int(s.A_sourceID.A_resourceId))
-            self._exceedance(robot, s, ext)
-        self._exceedances = waiting
+            if isinstance(s, C_Failure_Event):
+                self._failure(robot, s, ext, now)
+            else:
+                self._exceedance(robot, s, ext, now)
+        self._waiting = waiting
+
+    def _check_sequences(self, now: float) -> None:
+        """Tell the operator about events a robot published that never arrived, and fetch
+        them from its log (once per hole; what the log lacks too is reported lost)."""
+        for robot in self._robots.values():
+            if robot.gap_fetch or not robot.sends_ids:
+                continue
+            with self._sequence_lock:
+                gaps = robot.sequences.gaps(now)
+            if not gaps:
+                continue
+            missing = sum(g.count for g in gaps)
+            fetch = self.backfill > 0 and robot.robot_id
+            self.store.report_problem(
+                f"missing events {robot.name}",
+                f"{robot.name}: {missing} events not received (numbers "
+                + ", ".join(f"{g.first}-{g.last}" if g.count > 1 else str(g.first)
+                            for g in gaps[:5])
+                + ("); fetching them from the robot's log" if fetch else
+                   "); automatic backfill is off"))
+            if not fetch:
+                with self._sequence_lock:
+                    for g in gaps:
+                        robot.sequences.give_up(g)
+                continue
+            robot.gap_fetch = True
+            try:
+                self._backfills.jobs.put_nowait(self._gap_job(robot, gaps))
+            except queue.Full:
+                robot.gap_fetch = False  # try again on a later poll
+
+    def _gap_job(self, robot: _Robot, gaps: list[Gap]) -> Callable[[], None]:
+        def job() -> None:
+            try:
+                self._backfill(robot, min(g.after for g in gaps) - 1.0)
+                with self._sequence_lock:
+                    still = [g for g in robot.sequences.gaps(float("inf"))
+                             if any(g.first <= x.last and x.first <= g.last for x in gaps)]
+                    for g in still:
+                        robot.sequences.give_up(g)
+                self.store.clear_problem(f"missing events {robot.name}")
+                if still:
+                    self.stats.events_lost += sum(g.count for g in still)
+                    self.store.report_problem(
+                        f"lost events {robot.name}",
+                        f"{robot.name}: {sum(g.count for g in still)} events were neither "
+                        "received nor found in the robot's log")
+            finally:
+                robot.gap_fetch = False
+        return job
 
     def _exceedance(self, robot: _Robot, s: C_Threshold_Exceedence_Event,
-                    ext: C_Event_Extension | None) -> None:
+                    ext: C_Event_Extension | None, now: float = 0.0) -> None:
         rid = robot.resource_id
         concerned = s.A_concernedCharacteristic_sourceID
         cid = int(concerned.A_instanceId)
@@ -597,6 +692,9 @@ class StationFollower:
             dedup = f"{kind}|{_stamp(t)}|{c.observer}|{_primary(c.resource)}"
         else:
             dedup = f"{kind}|{_stamp(t)}|#{cid}"
+        dedup = self._identity(robot, ext, dedup, t, now)
+        if ext is not None and ext.A_eventId:
+            details["event_id"] = ext.A_eventId[:40]
         self.store.add_event(rid, t, kind, dedup=dedup,
                              entity=owner.name if owner is not None else "",
                              characteristic=cname, text=text, details=details)
@@ -658,18 +756,25 @@ class StationFollower:
             observer = str(entry.characteristic or "")
             message = str(payload.get("message") or payload.get("code_name") or "")
             owner = self._owner_of(robot, observer, entity)
-            self.store.add_event(rid, t, "exceedance",
-                                 dedup=f"exceedance|{_stamp(t)}|{observer}|{entity}",
+            dedup = self._logged_identity(robot, payload.get("event_id"),
+                                          f"exceedance|{_stamp(t)}|{observer}|{entity}", t)
+            self.store.add_event(rid, t, "exceedance", dedup=dedup,
                                  entity=owner or entity, characteristic=f"{observer} {entity}",
                                  text=f"{observer} {entity}: {message}".strip(), origin="log",
                                  details={"log_id": entry.id, "code": entry.code,
-                                          "values": payload.get("values")})
+                                          "values": payload.get("values"),
+                                          "event_id": str(payload.get("event_id") or "")[:40]})
             return 1
         if entry.kind == "failure":
             components = [str(c)[:200] for c in payload.get("components") or []][:100]
             category = payload.get("category")
             explanation = str(payload.get("explanation") or "")[:MAX_STRING]
             n = 0
+            named = payload.get("events")
+            if isinstance(named, list):
+                n = self._logged_diagnosis_events(robot, named, t, explanation, entry.id,
+                                                  payload.get("snapshot"))
+                components = []  # the events name each failure and rectification exactly
             for comp in components:
                 if category == "rectification":
                     self.store.add_event(rid, t, "rectification",
@@ -695,6 +800,35 @@ class StationFollower:
                                  details={"components": sorted(now_components)})
             return n + 1
         return 0
+
+    def _logged_identity(self, robot: _Robot, event_id: Any, legacy: str, t: float) -> str:
+        ident = EventId.parse(event_id) if isinstance(event_id, str) else None
+        if ident is None:
+            return legacy
+        with self._sequence_lock:
+            robot.sequences.see(ident, t, self.clock())
+        return f"id:{ident}"
+
+    def _logged_diagnosis_events(self, robot: _Robot, named: list[Any], t: float,
+                                 explanation: str, log_id: int, snapshot: Any) -> int:
+        """Failures and rectifications a logged diagnosis row names with their identities."""
+        n = 0
+        for item in named[:100]:
+            if not isinstance(item, dict) or item.get("kind") not in ("failure",
+                                                                      "rectification"):
+                continue
+            comp = str(item.get("entity") or "")[:200]
+            kind = str(item["kind"])
+            dedup = self._logged_identity(robot, item.get("id"), f"{kind}|{_stamp(t)}|{comp}", t)
+            text = f"{comp} is no longer diagnosed faulty" if kind == "rectification" else \
+                f"{comp} diagnosed faulty" + (f": {explanation}" if explanation else "")
+            details: dict[str, Any] = {"log_id": log_id, "event_id": str(item.get("id"))[:40]}
+            if kind == "failure":
+                details["snapshot"] = snapshot
+            self.store.add_event(robot.resource_id, t, kind, dedup=dedup, entity=comp,
+                                 origin="log", text=text, details=details)
+            n += 1
+        return n
 
     def _owner_of(self, robot: _Robot, observer: str, entity: str) -> str:
         for c in list(robot.chars.values()):  # the reading thread may add to it

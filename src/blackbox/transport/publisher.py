@@ -29,6 +29,7 @@ from cyclonedds.util import duration
 from blackbox.config.node import ConfigNode
 from blackbox.health.describe import ObserverDescription, describe_observers
 from blackbox.health.extension import EXTENSION_TOPICS
+from blackbox.health.identity import EventLedger
 from blackbox.health.mapping import FailureActions, HealthMapper
 from blackbox.health.status import Hysteresis
 from blackbox.health.types import (
@@ -82,6 +83,7 @@ class DdsHealthSink(SinkBase):
         on_ibit: Callable[[], Sequence[Observation]] | None = None,
         access: AccessPolicy | None = None,
         clock: Callable[[], float] = time.time,
+        ledger: EventLedger | None = None,
     ) -> None:
         if not robot_id:
             raise ValueError("robot id must not be empty")
@@ -91,7 +93,8 @@ class DdsHealthSink(SinkBase):
         self.settings = TransportSettings(domain_id, partition, cyclone_config)
         self.mapper = HealthMapper(robot_id, descriptions=descriptions, owners=owners,
                                    failure_actions=failure_actions, hysteresis=hysteresis,
-                                   logging_interval=logging_interval)
+                                   logging_interval=logging_interval, ledger=ledger)
+        self.ledger = self.mapper.ledger
         self.bus = Bus.open(self.settings)
         self._writers: dict[type, DataWriter[Any]] = {
             t: self.bus.writer(name) for name, t in ALL_TOPICS.items()

@@ -8,6 +8,11 @@ The verdict follows the latest snapshot at the next evaluation.
 observer's first event (first snapshot or first evaluation, whichever comes first) a node
 that is not running yet is ``NOT_AVAILABLE`` rather than an error. A running node is
 ``GENERAL_OK`` at once.
+
+Measurement gaps of the node (or of everything): snapshots stamped inside one are not
+used; while one is open, and after it until the first snapshot stamped after its end, the
+observation is ``NOT_AVAILABLE``: a probe that timed out while the black box itself was
+paused says nothing about the node.
 """
 
 from __future__ import annotations
@@ -16,7 +21,7 @@ from typing import ClassVar
 
 from blackbox.config import tug
 from blackbox.config.node import ConfigNode
-from blackbox.events import GraphSnapshot, Interest, NodeInfo
+from blackbox.events import GraphSnapshot, Interest, MeasurementGap, NodeInfo
 from blackbox.model import Code, Observation, Resource
 from blackbox.observe.base import (
     OBSERVERS,
@@ -26,6 +31,7 @@ from blackbox.observe.base import (
     Quantity,
     Subject,
 )
+from blackbox.observe.gaps import UNMEASURED, Unmeasured, moment
 from blackbox.observe.observers.entry import COMMON_KEYS, read_every, read_name
 
 
@@ -42,6 +48,8 @@ class ActivatedObserver(ObserverBase):
         self._started: float | None = None
         self._seen_graph = False
         self._info: NodeInfo | None = None
+        self._gaps = Unmeasured()
+        self._stale = False
 
     def interest(self) -> Interest:
         return Interest(nodes=frozenset({self.node}))
@@ -49,12 +57,28 @@ class ActivatedObserver(ObserverBase):
     def on_graph(self, graph: GraphSnapshot) -> None:
         if self._started is None:
             self._started = graph.time
+        if self._gaps.covers(graph.time):
+            return
+        self._stale = False
         self._seen_graph = True
         self._info = graph.nodes.get(self.node)
+
+    def on_gap(self, gap: MeasurementGap) -> None:
+        if self._gaps.apply(gap):
+            self._stale = True
 
     def evaluate(self, now: float) -> list[Observation]:
         if self._started is None:
             self._started = now
+        unmeasured = self._gaps.observation(now, self.type_name, self.resource)
+        if unmeasured is not None:
+            return [unmeasured]
+        if self._stale:
+            return [Observation(
+                now, self.type_name, self.resource, Code.NOT_AVAILABLE,
+                values={UNMEASURED: self._gaps.last_start},
+                message=f"not measured until {moment(self._gaps.ended)} "
+                        f"({self._gaps.reason}); waiting for a graph snapshot after that")]
         info = self._info
         if not self._seen_graph:
             return [self._observation(now, Code.NOT_AVAILABLE,

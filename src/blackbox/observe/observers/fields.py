@@ -266,4 +266,4 @@ def fields_from_config(node: ConfigNode) -> FieldsObserver:
 
 
 OBSERVERS.add("fields", ObserverKind("fields", fields_from_config, Subject.TOPIC, (),
-                                     judges=Mode.RIGHT))
+                                     judges=Mode.RIGHT, exonerates=False))

@@ -12,6 +12,14 @@ shortest the real next period can be). The filter itself is not changed, so when
 message does arrive its true period is counted once. A stalled or slowed topic thus shows
 at the next evaluation. A median filter ignores one outlying sample by design, so for fast
 stall detection pair it with a ``timeout`` observer.
+
+Measurement gaps (:class:`~blackbox.events.MeasurementGap`): while one is open the
+observation is ``NOT_AVAILABLE`` ("not measured since ..."); arrivals stamped inside it
+are not counted, so no period spans a gap. Measuring starts afresh at its end: the first
+arrival after it starts a new period, and until then the silence counts from the gap's
+end, so a topic that stopped during the gap still shows as a stall. The window keeps the
+periods measured before the gap: they are true periods of the same topic, and a window
+restarted from one or two periods would judge more noisily than before the gap.
 """
 
 from __future__ import annotations
@@ -21,9 +29,10 @@ from typing import ClassVar
 
 from blackbox.config import tug
 from blackbox.config.node import ConfigNode
-from blackbox.events import ArrivalBatch, Interest, MessageArrival
+from blackbox.events import ArrivalBatch, Interest, MeasurementGap, MessageArrival
 from blackbox.model import Observation
 from blackbox.observe.base import OBSERVERS, ObserverKind, Quantity, Subject
+from blackbox.observe.gaps import Unmeasured
 from blackbox.observe.observers.entry import PublisherGroup, read_filtered_group
 from blackbox.observe.observers.quantity import FilteredQuantity, JudgedObserver, number
 from blackbox.observe.states import StateSpec
@@ -42,6 +51,10 @@ class HzObserver(JudgedObserver):
         self._group = group.members
         self._update = period.update
         self._last: float | None = None
+        self._resumed: float | None = None
+        self._gaps = Unmeasured()
+        self._skip_until = -float("inf")
+        self._in_gap = False
 
     def interest(self) -> Interest:
         return Interest(topics=frozenset({self.group.topic}))
@@ -51,6 +64,8 @@ class HzObserver(JudgedObserver):
         if group and msg.publisher not in group:
             return
         t = msg.time
+        if self._in_gap or t < self._skip_until:
+            return
         last = self._last
         if last is None:
             self._last = t
@@ -65,6 +80,8 @@ class HzObserver(JudgedObserver):
         if group and batch.publisher not in group:
             return
         t = batch.time
+        if self._in_gap or t < self._skip_until:
+            return
         last = self._last
         update = self._update
         if last is None:
@@ -77,22 +94,36 @@ class HzObserver(JudgedObserver):
         for _ in range(batch.count - 1):
             update(0.0)
 
+    def on_gap(self, gap: MeasurementGap) -> None:
+        if self._gaps.apply(gap):
+            self._last = None
+            self._resumed = gap.end
+        self._in_gap = self._gaps.open
+        self._skip_until = self._gaps.ended
+
     def evaluate(self, now: float) -> list[Observation]:
+        unmeasured = self._gaps.observation(now, self.type_name, self.resource)
+        if unmeasured is not None:
+            return [unmeasured]
         last = self._last
-        if last is None:
-            return [self.unavailable(now, "waiting for first message")]
-        silent = max(0.0, now - last)
         summary = self.period.summary()
+        if last is None and (self._resumed is None or summary is None):
+            return [self.unavailable(now, "waiting for first message")]
+        since = last if last is not None else self._resumed
+        assert since is not None
+        silent = max(0.0, now - since)
         if summary is None:
             return [self.unavailable(
                 now, f"waiting for a second message (one so far, {silent:.3g} s ago)",
                 {"silent_for": silent})]
         note = ""
+        if last is None:
+            note = f"; measuring again since a gap ended {silent:.3g} s ago"
         if silent > summary.value:
             provisional = self.period.provisional_summary(silent)
             if provisional is not None:
                 summary = provisional
-                note = f"; no message for {silent:.3g} s (counted as a provisional period)"
+                note += f"; no message for {silent:.3g} s (counted as a provisional period)"
         extra = {"rate_hz": 1.0 / summary.value} if summary.value > 0 else {}
         rate = f" ({extra['rate_hz']:.3g} Hz)" if extra else ""
         return [self.judged(now, {"period": summary}, f"period {number(summary.value)} s{rate}",

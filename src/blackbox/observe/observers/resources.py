@@ -3,6 +3,10 @@
 A sample without a value (the process is gone, or not readable) is never a silent zero:
 the observation is ``NOT_AVAILABLE`` with the sample's reason until a complete sample
 arrives. The present value of an incomplete sample is still filtered.
+
+Measurement gaps: samples stamped inside a gap of the node (or of everything) are skipped,
+and while one is open the observation is ``NOT_AVAILABLE`` ("not measured since ...");
+a paused black box samples late, not wrongly, so nothing else changes.
 """
 
 from __future__ import annotations
@@ -12,9 +16,10 @@ from typing import ClassVar
 
 from blackbox.config import tug
 from blackbox.config.node import ConfigNode
-from blackbox.events import Interest, ResourceSample
+from blackbox.events import Interest, MeasurementGap, ResourceSample
 from blackbox.model import Observation, Resource
 from blackbox.observe.base import OBSERVERS, ObserverKind, Quantity, Subject
+from blackbox.observe.gaps import Unmeasured
 from blackbox.observe.observers.entry import COMMON_KEYS, read_judged, read_name
 from blackbox.observe.observers.quantity import FilteredQuantity, JudgedObserver, byte_count
 from blackbox.observe.states import StateSpec
@@ -32,12 +37,13 @@ class ResourcesObserver(JudgedObserver):
         self.cpu = cpu
         self.memory = memory
         self._latest: ResourceSample | None = None
+        self._gaps = Unmeasured()
 
     def interest(self) -> Interest:
         return Interest(resources=frozenset({self.node}))
 
     def on_resources(self, sample: ResourceSample) -> None:
-        if sample.node != self.node:
+        if sample.node != self.node or self._gaps.covers(sample.time):
             return
         self._latest = sample
         if sample.cpu_percent is not None:
@@ -45,7 +51,13 @@ class ResourcesObserver(JudgedObserver):
         if sample.memory_bytes is not None:
             self.memory.update(sample.memory_bytes)
 
+    def on_gap(self, gap: MeasurementGap) -> None:
+        self._gaps.apply(gap)
+
     def evaluate(self, now: float) -> list[Observation]:
+        unmeasured = self._gaps.observation(now, self.type_name, self.resource)
+        if unmeasured is not None:
+            return [unmeasured]
         latest = self._latest
         if latest is None:
             return [self.unavailable(now, f"waiting for the first resource sample of "

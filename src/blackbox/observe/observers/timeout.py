@@ -14,6 +14,12 @@ Detection latency: the observer is evaluated every ``min(every, max(0.01, min(0.
 timeout / 4)))`` seconds, so a time-out shows within ``timeout + 0.25`` s (and within
 1.25 x ``timeout`` for short time-outs). To keep the observation stream at one record per
 ``every`` seconds, the extra evaluations return a record only when the code changes.
+
+Measurement gaps (:class:`~blackbox.events.MeasurementGap`): no time-out verdict for a
+gap. While one is open the observation is ``NOT_AVAILABLE`` ("not measured since ...");
+afterwards the silence counts from the gap's end (or the first message after it), so a
+topic that really stopped during the gap times out ``timeout`` seconds after measuring
+resumed. Arrivals stamped inside the gap are not used.
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ from typing import ClassVar
 
 from blackbox.config import tug
 from blackbox.config.node import ConfigNode
-from blackbox.events import ArrivalBatch, Interest, MessageArrival
+from blackbox.events import ArrivalBatch, Interest, MeasurementGap, MessageArrival
 from blackbox.model import Code, Observation
 from blackbox.observe.base import (
     OBSERVERS,
@@ -32,6 +38,7 @@ from blackbox.observe.base import (
     Quantity,
     Subject,
 )
+from blackbox.observe.gaps import Unmeasured
 from blackbox.observe.observers.entry import COMMON_KEYS, PublisherGroup, read_every, read_group
 
 DEFAULT_MAX_TIMEOUTS_IN_A_ROW = 1
@@ -66,6 +73,8 @@ class TimeoutObserver(ObserverBase):
         self._started: float | None = None
         self._reported_code: Code | None = None
         self._reported_at = 0.0
+        self._resumed: float | None = None
+        self._gaps = Unmeasured()
 
     def interest(self) -> Interest:
         return Interest(topics=frozenset({self.group.topic}))
@@ -73,6 +82,8 @@ class TimeoutObserver(ObserverBase):
     def on_message(self, msg: MessageArrival) -> None:
         group = self._group
         if group and msg.publisher not in group:
+            return
+        if self._gaps.covers(msg.time):
             return
         last = self._last
         if last is None or msg.time > last:
@@ -82,14 +93,30 @@ class TimeoutObserver(ObserverBase):
         group = self._group
         if group and batch.publisher not in group:
             return
+        if self._gaps.covers(batch.time):
+            return
         last = self._last
         if batch.count > 0 and (last is None or batch.time > last):
             self._last = batch.time
 
+    def on_gap(self, gap: MeasurementGap) -> None:
+        if self._gaps.apply(gap):
+            self._last = None
+            self._resumed = gap.end
+
     def evaluate(self, now: float) -> list[Observation]:
         if self._started is None:
             self._started = now
-        since = self._last if self._last is not None else self._started
+        unmeasured = self._gaps.observation(now, self.type_name, self.resource)
+        if unmeasured is not None:
+            if self._reported_code is Code.NOT_AVAILABLE and \
+                    now - self._reported_at < self.every - 1e-9:
+                return []
+            self._reported_code = Code.NOT_AVAILABLE
+            self._reported_at = now
+            return [unmeasured]
+        since = (self._last if self._last is not None
+                 else self._resumed if self._resumed is not None else self._started)
         silent = max(0.0, now - since)
         timed_out = silent > self.timeout
         code = Code.TIMEOUT if timed_out else Code.GENERAL_OK
@@ -106,7 +133,9 @@ class TimeoutObserver(ObserverBase):
 
     def _message(self, silent: float, timed_out: bool, in_a_row: int) -> str:
         limit = f"timeout {self.timeout:g} s"
-        if self._last is None:
+        if self._last is None and self._resumed is not None:
+            what = f"no message since measuring resumed {silent:.3g} s ago"
+        elif self._last is None:
             what = f"no message since observation began {silent:.3g} s ago"
         elif timed_out:
             what = f"no message for {silent:.3g} s"

@@ -10,6 +10,10 @@ running delay, then starts a new one.
 While a delay is running (an A without its B yet), an evaluation treats the time since
 that A as a provisional delay when it is longer than the filtered delay, as the ``hz``
 observer does with periods: a B that never comes shows without waiting for it.
+
+Measurement gaps of either topic (or of everything): a delay running across a gap is
+dropped, messages stamped inside it are not used, and while one is open the observation
+is ``NOT_AVAILABLE`` ("not measured since ..."); the next A after the gap starts afresh.
 """
 
 from __future__ import annotations
@@ -19,9 +23,10 @@ from typing import ClassVar
 
 from blackbox.config import tug
 from blackbox.config.node import ConfigNode
-from blackbox.events import Interest, MessageArrival
+from blackbox.events import Interest, MeasurementGap, MessageArrival
 from blackbox.model import Observation, Resource
 from blackbox.observe.base import OBSERVERS, ObserverKind, Quantity, Subject
+from blackbox.observe.gaps import Unmeasured
 from blackbox.observe.observers.entry import (
     COMMON_KEYS,
     PublisherGroup,
@@ -52,11 +57,14 @@ class TimingObserver(JudgedObserver):
         self._group_b = b.members
         self._last_a: float | None = None
         self._running = False
+        self._gaps = Unmeasured()
 
     def interest(self) -> Interest:
         return Interest(topics=frozenset({self.topic_a, self.topic_b}))
 
     def on_message(self, msg: MessageArrival) -> None:
+        if self._gaps.covers(msg.time):
+            return
         topic, publisher = msg.topic, msg.publisher
         if topic == self.topic_b and (not self._group_b or publisher in self._group_b):
             last_a = self._last_a
@@ -68,7 +76,15 @@ class TimingObserver(JudgedObserver):
             self._last_a = msg.time
             self._running = True
 
+    def on_gap(self, gap: MeasurementGap) -> None:
+        if self._gaps.apply(gap):
+            self._last_a = None
+            self._running = False
+
     def evaluate(self, now: float) -> list[Observation]:
+        unmeasured = self._gaps.observation(now, self.type_name, self.resource)
+        if unmeasured is not None:
+            return [unmeasured]
         last_a = self._last_a
         if last_a is None:
             return [self.unavailable(now, f"waiting for a message on {self.topic_a}")]

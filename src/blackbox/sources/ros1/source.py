@@ -5,6 +5,12 @@ a few times a second) and the TCPROS reader (every topic connection). Both appen
 bounded in-memory queue; ``poll(until)`` sleeps until the wall clock reaches ``until`` and
 hands out what arrived. Source time is wall-clock seconds (``time.time()``).
 
+What the black box could not measure as it normally does is said with a
+:class:`~blackbox.events.MeasurementGap`: a topic's rate switching between the publishers'
+counters and a subscription (until the new path delivers, at most ``gap_limit`` s), the
+master unreachable (the graph is not followed), and the black box itself paused or its
+wall clock stepped (:class:`~blackbox.sources.clockwatch.ClockWatch`).
+
 Robot-side faults (master gone, node dead, garbage on a connection, ...) are logged with a
 reason and returned from ``poll`` as :class:`~blackbox.model.BlackBoxEvent` s; none of them
 stops the source.
@@ -29,6 +35,7 @@ from blackbox.events import (
     ArrivalBatch,
     Event,
     Interest,
+    MeasurementGap,
     MessageArrival,
     NetworkSample,
     ResourceSample,
@@ -36,6 +43,7 @@ from blackbox.events import (
 )
 from blackbox.model import BlackBoxEvent
 from blackbox.sources.base import SOURCES, Capabilities, SourceKind, SourceOptions
+from blackbox.sources.clockwatch import ClockWatch
 from blackbox.sources.handout import overflow_event, split_due, wait_until
 from blackbox.sources.ros1.busstats import BusStatsRates, TopicCounts
 from blackbox.sources.ros1.callerid import DEFAULT_PREFIX, unique_caller_id, valid_caller_id
@@ -172,6 +180,10 @@ class Ros1Settings:
     messages of one topic closer together than this share one arrival time (the mean
     period stays right, single periods do not; topics slower than ``1 / coalesce`` keep
     exact times)."""
+    gap_limit: float = 2.0
+    """Seconds a topic switched from the publishers' counters to a subscription stays
+    unmeasured at most while waiting for its first message: past that, its silence is the
+    robot's again (a publisher that stopped meanwhile then times out)."""
 
 
 class Ros1Source:
@@ -208,6 +220,14 @@ class Ros1Source:
         self.behind: set[str] = set()
         """Subscribed topics the black box currently cannot keep up with."""
         self._behind_counts: dict[str, deque[tuple[float, int, int]]] = {}
+        self.clock_offset = 0.0
+        """Seconds added to every time this source reads or stamps: 0 on a robot; tests
+        step it to step the wall clock at the source boundary, kernel stamps included."""
+        self._clock = ClockWatch(self._wall)
+        self._waiting: dict[tuple[str, str], MeasurementGap] = {}
+        """(topic, publisher) switched to a subscription -> its open gap, closed by the
+        first message that arrives (or after ``gap_limit``)."""
+        self._master_gap: MeasurementGap | None = None
 
     @classmethod
     def from_uri(cls, spec: str, settings: Ros1Settings | None = None) -> Ros1Source:
@@ -232,23 +252,38 @@ class Ros1Source:
                                         daemon=True)
         self._thread.start()
 
+    def _wall(self) -> float:
+        return time.time() + self.clock_offset
+
     def now(self) -> float:
-        return time.time()
+        return self._wall()
 
     def poll(self, until: float) -> list[Event]:
-        wait_until(self._stop, until)
+        gap = self._clock.check()  # a clock step since the last poll: do not wait on it
+        if gap is None:
+            wait_until(self._stop, until - self.clock_offset)
+            gap = self._clock.check(expected=until)
+        back = gap is not None and gap.end is not None and gap.end < gap.start
+        if back:
+            assert gap is not None and gap.end is not None
+            until = gap.end
         queue = self._queue
         events = self._held
         self._held = []
         with self._lock:  # every event stamped before this instant is in the queue
-            self._floor = max(self._floor, until)
+            self._floor = until if back else max(self._floor, until)
             while queue:
                 events.append(queue.popleft())
+        if back:  # measured on the clock before the step: inside the gap
+            events = [e for e in events if isinstance(e, BlackBoxEvent) or e.time <= until]
         if self._dropped:
             dropped, self._dropped = self._dropped, 0
-            events.append(overflow_event(time.time(), "ros1_queue_overflow", dropped,
+            events.append(overflow_event(self._wall(), "ros1_queue_overflow", dropped,
                                          self.name))
         due, self._held = split_due(events, until)
+        if gap is not None:
+            log.warning("%s", gap.reason)
+            due.insert(0, gap)
         return due
 
     @property
@@ -283,6 +318,7 @@ class Ros1Source:
         if not self._interest.arrival_batches:
             batch = [a for item in batch for a in
                      (item.arrivals() if type(item) is ArrivalBatch else (item,))]
+        offset = self.clock_offset
         with self._lock:
             floor = self._floor
             room = self._queue_limit - len(self._queue)
@@ -290,21 +326,41 @@ class Ros1Source:
                 self._dropped += len(batch) - max(0, room)
                 batch = batch[:max(0, room)]
             for msg in batch:
+                msg.time += offset
                 if msg.time < floor:
                     msg.time = floor
+            if self._waiting:
+                for msg in batch:
+                    self._resume((msg.topic, msg.publisher), msg.time)
             self._queue.extend(batch)
+
+    def _resume(self, key: tuple[str, str], end: float) -> None:
+        """Close ``key``'s open gap at ``end`` (its first message on the new path); under
+        ``_lock``."""
+        gap = self._waiting.pop(key, None)
+        if gap is not None:
+            self._queue.append(MeasurementGap(end, gap.start, end, gap.reason, gap.topic))
 
     def _push(self, make: Callable[[float], Event | BlackBoxEvent]) -> None:
         with self._lock:
             if len(self._queue) < self._queue_limit:
-                self._queue.append(make(time.time()))
+                self._queue.append(make(self._wall()))
             else:
                 self._dropped += 1
 
     def _report(self, kind: str, component: str, message: str) -> None:
         log.warning("%s: %s", component, message)
         with self._lock:
-            self._queue.append(BlackBoxEvent(time.time(), f"ros1_{kind}", message, component))
+            now = self._wall()
+            self._queue.append(BlackBoxEvent(now, f"ros1_{kind}", message, component))
+            if kind == "master_lost" and self._master_gap is None:
+                self._master_gap = MeasurementGap(
+                    now, now, None, "ROS master unreachable: publishers that appear or "
+                    "re-register are not followed", graph=True)
+                self._queue.append(self._master_gap)
+            elif kind == "master_back" and self._master_gap is not None:
+                gap, self._master_gap = self._master_gap, None
+                self._queue.append(MeasurementGap(now, gap.start, now, gap.reason, graph=True))
 
     def _graph_loop(self) -> None:
         next_resources = 0.0
@@ -314,6 +370,7 @@ class Ros1Source:
         while not self._stop.is_set():
             started = time.time()
             try:
+                self._expire_waiting()
                 interest = self._interest
                 self._poller.refresh(self._bus.calls(interest.topics | interest.decoded,
                                                      self._poller.state.publishers, dead))
@@ -358,16 +415,27 @@ class Ros1Source:
             if r.topic in rate_only and r.on_robot and (key in self.counted
                                                         or r.robot_sent is not None):
                 counted.add(key)
-                if key not in self.counted:
+                switched = key not in self.counted
+                if switched:
                     self._subscriber.release(StreamKey(r.topic, r.publisher),
                                              "rate from the publisher's counters")
                     self._report("rate_from_counters", r.topic,
                                  f"{r.topic} from {r.publisher}: rate from the publisher's "
                                  "own counters (getBusStats); not subscribed")
-                self._push_counted(now, r.arrivals)
+                span = r.arrivals[-1].time - now if r.arrivals else 0.0
+                if not switched and span > 2 * self._graph_period + 0.5:
+                    # a late round (the black box stalled): its counts cover a stretch
+                    # nobody measured live; replayed, they would overlap the next round's
+                    self._open_gap(key, f"a late round of the publisher's counters "
+                                   f"({span:.3g} s)", start=now - span)
+                    continue
+                self._push_counted(now, r.arrivals, key if switched else None)
             else:
                 self._check_behind(now, r)
         for topic, node in self.counted - counted:
+            if node not in dead:  # a dead publisher's silence is the robot's, not a gap
+                self._open_gap((topic, node), "switching from the publisher's counters to "
+                               "a subscription")
             why = self._bus.unavailable.get(node)
             self._report("rate_from_subscription", topic,
                          f"{topic} from {node}: "
@@ -397,11 +465,54 @@ class Ros1Source:
             self.behind.discard(r.topic)
             self._report("keeping_up", r.topic, f"keeping up with {r.topic} again")
 
-    def _push_counted(self, round_start: float, arrivals: list[MessageArrival]) -> None:
-        """Queue counted arrivals (stamped from ``round_start`` on) shifted to start at the
-        instant they are queued, so nothing lands before an earlier ``poll`` horizon."""
+    def _open_gap(self, key: tuple[str, str], reason: str, start: float | None = None) -> None:
+        """``key``'s rate is not measured from now (or ``start``, a round-start time) until
+        its next message, subscribed or counted."""
         with self._lock:
-            shift = time.time() - round_start
+            if key in self._waiting:
+                return
+            now = self._wall()
+            begin = now if start is None else start + self.clock_offset
+            gap = MeasurementGap(now, begin, None, f"{reason} for {key[1]}", topic=key[0])
+            self._waiting[key] = gap
+            self._queue.append(gap)
+
+    def _expire_waiting(self) -> None:
+        """Close the gaps whose topic has not delivered within ``gap_limit`` s: its
+        silence from then on is the robot's."""
+        with self._lock:
+            now = self._wall()
+            for key, gap in list(self._waiting.items()):
+                if now - gap.start >= self.settings.gap_limit:
+                    del self._waiting[key]
+                    self._queue.append(MeasurementGap(
+                        now, gap.start, now, f"{gap.reason}; no message within "
+                        f"{self.settings.gap_limit:g} s, judging its silence again",
+                        gap.topic))
+
+    def _push_counted(self, round_start: float, arrivals: list[MessageArrival],
+                      switched: tuple[str, str] | None = None) -> None:
+        """Queue counted arrivals (stamped from ``round_start`` on) shifted to start at the
+        instant they are queued, so nothing lands before an earlier ``poll`` horizon.
+
+        ``switched``: the (topic, publisher) whose subscription was just released for these
+        counts; the switch is a gap from now to the first counted arrival (the last
+        subscribed messages and the first counts cover the same round)."""
+        with self._lock:
+            shift = self._wall() - round_start
+            if switched is not None:
+                now = self._wall()
+                self._waiting.pop(switched, None)
+                end = arrivals[0].time + shift if arrivals else now
+                self._queue.append(MeasurementGap(
+                    now, now, None, f"switching from a subscription to the publisher's "
+                    f"counters for {switched[1]}", topic=switched[0]))
+                self._queue.append(MeasurementGap(
+                    end, now, end, f"switching from a subscription to the publisher's "
+                    f"counters for {switched[1]}", topic=switched[0]))
+            if arrivals and self._waiting:
+                self._resume((arrivals[0].topic, arrivals[0].publisher),
+                             arrivals[0].time + shift)
             for msg in arrivals:
                 if len(self._queue) < self._queue_limit:
                     msg.time += shift

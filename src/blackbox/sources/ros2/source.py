@@ -55,6 +55,7 @@ from blackbox.events import (
 )
 from blackbox.model import BlackBoxEvent
 from blackbox.sources.base import SOURCES, Capabilities, SourceKind, SourceOptions
+from blackbox.sources.clockwatch import ClockWatch
 from blackbox.sources.handout import overflow_event, split_due, wait_until
 from blackbox.sources.ros1.resources import ResourceSampler
 from blackbox.sources.ros2.graph import Endpoint, Ros2Graph
@@ -191,6 +192,7 @@ class Ros2Source:
         self._dropped = 0
         self._held: list[Event] = []
         self._stop = threading.Event()
+        self._clock = ClockWatch()
         self._thread: threading.Thread | None = None
         self._interest = Interest()
         self._readers: dict[str, _TopicReader] = {}
@@ -243,6 +245,7 @@ class Ros2Source:
 
     def poll(self, until: float) -> list[Event]:
         wait_until(self._stop, until)
+        pause = self._clock.check(expected=until)
         events = self._held
         self._held = []
         with self._lock:
@@ -254,6 +257,8 @@ class Ros2Source:
             events.append(overflow_event(time.time(), "ros2_queue_overflow", dropped,
                                          self.name))
         due, self._held = split_due(events, until)
+        if pause is not None:  # the black box paused or its clock stepped: a gap
+            due.insert(0, pause)
         return due
 
     def schema(self, topic: str) -> TopicSchema | None:

@@ -18,7 +18,8 @@ from typing import Any
 
 from blackbox.config.node import ConfigNode
 
-from .messages import ScalarModel
+from .messages import ScalarModel, ValueModel, scalars_of
+from .motion import Motion
 from .topology import Topology
 
 
@@ -46,6 +47,8 @@ FAULT_KINDS: Mapping[str, FaultKind] = MappingProxyType({k.name: k for k in (
     FaultKind("scale", "value", ("factor",), doc="value * factor"),
     FaultKind("stuck", "value", doc="value frozen at the last value before the fault"),
     FaultKind("drift", "value", ("rate",), doc="value + rate * (t - start)"),
+    FaultKind("noise", "value", ("sigma",), positive=True,
+              doc="value + gaussian noise of std sigma (a noisy sensor inside its range)"),
     FaultKind("cpu_hog", "node", ("percent",), positive=True, doc="node CPU raised to percent"),
     FaultKind("memory_growth", "node", ("rate",), positive=True,
               doc="node memory grows by rate bytes per second"),
@@ -60,7 +63,9 @@ THESIS_FAULT_KINDS: tuple[str, ...] = ("kill", "stall", "rate", "offset", "scale
 class Fault:
     """One fault: ``kind`` on ``component`` (node or topic name) from ``start`` to ``end``.
 
-    ``end`` ``None`` means the fault lasts to the end of the run.
+    ``end`` ``None`` means the fault lasts to the end of the run. ``field`` names the one
+    numeric field a value fault acts on when the topic has several (``velocity[2]``);
+    ``None`` means every numeric field of the topic.
     """
 
     kind: str
@@ -68,6 +73,7 @@ class Fault:
     start: float
     end: float | None = None
     params: Mapping[str, float] = field(default_factory=dict)
+    field: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "params", MappingProxyType(dict(self.params)))
@@ -88,6 +94,8 @@ class Fault:
         if unknown:
             allowed = ", ".join(spec.params) or "none"
             return f"unknown parameter {sorted(unknown)[0]!r} (allowed: {allowed})"
+        if self.field is not None and spec.target != "value":
+            return f"only value faults name a field, not {self.kind}"
         if spec.params and len(given) != 1:
             return f"give exactly one of {', '.join(spec.params)}"
         for key, value in self.params.items():
@@ -117,8 +125,16 @@ class Fault:
         topic = topology.topics.get(self.component)
         if topic is None:
             raise ValueError(f"{where}: no topic {self.component} in robot {topology.name}")
-        if self.target == "value" and not isinstance(topic.value, ScalarModel):
+        fields = [s.field for s in scalars_of(topic.value)]
+        if self.target == "value" and not fields:
             raise ValueError(f"{where}: the topic has no numeric value model")
+        if self.field is not None and self.field not in fields:
+            raise ValueError(f"{where}: no modelled field {self.field!r} "
+                             f"(fields: {', '.join(fields)})")
+
+    def acts_on(self, field_name: str) -> bool:
+        """Whether this value fault changes ``field_name`` of its topic."""
+        return self.field is None or self.field == field_name
 
 
 @dataclass(frozen=True, slots=True)
@@ -131,16 +147,22 @@ class GroundTruth:
     component: str
     node: str
     params: Mapping[str, float] = field(default_factory=dict)
+    field: str | None = None
+    """The one field a value fault acted on, ``None`` for all of its topic's."""
 
     def to_dict(self) -> dict[str, Any]:
-        return {"start": self.start, "end": self.end, "kind": self.kind,
-                "component": self.component, "node": self.node, "params": dict(self.params)}
+        out = {"start": self.start, "end": self.end, "kind": self.kind,
+               "component": self.component, "node": self.node, "params": dict(self.params)}
+        if self.field is not None:
+            out["field"] = self.field
+        return out
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> GroundTruth:
         return cls(float(d["start"]), None if d.get("end") is None else float(d["end"]),
                    str(d["kind"]), str(d["component"]), str(d.get("node", d["component"])),
-                   dict(d.get("params", {})))
+                   dict(d.get("params", {})),
+                   None if d.get("field") is None else str(d["field"]))
 
 
 def write_ground_truth(records: Iterable[GroundTruth], path: str | Path) -> None:
@@ -157,18 +179,55 @@ def read_ground_truth(path: str | Path) -> list[GroundTruth]:
 
 # ---- random campaigns ------------------------------------------------------------------------
 
-def _components(topology: Topology, kind: str) -> list[str]:
+def _components(topology: Topology, kind: str, moving_only: bool = False) -> list[str]:
     target = FAULT_KINDS[kind].target
     if target == "node":
         return list(topology.nodes)
     if target == "topic":
         return list(topology.topics)
-    return [t.name for t in topology.topics.values() if isinstance(t.value, ScalarModel)]
+    return [t.name for t in topology.topics.values() if _faultable(t.value, moving_only)]
+
+
+def _faultable(model: ValueModel | None, moving_only: bool) -> list[ScalarModel]:
+    return [s for s in scalars_of(model) if s.follows or not moving_only]
+
+
+def noise_std(model: ScalarModel) -> float:
+    """Standard deviation of a value model's own measurement noise."""
+    if model.distribution == "gauss":
+        return model.noise
+    return model.noise / math.sqrt(3.0)
+
+
+def healthy_spread(model: ScalarModel, topology: Topology, horizon: float = 600.0,
+                   step: float = 0.5) -> float:
+    """Standard deviation of a healthy value over ``horizon`` seconds (seed 0): its noise
+    and the motion it follows, sampled, so modes, trends and derived signals count."""
+    if not model.follows:
+        return noise_std(model)
+    cached = _SPREADS.get((id(topology), model))
+    if cached is not None and cached[0] is topology:
+        return cached[1]
+    motion = Motion(topology.motion, topology.modes, seed=0)
+    n = int(horizon / step)
+    total = [sum(gain * motion.at(signal, k * step) for signal, gain in model.follows)
+             for k in range(n)]
+    mean = sum(total) / n
+    var = sum((x - mean) ** 2 for x in total) / n
+    spread = math.sqrt(var + noise_std(model) ** 2)
+    _SPREADS[(id(topology), model)] = (topology, spread)
+    return spread
+
+
+# Campaigns ask for the same spreads again and again; the topology is kept with its entry so
+# its id cannot be reused by another one.
+_SPREADS: dict[tuple[int, ScalarModel], tuple[Topology, float]] = {}
 
 
 def _random_params(rng: random.Random, kind: str, topology: Topology,
-                   component: str) -> dict[str, float]:
-    """Parameters large enough to be a real fault, drawn around the component's nominal."""
+                   model: ScalarModel | None) -> dict[str, float]:
+    """Parameters large enough to be a real fault, drawn around the component's nominal
+    (``model``: the numeric field a value fault acts on)."""
 
     def either(low: tuple[float, float], high: tuple[float, float]) -> float:
         return rng.uniform(*(low if rng.random() < 0.5 else high))
@@ -179,14 +238,28 @@ def _random_params(rng: random.Random, kind: str, topology: Topology,
     if kind == "rate":
         return {"factor": round(either((0.3, 0.6), (1.6, 2.5)), 3)}
     if kind in ("offset", "drift"):
-        model = topology.topics[component].value
-        assert isinstance(model, ScalarModel)
-        unit = max(model.noise, 0.05 * abs(model.mean), 1e-3)
+        assert model is not None
+        if model.follows:
+            # A moving signal's mean says nothing about its scale: its noise does, or for a
+            # noiseless counter a hundredth of its healthy spread.
+            unit = max(model.noise, 1e-3)
+            if model.noise == 0.0:
+                unit = max(unit, 0.01 * healthy_spread(model, topology))
+        else:
+            unit = max(model.noise, 0.05 * abs(model.mean), 1e-3)
         if kind == "offset":
             return {"value": round(sign() * rng.uniform(4.0, 10.0) * unit, 4)}
         return {"rate": round(sign() * rng.uniform(0.5, 2.0) * unit, 4)}
     if kind == "scale":
         return {"factor": round(either((0.5, 0.8), (1.2, 1.6)), 3)}
+    if kind == "noise":
+        assert model is not None
+        # Inside the normal range: a fraction of the signal's healthy spread, but always a
+        # few times its own measurement noise so it is a fault and not more of the same.
+        own = noise_std(model)
+        spread = healthy_spread(model, topology)
+        return {"sigma": round(max(rng.uniform(0.2, 0.5) * spread, rng.uniform(3.0, 6.0) * own,
+                                   1e-3), 4)}
     if kind == "cpu_hog":
         return {"percent": round(rng.uniform(85.0, 100.0), 1)}
     if kind == "memory_growth":
@@ -203,6 +276,7 @@ def random_campaign(
     duration_range: tuple[float, float] = (5.0, 15.0),
     warmup: float = 5.0,
     min_separation: float = 0.0,
+    moving_only: bool = False,
 ) -> list[Fault]:
     """Random faults over ``[warmup, duration)``, reproducible for a ``seed``.
 
@@ -211,7 +285,8 @@ def random_campaign(
     parameters (random, or fixed when ``kinds`` maps a kind to its parameters). Faults never
     overlap on the same node, counting a topic as part of its publisher, and the next fault
     on a node starts at least ``min_separation`` seconds after the previous one ended.
-    A start with no free component is skipped.
+    A start with no free component is skipped. ``moving_only``: value faults only on
+    fields that follow the robot's motion (its correlated signals), not on constants.
     """
     if duration <= 0 or mean_gap <= 0 or warmup < 0 or min_separation < 0:
         raise ValueError("duration and mean_gap must be > 0, warmup and min_separation >= 0")
@@ -234,7 +309,7 @@ def random_campaign(
             return faults
         choices: dict[str, list[str]] = {}
         for kind in fixed:
-            free = [c for c in _components(topology, kind)
+            free = [c for c in _components(topology, kind, moving_only)
                     if free_at[owner.get(c, c)] <= t]
             if free:
                 choices[kind] = free
@@ -243,10 +318,19 @@ def random_campaign(
         kind = rng.choice(sorted(choices))
         component = rng.choice(choices[kind])
         length = rng.uniform(low, high)
-        params = dict(fixed[kind]) or _random_params(rng, kind, topology, component)
+        model: ScalarModel | None = None
+        field_name: str | None = None
+        if FAULT_KINDS[kind].target == "value":
+            # A topic with several fields: one of them lies (drawn only then, so campaigns
+            # on single-field robots stay as they were).
+            every = scalars_of(topology.topics[component].value)
+            scalars = _faultable(topology.topics[component].value, moving_only)
+            model = scalars[0] if len(scalars) == 1 else rng.choice(scalars)
+            field_name = None if len(every) == 1 else model.field
+        params = dict(fixed[kind]) or _random_params(rng, kind, topology, model)
         start = round(t, 3)
         end = round(t + length, 3)
-        faults.append(Fault(kind, component, start, end, params))
+        faults.append(Fault(kind, component, start, end, params, field_name))
         free_at[owner.get(component, component)] = end + min_separation
 
 
@@ -267,12 +351,12 @@ def load_faults(source: str | Path | ConfigNode, topology: Topology) -> list[Fau
 
 
 def _fault(item: ConfigNode, topology: Topology) -> Fault:
-    item.check_keys(["kind", "component", "start", "end", *{p for k in FAULT_KINDS.values()
-                                                           for p in k.params}])
+    item.check_keys(["kind", "component", "start", "end", "field",
+                     *{p for k in FAULT_KINDS.values() for p in k.params}])
     kind = item["kind"].str(FAULT_KINDS)
     spec = FAULT_KINDS[kind]
     for key, child in item.items():
-        if key not in ("kind", "component", "start", "end") and key not in spec.params:
+        if key not in ("kind", "component", "start", "end", "field") and key not in spec.params:
             allowed = ", ".join(spec.params) or "none"
             raise child.error(f"{kind} takes no parameter {key!r} (allowed: {allowed})")
     params = {p: item[p].float(min_exclusive=spec.positive, min=0.0 if spec.positive else None)
@@ -281,7 +365,12 @@ def _fault(item: ConfigNode, topology: Topology) -> Fault:
         raise item.error(f"a {kind} fault needs exactly one of {', '.join(spec.params)}")
     start = item["start"].float(min=0.0)
     end = item["end"].float(min=start, min_exclusive=True) if item.get("end") else None
-    fault = Fault(kind, item["component"].str(), start, end, params)
+    field_node = item.get("field")
+    try:
+        fault = Fault(kind, item["component"].str(), start, end, params,
+                      field_node.str() if field_node is not None else None)
+    except ValueError as exc:
+        raise (field_node or item).error(str(exc)) from None
     try:
         fault.check(topology)
     except ValueError as exc:

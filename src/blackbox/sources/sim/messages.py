@@ -8,6 +8,7 @@ serializations, so bags written from a simulation open in ``rosbag info``.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -141,6 +142,20 @@ class ScalarModel:
     noise: float = 0.0
     distribution: str = "uniform"
     follows: tuple[tuple[str, float], ...] = ()
+    lag: float = 0.0
+    """Seconds the measurement lags the motion (transport and filtering delay)."""
+
+
+@dataclass(frozen=True, slots=True)
+class FieldsModel:
+    """Several numeric fields of one message, each a :class:`ScalarModel`; a field may be
+    an element of a numeric array (``velocity[2]``), the array sized to its largest index."""
+
+    scalars: tuple[ScalarModel, ...]
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        return tuple(s.field for s in self.scalars)
 
 
 @dataclass(frozen=True, slots=True)
@@ -168,7 +183,25 @@ class BytesModel:
     size: int
 
 
-ValueModel = ScalarModel | ImageModel | BytesModel
+ValueModel = ScalarModel | FieldsModel | ImageModel | BytesModel
+NumericModel = ScalarModel | FieldsModel
+
+
+def scalars_of(model: ValueModel | None) -> tuple[ScalarModel, ...]:
+    """The numeric fields a value model sets (none for images, bytes or no model)."""
+    if isinstance(model, ScalarModel):
+        return (model,)
+    if isinstance(model, FieldsModel):
+        return model.scalars
+    return ()
+
+
+def split_index(path: str) -> tuple[str, int | None]:
+    """``velocity[2]`` -> ``("velocity", 2)``; ``linear.x`` -> ``("linear.x", None)``."""
+    if path.endswith("]") and "[" in path:
+        head, _, index = path[:-1].rpartition("[")
+        return head, int(index)
+    return path, None
 
 
 class TopicMessages:
@@ -197,10 +230,21 @@ class TopicMessages:
         self.size = empty + extra
         self._payload: np.ndarray | None = None
         self._time_cls = store.types["builtin_interfaces/msg/Time"]
-        self._integer = False
-        if isinstance(model, ScalarModel):
-            base = has_field(store, self.type_name, model.field) or ""
-            self._integer = "int" in base or base in ("byte", "char")
+        # Numeric fields in the model's order: (path, array index or None, integer?);
+        # arrays are rebuilt per message, sized to their largest index.
+        self._plan: list[tuple[str, int | None, bool]] = []
+        self._arrays: dict[str, tuple[int, Any]] = {}
+        for scalar in scalars_of(model):
+            path, index = split_index(scalar.field)
+            base = (has_field(store, self.type_name, path) or "").removesuffix("[]")
+            self._plan.append((path, index, "int" in base or base in ("byte", "char")))
+            if index is not None:
+                length = max(self._arrays.get(path, (0, None))[0], index + 1)
+                self._arrays[path] = (length, _NUMPY_OF.get(base, np.float64))
+        for path, (length, dtype) in self._arrays.items():
+            set_path(self._template, path, np.zeros(length, dtype=dtype))
+        if self._arrays:
+            self.size = len(store.serialize_ros1(self._template, self.type_name)) + extra
 
     def payload(self) -> np.ndarray:
         """The shared, read-only pixel or byte payload, made on first use."""
@@ -219,16 +263,26 @@ class TopicMessages:
             self._payload = frame
         return self._payload
 
-    def message(self, seq: int, time: float, value: float | None) -> Any:
+    def message(self, seq: int, time: float, value: tuple[float, ...] | None) -> Any:
+        """The message ``seq`` at ``time`` with ``value``: one number per numeric field, in
+        the model's order (``None`` for models without numeric fields)."""
         msg = copy_message(self._template)
         if self._stamped:
             sec, nsec = divmod(round(time * 1e9), 1_000_000_000)
             msg.header.seq = seq & 0xFFFFFFFF
             msg.header.stamp = self._time_cls(sec=sec, nanosec=nsec)
         model = self.model
-        if isinstance(model, ScalarModel):
-            set_path(msg, model.field,
-                     round(value) if self._integer and value is not None else value)
+        if value is not None and self._plan:
+            arrays = {path: np.zeros(length, dtype=dtype)
+                      for path, (length, dtype) in self._arrays.items()}
+            for (path, index, integer), x in zip(self._plan, value, strict=True):
+                number = round(x) if integer and math.isfinite(x) else x
+                if index is None:
+                    set_path(msg, path, number)
+                else:
+                    arrays[path][index] = number
+            for path, array in arrays.items():
+                set_path(msg, path, array)
         elif isinstance(model, ImageModel):
             msg.data = self.payload()
         elif isinstance(model, BytesModel):

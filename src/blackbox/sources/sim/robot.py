@@ -39,7 +39,8 @@ from blackbox.sources.base import (
 )
 
 from .faults import FAULT_KINDS, Fault, GroundTruth, load_faults, random_campaign
-from .messages import ScalarModel, TopicMessages
+from .messages import ScalarModel, TopicMessages, scalars_of
+from .motion import Motion
 from .topology import NodeSpec, TopicSpec, Topology
 
 TICK = 1.0
@@ -68,13 +69,15 @@ class _TopicState:
     messages: TopicMessages
     timing: random.Random
     values: random.Random
+    fault_noise: random.Random
     generation: int = 0
     seq: int = 0
     last_publish: float | None = None
-    last_value: float | None = None
+    last_value: tuple[float, ...] | None = None
     stalls: int = 0
     rate_faults: list[Fault] = field(default_factory=list)
-    value_faults: list[tuple[Fault, float]] = field(default_factory=list)
+    value_faults: list[tuple[Fault, tuple[float, ...]]] = field(default_factory=list)
+    scalars: tuple[ScalarModel, ...] = ()
 
     def rate(self) -> float:
         rate = self.spec.rate
@@ -88,7 +91,8 @@ class _LazyMessage:
 
     __slots__ = ("_msg", "messages", "seq", "time", "value")
 
-    def __init__(self, messages: TopicMessages, seq: int, time: float, value: float | None):
+    def __init__(self, messages: TopicMessages, seq: int, time: float,
+                 value: tuple[float, ...] | None):
         self.messages = messages
         self.seq = seq
         self.time = time
@@ -151,8 +155,13 @@ class SimulatedSource:
             for n in topology.nodes.values()}
         self._topics = {
             t.name: _TopicState(t, TopicMessages(topology.store, t.type, t.value, t.frame_id),
-                                self._rng("timing", t.name), self._rng("values", t.name))
+                                self._rng("timing", t.name), self._rng("values", t.name),
+                                self._rng("fault_noise", t.name),
+                                scalars=scalars_of(t.value))
             for t in topology.topics.values()}
+        self.motion = Motion(topology.motion, topology.modes, seed)
+        """The robot's motion in this run (``motion.schedule.mode_at(t)``: its operating mode
+        ``t`` seconds after the start, the ground truth of "standing, driving, turning")."""
         self._last_heard = {t: self.start_time for t in topology.topics}
 
     def _rng(self, stream: str, component: str) -> random.Random:
@@ -274,26 +283,35 @@ class SimulatedSource:
             events.append(MessageArrival(t, name, state.spec.publisher, size,
                                          decode=lazy.decode, raw=lazy.raw))
 
-    def _value(self, state: _TopicState, t: float) -> float | None:
-        model = state.spec.value
-        if not isinstance(model, ScalarModel):
+    def _value(self, state: _TopicState, t: float) -> tuple[float, ...] | None:
+        if not state.scalars:
             return None
-        if model.distribution == "gauss":
-            value = model.mean + state.values.gauss(0.0, model.noise)
-        else:
-            value = model.mean + state.values.uniform(-model.noise, model.noise)
-        for signal, gain in model.follows:
-            value += gain * self.topology.motion[signal].at(t - self.start_time)
-        for fault, frozen in state.value_faults:
-            if fault.kind == "offset":
-                value += fault.params["value"]
-            elif fault.kind == "scale":
-                value *= fault.params["factor"]
-            elif fault.kind == "drift":
-                value += fault.params["rate"] * (t - self.start_time - fault.start)
+        elapsed = t - self.start_time
+        out: list[float] = []
+        for k, model in enumerate(state.scalars):
+            if model.distribution == "gauss":
+                value = model.mean + state.values.gauss(0.0, model.noise)
             else:
-                value = frozen
-        return value
+                value = model.mean + state.values.uniform(-model.noise, model.noise)
+            for signal, gain in model.follows:
+                value += gain * self.motion.at(signal, elapsed - model.lag)
+            for fault, frozen in state.value_faults:
+                if not fault.acts_on(model.field):
+                    continue
+                if fault.kind == "offset":
+                    value += fault.params["value"]
+                elif fault.kind == "scale":
+                    value *= fault.params["factor"]
+                elif fault.kind == "drift":
+                    value += fault.params["rate"] * (elapsed - fault.start)
+                elif fault.kind == "noise":
+                    # Its own generator: the healthy values after the fault are those of
+                    # the fault-free run with the same seed.
+                    value += state.fault_noise.gauss(0.0, fault.params["sigma"])
+                else:
+                    value = frozen[k]
+            out.append(value)
+        return tuple(out)
 
     def _tick(self, t: float, events: list[Event]) -> None:
         self._push(t + TICK, _TICK, "tick", None)
@@ -330,7 +348,8 @@ class SimulatedSource:
     def _fault_start(self, t: float, index: int, events: list[Event]) -> None:
         fault = self.faults[index]
         self._truth[index] = GroundTruth(t, None, fault.kind, fault.component,
-                                         fault.node(self.topology), dict(fault.params))
+                                         fault.node(self.topology), dict(fault.params),
+                                         fault.field)
         kind = fault.kind
         if kind == "kill":
             node = self._nodes[fault.component]
@@ -355,8 +374,7 @@ class SimulatedSource:
             else:
                 frozen = state.last_value
                 if frozen is None:
-                    assert isinstance(state.spec.value, ScalarModel)
-                    frozen = state.spec.value.mean
+                    frozen = tuple(s.mean for s in state.scalars)
                 state.value_faults.append((fault, frozen))
 
     def _fault_end(self, t: float, index: int, events: list[Event]) -> None:
@@ -408,6 +426,7 @@ class SimulatedSource:
 BUILTIN_ROBOTS: Mapping[str, Path] = MappingProxyType({
     "thesis": Path(__file__).with_name("thesis.yaml"),
     "diffdrive": Path(__file__).with_name("diffdrive.yaml"),
+    "skidsteer": Path(__file__).with_name("skidsteer.yaml"),
 })
 
 

@@ -15,15 +15,18 @@ from blackbox.config.node import ConfigNode
 from .messages import (
     ENCODING_CHANNELS,
     BytesModel,
+    FieldsModel,
     ImageModel,
     ScalarModel,
     ValueModel,
     has_field,
     robot_typestore,
     ros1_name,
+    scalars_of,
+    split_index,
     store_name,
 )
-from .motion import MotionSignal, motion_from_config
+from .motion import ModePlan, MotionSignal, modes_from_config, motion_from_config
 
 THESIS_FILE = Path(__file__).with_name("thesis.yaml")
 
@@ -79,6 +82,7 @@ class Topology:
     definitions: Mapping[str, str] = field(default_factory=dict)
     store: Typestore = field(default=None, compare=False, repr=False)  # type: ignore[assignment]
     motion: Mapping[str, MotionSignal] = field(default_factory=dict)
+    modes: ModePlan | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "nodes", MappingProxyType(dict(self.nodes)))
@@ -91,10 +95,14 @@ class Topology:
 
     def _problem(self) -> str | None:
         for t in self.topics.values():
-            if isinstance(t.value, ScalarModel):
-                for signal, _ in t.value.follows:
+            for scalar in scalars_of(t.value):
+                for signal, _ in scalar.follows:
                     if signal not in self.motion:
                         return f"topic {t.name}: follows unknown motion signal {signal}"
+        if self.modes is None:
+            for m in self.motion.values():
+                if m.modes:
+                    return f"motion signal {m.name} scales modes but the robot has no modes"
             if t.publisher not in self.nodes:
                 return f"topic {t.name}: unknown publisher node {t.publisher}"
             for s in t.subscribers:
@@ -128,8 +136,14 @@ class Topology:
 
     @classmethod
     def from_config(cls, root: ConfigNode) -> Topology:
-        root.check_keys(["name", "network", "nodes", "topics", "types", "motion"])
+        root.check_keys(["name", "network", "nodes", "topics", "types", "motion", "modes"])
         motion = motion_from_config(root["motion"]) if root.get("motion") is not None else {}
+        modes = modes_from_config(root["modes"], motion) if root.get("modes") else None
+        if modes is None:
+            for name, signal in motion.items():
+                if signal.modes:
+                    raise root["motion"][name]["modes"].error(
+                        "scales operating modes, but the robot has no 'modes:' section")
         name = root["name"].str() if root.get("name") else "robot"
         interface = "eth0"
         net = root.get("network")
@@ -164,12 +178,14 @@ class Topology:
         topics: dict[str, TopicSpec] = {}
         for item in root["topics"].list():
             topic = _topic(item, nodes, store)
-            value = topic.value
-            if isinstance(value, ScalarModel):
-                for signal, _ in value.follows:
-                    if signal not in motion:
-                        raise item["value"]["follows"].error(
-                            f"unknown motion signal {signal!r}; define it under 'motion:'")
+            for k, scalar in enumerate(scalars_of(topic.value)):
+                for followed, _ in scalar.follows:
+                    if followed not in motion:
+                        where = item["value"]
+                        if isinstance(topic.value, FieldsModel):
+                            where = where["fields"].list()[k]
+                        raise where["follows"].error(
+                            f"unknown motion signal {followed!r}; define it under 'motion:'")
             if topic.name in topics:
                 raise item["name"].error(f"topic {topic.name} is defined twice")
             topics[topic.name] = topic
@@ -182,7 +198,7 @@ class Topology:
                 if node_name not in topics[r].subscribers:
                     raise r_item.error(f"{node_name} requires {r} but is not one of its "
                                        "subscribers")
-        return cls(name, nodes, topics, interface, definitions, store, motion)
+        return cls(name, nodes, topics, interface, definitions, store, motion, modes)
 
 
 def _graph_name(node: ConfigNode) -> str:
@@ -262,17 +278,41 @@ def _value(node: ConfigNode, store: Typestore, type_name: str, ros_type: str) ->
             raise img.error(f"an image value needs type sensor_msgs/Image, not {ros_type}")
         encoding = img["encoding"].str(ENCODING_CHANNELS) if img.get("encoding") else "rgb8"
         return ImageModel(img["width"].int(min=1), img["height"].int(min=1), encoding)
+    if "fields" in node:
+        node.check_keys(["fields"])
+        scalars: list[ScalarModel] = []
+        for item in node["fields"].list():
+            scalar = _scalar(item, store, type_name, ros_type)
+            if any(s.field == scalar.field for s in scalars):
+                raise item["field"].error(f"field {scalar.field} is listed twice")
+            scalars.append(scalar)
+        if not scalars:
+            raise node["fields"].error("list at least one field")
+        return FieldsModel(tuple(scalars))
+    if "bytes" in node:
+        field_node = node.get("field")
+        field_name = field_node.str() if field_node is not None else "data"
+        node.check_keys(["field", "bytes"])
+        if has_field(store, type_name, field_name) not in ("uint8[]", "byte[]", "char[]"):
+            raise (field_node or node).error(f"{ros_type} has no uint8[] field {field_name!r}")
+        return BytesModel(field_name, node["bytes"].int(min=0))
+    return _scalar(node, store, type_name, ros_type)
+
+
+def _scalar(node: ConfigNode, store: Typestore, type_name: str, ros_type: str) -> ScalarModel:
     field_node = node.get("field")
     field_name = field_node.str() if field_node is not None else "data"
-    base = has_field(store, type_name, field_name)
     where = field_node or node
-    if "bytes" in node:
-        node.check_keys(["field", "bytes"])
-        if base not in ("uint8[]", "byte[]", "char[]"):
-            raise where.error(f"{ros_type} has no uint8[] field {field_name!r}")
-        return BytesModel(field_name, node["bytes"].int(min=0))
-    node.check_keys(["field", "mean", "noise", "distribution", "follows"])
-    if base not in _NUMERIC:
+    node.check_keys(["field", "mean", "noise", "distribution", "follows", "lag"])
+    try:
+        path, index = split_index(field_name)
+    except ValueError:
+        raise where.error(f"bad array index in {field_name!r} (expected name[0])") from None
+    base = has_field(store, type_name, path)
+    if index is not None:
+        if base is None or not base.endswith("[]") or base[:-2] not in _NUMERIC or index < 0:
+            raise where.error(f"{ros_type} has no numeric array field {path!r}")
+    elif base not in _NUMERIC:
         raise where.error(f"{ros_type} has no numeric field {field_name!r}")
     noise = node["noise"].float(min=0.0) if node.get("noise") is not None else 0.0
     dist_node = node.get("distribution")
@@ -281,4 +321,5 @@ def _value(node: ConfigNode, store: Typestore, type_name: str, ros_type: str) ->
     if node.get("follows") is not None:
         follows = tuple((k, v.float()) for k, v in node["follows"].items())
     mean = node["mean"].float() if node.get("mean") is not None else 0.0
-    return ScalarModel(field_name, mean, noise, dist, follows)
+    lag = node["lag"].float(min=0.0) if node.get("lag") is not None else 0.0
+    return ScalarModel(field_name, mean, noise, dist, follows, lag)

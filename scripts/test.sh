@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# Lint, type-check and run every test: ruff first (a second), mypy beside pytest (it needs
+# one core for ~15 s while the tests mostly wait on robots and sockets), pytest in parallel
+# workers (tests/isolation.py keeps their DDS domains apart). Extra arguments go to pytest.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+bin=${VENV:-.venv}/bin
+workers=${PYTEST_WORKERS:-4}
+"$bin/ruff" check src tests benchmarks || exit 1
+mypy_log=$(mktemp)
+"$bin/mypy" >"$mypy_log" 2>&1 &
+mypy_pid=$!
+"$bin/python" -m pytest -q -n "$workers" --dist loadgroup "$@"
+tests=$?
+wait "$mypy_pid"
+typed=$?
+cat "$mypy_log"
+rm -f "$mypy_log"
+if [ "$typed" -ne 0 ]; then echo "test: mypy failed" >&2; exit "$typed"; fi
+exit "$tests"

@@ -1,0 +1,632 @@
+"""Learning which signals carry the same information, and how alive each signal is.
+
+From the time-stamped samples of a healthy run (``blackbox.learn.timed``):
+
+1. **Signals.** Every numeric scalar field and element of a short array is a signal, unless
+   it is constant, a counter, monotonic or discrete (``classify``), too short, a *trend*
+   (a straight line over time explains most of it: a discharging battery, a warming motor;
+   it would leave any band it was learned in) or an angle that wraps (no linear relation
+   holds across the wrap).
+2. **Grid.** All signals are resampled on one grid of ``STEP`` seconds (mean of each cell,
+   the last value held while fresh), so different rates line up.
+3. **Relations.** For each target signal and each other topic, the lag (within
+   ``MAX_LAG``) at which a signal of that topic correlates best with the target is found
+   over the whole run; the target is then fitted from that signal through ``TAPS`` lagged
+   taps (a short FIR filter, so a delay or a smoothing on the way is modelled), or from up
+   to four signals of that topic together when none alone suffices (two wheel speeds and a
+   forward speed). Ridge regularisation is chosen by the R² on the last 30 % of the run
+   (held out, forward in time), and a relation is kept when that R² is at least ``R2_MIN``
+   and a fault of four noise std on any of its signals moves the residual by at least
+   ``SENSITIVITY`` block noise (a relation that cannot see a signal must not vouch for it).
+   Of the two directions of a pair the one with the cleaner input is kept (least squares
+   attenuates a noisy input's gain).
+4. **Residual noise** comes from out-of-fold predictions (five contiguous folds), averaged
+   over blocks of ``BLOCK`` grid steps; the CUSUM threshold is calibrated on them
+   (``blackbox.learn.sequential``) for ``FALSE_ALARMS_PER_HOUR`` over all checks.
+5. **Modes.** Blocks where the prediction moved less than ``EXCITATION`` block noise (std
+   over ``WINDOW`` seconds) are *standing still*: with at least ``MIN_STILL_BLOCKS`` of
+   them, standing still gets its own noise and is judged; otherwise the relation is
+   unjudged while the robot stands still (no excitation, no verdict).
+6. **Liveness** per signal: the longest run of equal samples and the log of the mean
+   squared difference of consecutive samples per block (stuck values, noise bursts).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from blackbox.learn.fields import classify
+from blackbox.learn.recording import Recording
+from blackbox.learn.sequential import Calibration, calibrate
+from blackbox.learn.stats import round_down, round_up
+from blackbox.observe.signals import SignalRef
+
+STEP = 0.05
+BLOCK = 10
+WINDOW = 5.0
+MAX_LAG = 1.0
+TAPS = 3
+R2_MIN = 0.8
+SCREEN = 0.6
+"""Smallest correlation (at the best lag) worth fitting a single-input relation for."""
+JOINT_SCREEN = 0.3
+MAX_JOINT = 4
+MAX_PEERS = 4
+"""Relations kept per target signal (the best by held-out R²)."""
+SENSITIVITY = 1.5
+EXCITATION = 3.0
+MIN_STILL_BLOCKS = 40
+FALSE_ALARMS_PER_HOUR = 0.1
+MIN_SIGNAL_SAMPLES = 100
+MIN_GRID_BLOCKS = 60
+"""A relation needs at least this many blocks (30 s) of both signals to be learned."""
+LIVENESS_BLOCK_SECONDS = 0.5
+LOGGING_TOPICS = frozenset({"/rosout", "/rosout_agg"})
+LAMBDAS = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
+
+
+@dataclass
+class Signal:
+    ref: SignalRef
+    name: str
+    times: np.ndarray
+    values: np.ndarray
+    period: float
+    noise: float
+    """Per-sample noise: robust std of consecutive differences / sqrt(2)."""
+    wrap: bool
+    trend: float | None
+    """Slope per second when a straight line explains the signal (a trend), else None."""
+    integer: bool
+    grid: np.ndarray = field(default_factory=lambda: np.empty(0))
+    note: str = ""
+
+
+@dataclass
+class Relation:
+    target: Signal
+    inputs: list[tuple[Signal, list[int]]]
+    """Each input with its tap lags in grid steps (relative to the target, may be < 0)."""
+    gains: list[list[float]]
+    intercept: float
+    target_steps: int
+    r2: float
+    noise: float
+    moving: tuple[float, float]
+    still: tuple[float, float] | None
+    excitation: float
+    span: tuple[float, float]
+    z: np.ndarray
+    sensitivity: float
+    calibration: Calibration | None = None
+
+    @property
+    def topics(self) -> tuple[str, str]:
+        a, b = self.target.ref.topic, self.inputs[0][0].ref.topic
+        return (a, b) if a < b else (b, a)
+
+
+@dataclass
+class Liveness:
+    signal: Signal
+    repeats: int | None
+    longest_run: int
+    block: int
+    mean: float
+    std: float
+    z: np.ndarray | None
+    calibration: Calibration | None = None
+
+
+@dataclass
+class RelationsLearned:
+    relations: list[Relation]
+    liveness: dict[str, list[Liveness]]
+    trends: dict[str, list[str]]
+    """topic -> comment per trend signal (their envelopes are not written)."""
+    notes: list[str]
+    signals: int = 0
+    related: dict[str, set[str]] = field(default_factory=dict)
+    """topic -> fields judged by a relation (their envelopes are not written: two minutes
+    of learning cannot know the operating range, a relation does not need it)."""
+
+
+
+# ---- signals ------------------------------------------------------------------------------------
+
+def _wrapped(d: np.ndarray) -> np.ndarray:
+    return (d + math.pi) % (2 * math.pi) - math.pi
+
+
+def _robust(x: np.ndarray) -> float:
+    if x.size == 0:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(x - np.median(x))))
+
+
+def signals_of(rec: Recording, notes: list[str]) -> list[Signal]:
+    out: list[Signal] = []
+    for topic in sorted(rec.topics.values(), key=lambda t: t.name):
+        if topic.name in LOGGING_TOPICS:
+            continue
+        for frec in topic.fields:
+            if frec.info.kind == "stamp" or frec.problems:
+                continue
+            for key, series in sorted(frec.timed.items()):
+                path = frec.info.path if key == "value" else f"{frec.info.path}{key}"
+                t, x = series.arrays()
+                if x.size < MIN_SIGNAL_SAMPLES:
+                    continue
+                kind = classify(x, frec.info.integer).kind
+                if kind != "numeric":
+                    continue
+                name = f"{topic.name} {path}"
+                d = np.diff(x)
+                wrap = bool(np.all(np.abs(x) <= math.pi + 1e-6)
+                            and np.any(np.abs(d) > math.pi))
+                if wrap:
+                    d = _wrapped(d)
+                period = float(np.median(np.diff(t))) if t.size > 1 else math.inf
+                noise = _robust(d) / math.sqrt(2)
+                if noise == 0.0:
+                    noise = float(np.std(d)) / math.sqrt(2)
+                sig = Signal(SignalRef(topic.name, path), name, t, x, period, noise, wrap,
+                             _trend(t, x, noise), frec.info.integer)
+                out.append(sig)
+    return out
+
+
+def _trend(t: np.ndarray, x: np.ndarray, noise: float) -> float | None:
+    """The slope when a line over time explains at least half the variance and moves the
+    signal by more than ten noise std over the run (a discharging battery)."""
+    if t.size < 3 or np.ptp(t) <= 0:
+        return None
+    slope, intercept = np.polyfit(t - t[0], x, 1)
+    fitted = intercept + slope * (t - t[0])
+    var = float(np.var(x))
+    if var <= 0:
+        return None
+    r2 = 1.0 - float(np.var(x - fitted)) / var
+    if r2 >= 0.5 and abs(slope) * float(np.ptp(t)) > 10 * max(noise, 1e-12):
+        return float(slope)
+    return None
+
+
+def grid_of(sig: Signal, g0: float, count: int) -> np.ndarray:
+    """The signal on the grid ``g0 + k * STEP``: mean of the cell ``(g - STEP, g]``, else the
+    last value while younger than its freshness, else NaN."""
+    fresh = freshness(sig)
+    idx = np.ceil((sig.times - g0) / STEP - 1e-9).astype(np.int64)
+    keep = (idx >= 0) & (idx < count)
+    idx, x, t = idx[keep], sig.values[keep], sig.times[keep]
+    sums = np.bincount(idx, x, minlength=count)
+    counts = np.bincount(idx, minlength=count)
+    last_t = np.full(count, -np.inf)
+    np.maximum.at(last_t, idx, t)
+    has = counts > 0
+    means = np.where(has, sums / np.maximum(counts, 1), np.nan)
+    where = np.where(has, np.arange(count), -1)
+    np.maximum.accumulate(where, out=where)
+    grid = np.where(where >= 0, means[np.maximum(where, 0)], np.nan)
+    age = g0 + np.arange(count) * STEP - np.where(where >= 0, last_t[np.maximum(where, 0)],
+                                                  -np.inf)
+    grid[age > fresh] = np.nan
+    return grid
+
+
+def freshness(sig: Signal) -> float:
+    return max(3.0 * sig.period, 2 * STEP) if math.isfinite(sig.period) else 2 * STEP
+
+
+# ---- fitting ------------------------------------------------------------------------------------
+
+def _shifted(x: np.ndarray, lag: int) -> np.ndarray:
+    """``x[k - lag]`` at every k (NaN where it does not exist)."""
+    out = np.full_like(x, np.nan)
+    if lag >= 0:
+        out[lag:] = x[:x.size - lag] if lag else x
+    else:
+        out[:lag] = x[-lag:]
+    return out
+
+
+def best_lag(y: np.ndarray, x: np.ndarray, max_steps: int) -> tuple[int, float]:
+    """The lag L maximising ``|corr(y[k], x[k - L])|`` and that correlation."""
+    ys = (y - np.nanmean(y)) / (np.nanstd(y) or 1.0)
+    xs = (x - np.nanmean(x)) / (np.nanstd(x) or 1.0)
+    best, best_c = 0, 0.0
+    n = y.size
+    for lag in range(-max_steps, max_steps + 1):
+        if lag >= 0:
+            a, b = ys[lag:], xs[:n - lag]
+        else:
+            a, b = ys[:lag], xs[-lag:]
+        prod = a * b
+        ok = np.isfinite(prod)
+        if ok.sum() < 50:
+            continue
+        c = float(prod[ok].mean())
+        if abs(c) > abs(best_c):
+            best, best_c = lag, c
+    return best, best_c
+
+
+@dataclass
+class Fit:
+    gains: np.ndarray
+    intercept: float
+    r2: float
+    residual: np.ndarray
+    """Out-of-fold residual per grid step (NaN where not computable)."""
+    predicted: np.ndarray
+    target_steps: int
+    lags: list[list[int]]
+
+
+def _ridge(a: np.ndarray, y: np.ndarray, lam: float) -> tuple[np.ndarray, float]:
+    mu, sd = a.mean(axis=0), a.std(axis=0)
+    sd[sd == 0] = 1.0
+    z = (a - mu) / sd
+    ym = y.mean()
+    gram = z.T @ z + lam * a.shape[0] * np.eye(a.shape[1])
+    w = np.linalg.solve(gram, z.T @ (y - ym))
+    gains = w / sd
+    return gains, float(ym - mu @ gains)
+
+
+def _r2(y: np.ndarray, p: np.ndarray) -> float:
+    var = float(np.var(y))
+    return 1.0 - float(np.mean((y - p) ** 2)) / var if var > 0 else -math.inf
+
+
+def fit(target: np.ndarray, inputs: Sequence[np.ndarray], lags: Sequence[Sequence[int]]
+        ) -> Fit | None:
+    """``target[k - s]`` from ``inputs[i][k - s - lag]`` for each lag, ridge chosen by the
+    forward held-out R²; ``s`` makes every lag >= 0 (a target leading its input)."""
+    low = min(min(ls) for ls in lags)
+    shift = max(0, -low)
+    y = _shifted(target, shift)
+    cols = [_shifted(x, lag + shift) for x, ls in zip(inputs, lags, strict=True) for lag in ls]
+    a_all = np.stack(cols, axis=1)
+    rows = np.isfinite(y) & np.isfinite(a_all).all(axis=1)
+    index = np.flatnonzero(rows)
+    if index.size < MIN_GRID_BLOCKS * BLOCK:
+        return None
+    a, yv = a_all[rows], y[rows]
+    cut = int(0.7 * index.size)
+    best_lam, best_r2 = 0.0, -math.inf
+    for lam in LAMBDAS:
+        g, c = _ridge(a[:cut], yv[:cut], lam)
+        r2 = _r2(yv[cut:], a[cut:] @ g + c)
+        if r2 > best_r2 + 1e-4:
+            best_lam, best_r2 = lam, r2
+    residual = np.full(target.size, np.nan)
+    predicted = np.full(target.size, np.nan)
+    folds = np.array_split(np.arange(index.size), 5)
+    for fold in folds:
+        train = np.ones(index.size, dtype=bool)
+        train[fold] = False
+        g, c = _ridge(a[train], yv[train], best_lam)
+        p = a[fold] @ g + c
+        residual[index[fold]] = yv[fold] - p
+        predicted[index[fold]] = p
+    gains, intercept = _ridge(a, yv, best_lam)
+    shifted_lags = [[lag + shift for lag in ls] for ls in lags]
+    return Fit(gains, intercept, best_r2, residual, predicted, shift, shifted_lags)
+
+
+def _taps(center: int) -> list[int]:
+    half = TAPS // 2
+    return [center + j for j in range(-half, TAPS - half)]
+
+
+def _blocks(x: np.ndarray) -> np.ndarray:
+    """Block means over ``BLOCK`` grid steps, NaN for blocks less than half valid."""
+    n = x.size // BLOCK
+    b = x[:n * BLOCK].reshape(n, BLOCK)
+    valid = np.isfinite(b).sum(axis=1)
+    with np.errstate(invalid="ignore"):
+        means: np.ndarray = np.nansum(b, axis=1) / np.maximum(valid, 1)
+    means[valid * 2 < BLOCK] = np.nan
+    return means
+
+
+def _rolling_std(x: np.ndarray, w: int) -> np.ndarray:
+    out = np.full(x.size, np.nan)
+    if x.size < w:
+        return out
+    view = np.lib.stride_tricks.sliding_window_view(x, w)
+    out[w - 1:] = view.std(axis=1)
+    return out
+
+
+def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Relation | None:
+    """Residual noise per mode, sensitivity and span of a fitted relation; ``None`` when it
+    cannot see a fault of four noise std on one of its signals."""
+    res_b = _blocks(fitted.residual)
+    pred_b = _blocks(fitted.predicted)
+    ok = np.isfinite(res_b) & np.isfinite(pred_b)
+    if ok.sum() < MIN_GRID_BLOCKS:
+        return None
+    noise_all = float(np.std(res_b[ok])) or 1e-12
+    window = max(2, round(WINDOW / (STEP * BLOCK)))
+    spread = _rolling_std(np.where(ok, pred_b, np.nan), window)
+    excitation = EXCITATION * noise_all
+    moving = ok & (spread >= excitation)
+    still = ok & np.isfinite(spread) & (spread < excitation)
+    if moving.sum() < MIN_GRID_BLOCKS // 2:
+        return None
+    m_bias, m_noise = float(res_b[moving].mean()), float(res_b[moving].std()) or noise_all
+    z_parts = [(res_b[moving] - m_bias) / m_noise]
+    still_mode = None
+    if still.sum() >= MIN_STILL_BLOCKS:
+        s_bias, s_noise = float(res_b[still].mean()), float(res_b[still].std()) or noise_all
+        still_mode = (s_bias, s_noise)
+        z_parts.append((res_b[still] - s_bias) / s_noise)
+    n_in = len(inputs)
+    per = len(fitted.gains) // n_in
+    gains = [fitted.gains[i * per:(i + 1) * per].tolist() for i in range(n_in)]
+    noise_mode = max(m_noise, still_mode[1] if still_mode else 0.0)
+    seen = [4 * target.noise / noise_mode]
+    seen += [4 * sig.noise * abs(sum(g)) / noise_mode for sig, g in zip(inputs, gains,
+                                                                        strict=True)]
+    sensitivity = min(seen)
+    if sensitivity < SENSITIVITY:
+        return None
+    p = fitted.predicted[np.isfinite(fitted.predicted)]
+    lo, hi = float(p.min()), float(p.max())
+    margin = 0.25 * (hi - lo) + 3 * noise_all
+    residual = fitted.residual[np.isfinite(fitted.residual)]
+    return Relation(target, [(s, lags) for s, lags in zip(inputs, fitted.lags, strict=True)],
+                    gains, fitted.intercept, fitted.target_steps, fitted.r2,
+                    float(np.std(residual)), (m_bias, m_noise), still_mode, excitation,
+                    (lo - margin, hi + margin), np.concatenate(z_parts), sensitivity)
+
+
+def learn_relations(rec: Recording) -> RelationsLearned:
+    notes: list[str] = []
+    signals = signals_of(rec, notes)
+    trends: dict[str, list[str]] = {}
+    for s in signals:
+        if s.trend is not None:
+            trends.setdefault(s.ref.topic, []).append(
+                f"{s.ref.field} trend: {s.trend:+.4g} per s over the run (noise std "
+                f"{s.noise:.3g}): no band, it would leave it; checked for being alive")
+    liveness: dict[str, list[Liveness]] = {}
+    for s in signals:
+        live = learn_liveness(s)
+        if live is not None:
+            liveness.setdefault(s.ref.topic, []).append(live)
+    related = [s for s in signals if s.trend is None and not s.wrap]
+    relations: list[Relation] = []
+    if rec.duration > 0 and len({s.ref.topic for s in related}) >= 2:
+        g0 = math.ceil(rec.started / STEP) * STEP
+        count = int((rec.ended - g0) / STEP) + 1
+        for s in related:
+            s.grid = grid_of(s, g0, count)
+        relations = _search(related, notes)
+    checks = len(relations) + sum(1 for ls in liveness.values() for live in ls
+                                  if live.z is not None)
+    rate = FALSE_ALARMS_PER_HOUR / max(1, checks)
+    for i, r in enumerate(relations):
+        r.calibration = calibrate(r.z, 3600.0 / (STEP * BLOCK), rate, seed=i)
+    for ls in liveness.values():
+        for j, live in enumerate(ls):
+            if live.z is not None:
+                per_hour = 3600.0 / (live.signal.period * live.block)
+                live.calibration = calibrate(live.z, per_hour, rate, two_sided=False,
+                                             seed=1000 + j)
+    if not relations and len(related) >= 2:
+        notes.append(f"no relation between signals of different topics reached a held-out "
+                     f"R2 of {R2_MIN:g} in {rec.duration:.0f} s")
+    related_fields: dict[str, set[str]] = {}
+    for r in relations:
+        for s in (r.target, *(i for i, _ in r.inputs)):
+            related_fields.setdefault(s.ref.topic, set()).add(s.ref.field)
+    return RelationsLearned(relations, liveness, trends, notes, len(signals), related_fields)
+
+
+def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
+    max_steps = round(MAX_LAG / STEP)
+    corr: dict[tuple[int, int], tuple[int, float]] = {}
+    for i, a in enumerate(signals):
+        for j in range(i + 1, len(signals)):
+            b = signals[j]
+            if a.ref.topic == b.ref.topic:
+                continue
+            corr[(i, j)] = best_lag(a.grid, b.grid, max_steps)
+
+    def lag_corr(t: int, x: int) -> tuple[int, float]:
+        """Lag of x relative to target t, and the correlation."""
+        if t < x:
+            return corr[(t, x)]
+        lag, c = corr[(x, t)]
+        return -lag, c
+
+    by_target: dict[int, list[Relation]] = {}
+    topics = sorted({s.ref.topic for s in signals})
+    for ti, target in enumerate(signals):
+        found: list[Relation] = []
+        for topic in topics:
+            if topic == target.ref.topic:
+                continue
+            peers = [(xi, *lag_corr(ti, xi)) for xi, s in enumerate(signals)
+                     if s.ref.topic == topic]
+            peers.sort(key=lambda p: -abs(p[2]))
+            relation = None
+            if peers and abs(peers[0][2]) >= SCREEN:
+                xi, lag, _ = peers[0]
+                fitted = fit(target.grid, [signals[xi].grid], [_taps(lag)])
+                if fitted is not None and fitted.r2 >= R2_MIN:
+                    relation = relation_from_fit(target, [signals[xi]], fitted)
+            if relation is None:
+                joint = [p for p in peers if abs(p[2]) >= JOINT_SCREEN][:MAX_JOINT]
+                if len(joint) >= 2:
+                    fitted = fit(target.grid, [signals[p[0]].grid for p in joint],
+                                 [_taps(p[1]) for p in joint])
+                    if fitted is not None and fitted.r2 >= R2_MIN:
+                        relation = relation_from_fit(target, [signals[p[0]] for p in joint],
+                                                     fitted)
+            if relation is not None:
+                found.append(relation)
+        found.sort(key=lambda r: -r.r2)
+        by_target[ti] = found[:MAX_PEERS]
+    # one direction per pair of single signals: the cleaner signal is the input
+    kept: list[Relation] = []
+    seen: set[frozenset[str]] = set()
+    every = sorted((r for rs in by_target.values() for r in rs),
+                   key=lambda r: (len(r.inputs), _relative_noise(r.inputs[0][0])
+                                  - _relative_noise(r.target)))
+    for r in every:
+        key = frozenset({r.target.name, *(s.name for s, _ in r.inputs)})
+        if len(r.inputs) == 1 and key in seen:
+            continue
+        seen.add(key)
+        kept.append(r)
+    return sorted(kept, key=lambda r: (r.topics, r.target.name))
+
+
+def _relative_noise(s: Signal) -> float:
+    var = float(np.nanvar(s.grid)) if s.grid.size else 0.0
+    return s.noise ** 2 / var if var > 0 else math.inf
+
+
+# ---- liveness -----------------------------------------------------------------------------------
+
+def _longest_run(x: np.ndarray) -> int:
+    if x.size == 0:
+        return 0
+    same = np.concatenate(([False], x[1:] == x[:-1]))
+    best = run = 1
+    for s in same[1:].tolist():
+        run = run + 1 if s else 1
+        best = max(best, run)
+    return best
+
+
+def learn_liveness(s: Signal) -> Liveness | None:
+    x = s.values
+    longest = _longest_run(x)
+    repeats = max(5, 2 * longest + 1) if longest <= 3 else None
+    block = max(5, round(LIVENESS_BLOCK_SECONDS / s.period)) if s.period > 0 else 5
+    d = np.diff(x)
+    if s.wrap:
+        d = _wrapped(d)
+    n = d.size // block
+    z: np.ndarray | None = None
+    mean = std = 0.0
+    if n >= 40:
+        sq = (d[:n * block] ** 2).reshape(n, block).mean(axis=1)
+        if np.all(sq > 0):
+            v = np.log(sq)
+            mean, std = float(v.mean()), max(float(v.std()), 0.05)
+            z = (v - mean) / std
+    if repeats is None and z is None:
+        return None
+    return Liveness(s, repeats, longest, block, mean, std, z)
+
+
+# ---- configuration entries ----------------------------------------------------------------------
+
+def _name(text: str) -> str:
+    import re
+
+    name = re.sub(r"[^A-Za-z0-9_]+", "_", text).strip("_") or "signal"
+    return f"s_{name}" if name[0].isdigit() else name
+
+
+def _g(x: float, digits: int = 6) -> float:
+    return float(f"{x:.{digits}g}")
+
+
+def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict[str, Any]:
+    fresh = max(freshness(s) for r in relations for s in (r.target, *(i for i, _ in r.inputs)))
+    items = []
+    names: set[str] = set()
+    for r in relations:
+        name = _name(f"{r.target.ref.topic}_{r.target.ref.field}")
+        while name in names:
+            name += "_"
+        names.add(name)
+        assert r.calibration is not None
+        items.append({
+            "name": name,
+            "target": {"topic": r.target.ref.topic, "field": r.target.ref.field},
+            **({"target_lag": _g(r.target_steps * STEP)} if r.target_steps else {}),
+            "inputs": [{"topic": s.ref.topic, "field": s.ref.field,
+                        "lags": [_g(lag * STEP) for lag in lags],
+                        "gains": [_g(g) for g in gains]}
+                       for (s, lags), gains in zip(r.inputs, r.gains, strict=True)],
+            "intercept": _g(r.intercept),
+            "bias": _g(r.moving[0], 4),
+            "block_noise": _g(r.moving[1], 4),
+            "still": (None if r.still is None else
+                      {"bias": _g(r.still[0], 4), "block_noise": _g(r.still[1], 4)}),
+            "cusum": {"k": r.calibration.k, "h": round_up(r.calibration.h, 3)},
+            "excitation": _g(r.excitation, 4),
+            "span": [round_down(r.span[0]), round_up(r.span[1])],
+        })
+    return {"type": "relation", "topic": pair[0], "topic_b": pair[1], "step": STEP,
+            "block": BLOCK, "window": WINDOW, "fresh": round_up(fresh, 2), "relations": items}
+
+
+def relation_comments(relations: Sequence[Relation]) -> list[str]:
+    out = []
+    for r in relations:
+        assert r.calibration is not None
+        inputs = ", ".join(f"{s.ref.label()} (lags {lags[0] * STEP:g}..{lags[-1] * STEP:g} s)"
+                           for s, lags in r.inputs)
+        mode = ("standing still judged with its own noise" if r.still is not None
+                else "unjudged while standing still (not seen while learning)")
+        out.append(f"{r.target.ref.label()} from {inputs}: held-out R2 {r.r2:.4f}, residual "
+                   f"std {r.noise:.3g}, block noise {r.moving[1]:.3g}; a 4-noise-std fault on "
+                   f"any of its signals moves the residual >= {r.sensitivity:.1f} block noise; "
+                   f"{r.calibration.describe()}; {mode}")
+    return out
+
+
+def liveness_entry(topic: str, lives: Sequence[Liveness]) -> dict[str, Any]:
+    items = []
+    names: set[str] = set()
+    for live in lives:
+        name = _name(live.signal.ref.field)
+        while name in names:
+            name += "_"
+        names.add(name)
+        item: dict[str, Any] = {"name": name, "field": live.signal.ref.field}
+        if live.repeats is not None:
+            item["repeats"] = live.repeats
+        if live.z is not None and live.calibration is not None:
+            item["noise"] = {"block": live.block, "mean": _g(live.mean, 5),
+                             "std": _g(live.std, 4),
+                             "cusum": {"k": live.calibration.k,
+                                       "h": round_up(live.calibration.h, 3)}}
+        if live.signal.wrap:
+            item["wrap"] = True
+        items.append(item)
+    fresh = max(max(2.0 * freshness(live.signal) for live in lives), 1.0)
+    return {"type": "liveness", "topic": topic, "fresh": round_up(fresh, 2), "signals": items}
+
+
+def liveness_comments(lives: Sequence[Liveness]) -> list[str]:
+    out = []
+    for live in lives:
+        parts = []
+        if live.repeats is not None:
+            parts.append(f"stuck at {live.repeats} equal samples (longest healthy run "
+                         f"{live.longest_run})")
+        else:
+            parts.append(f"repeats up to {live.longest_run} equal samples while healthy: no "
+                         "stuck check")
+        if live.calibration is not None:
+            parts.append(f"log mean squared difference per {live.block} samples "
+                         f"{live.mean:.3g} +- {live.std:.3g}, {live.calibration.describe()}")
+        else:
+            parts.append("no noise check (frozen blocks or too few samples while healthy)")
+        out.append(f"alive {live.signal.ref.field}: " + "; ".join(parts))
+    return out

@@ -1,0 +1,425 @@
+"""A learned relation between the values of two topics: analytical redundancy, checked.
+
+``blackbox learn`` finds signals that carry the same information (an IMU yaw rate, the
+commanded yaw rate, a scan matcher's yaw rate) and writes, per pair of topics, models that
+predict a *target* signal of one topic from *inputs* of the other, each input through a
+few lagged taps (a linear FIR fit, so different rates and delays line up). This observer
+checks them on a common grid of ``step`` seconds:
+
+* the residual ``target - prediction`` is averaged over blocks of ``block`` grid steps and
+  standardised by the healthy block noise; a two-sided CUSUM (drift ``k``, alarm ``h``,
+  ``h`` calibrated while learning for a stated false-alarm rate) accumulates it, so a slow
+  drift builds up evidence instead of hiding in noise;
+* *no excitation, no verdict*: when the prediction moved less than ``excitation`` (standard
+  deviation over the last ``window`` seconds), the relation is judged with the noise
+  learned standing still if the learning run had such a mode (``still``), else it is
+  unjudged; a prediction outside the learned range is not extrapolated; a stale signal
+  (nothing for ``fresh`` seconds: killed, stalled, NaN) gives no verdict either;
+* the verdict has three values: failed (CUSUM at ``h``), held (below ``h / 2``), and in
+  between, or unjudged, ``NOT_AVAILABLE``: a held relation clears the values of both
+  topics in the diagnosis (docs/diagnosis.md), so it says so only when it is sure.
+
+.. code-block:: yaml
+
+    - type: relation
+      topic: /cmd_yaw
+      topic_b: /imu/data
+      step: 0.05
+      block: 10
+      window: 5.0
+      fresh: 0.3
+      relations:
+        - name: imu_data_angular_velocity_z
+          target: {topic: /imu/data, field: angular_velocity.z}
+          inputs:
+            - {topic: /cmd_yaw, field: data, lags: [0.0, 0.05, 0.1], gains: [0.2, 0.5, 0.3]}
+          intercept: 0.0
+          block_noise: 0.008
+          cusum: {k: 0.5, h: 11.8}
+          excitation: 0.05
+          span: [-0.9, 0.9]
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import ClassVar
+
+from blackbox.config.node import ConfigNode
+from blackbox.events import Interest, MessageArrival
+from blackbox.model import Code, Observation, Resource
+from blackbox.observe.base import OBSERVERS, Mode, ObserverBase, ObserverKind, Subject
+from blackbox.observe.observers.entry import COMMON_KEYS, read_every, read_name
+from blackbox.observe.signals import (
+    Cusum,
+    CusumSpec,
+    GridCell,
+    SignalReader,
+    SignalRef,
+    read_signal_ref,
+)
+
+MAX_GAP = 30.0
+"""A gap in time longer than this (seconds) restarts the grid instead of replaying it."""
+_NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
+
+
+@dataclass(frozen=True, slots=True)
+class Tap:
+    """``gain * signal(t - lag)``, the lag in grid steps."""
+
+    signal: SignalRef
+    steps: int
+    gain: float
+
+
+@dataclass(frozen=True, slots=True)
+class NoiseMode:
+    """The healthy residual of one operating mode: block mean ``bias`` and ``block_noise``."""
+
+    bias: float
+    block_noise: float
+
+
+@dataclass(frozen=True, slots=True)
+class RelationSpec:
+    """One learned model: ``target`` predicted by ``taps`` plus ``intercept``."""
+
+    name: str
+    target: SignalRef
+    target_steps: int
+    taps: tuple[Tap, ...]
+    intercept: float
+    moving: NoiseMode
+    still: NoiseMode | None
+    cusum: CusumSpec
+    excitation: float
+    span: tuple[float, float]
+
+    def inputs(self) -> str:
+        return ", ".join(dict.fromkeys(t.signal.label() for t in self.taps))
+
+
+class _Judge:
+    """The running test of one relation."""
+
+    __slots__ = ("count", "cusum", "excite", "last_z", "pred_sum", "reason", "res_sum",
+                 "spec", "unjudged_blocks", "verdict")
+
+    def __init__(self, spec: RelationSpec, window_blocks: int) -> None:
+        self.spec = spec
+        self.cusum = Cusum(spec.cusum)
+        self.excite: deque[float] = deque(maxlen=window_blocks)
+        self.res_sum = 0.0
+        self.pred_sum = 0.0
+        self.count = 0
+        self.last_z = math.nan
+        self.verdict = "unjudged"
+        self.reason = "waiting for data"
+        self.unjudged_blocks = 0
+
+    def reset(self, reason: str) -> None:
+        self.cusum.reset()
+        self.excite.clear()
+        self.res_sum = self.pred_sum = 0.0
+        self.count = 0
+        self.verdict = "unjudged"
+        self.reason = reason
+
+    def end_block(self, block: int, window_blocks: int) -> None:
+        spec, count = self.spec, self.count
+        residual = self.res_sum / count if count else math.nan
+        predicted = self.pred_sum / count if count else math.nan
+        self.res_sum = self.pred_sum = 0.0
+        self.count = 0
+        if count * 2 < block:
+            self._unjudged(self.reason if self.reason.startswith("stale") else
+                           "waiting for fresh samples of every signal", window_blocks)
+            return
+        self.excite.append(predicted)
+        if len(self.excite) < self.excite.maxlen:  # type: ignore[operator]
+            self._unjudged(f"waiting for {window_blocks} blocks to judge excitation",
+                           window_blocks)
+            return
+        lo, hi = spec.span
+        if not lo <= predicted <= hi:
+            self._unjudged(f"prediction {predicted:.4g} outside the learned range "
+                           f"{lo:.4g}..{hi:.4g}: not extrapolated", window_blocks)
+            return
+        spread = _std(self.excite)
+        mode = spec.moving
+        if spread < spec.excitation:
+            if spec.still is None:
+                self._unjudged(f"no excitation: the prediction moved {spread:.3g} (std over "
+                               f"{window_blocks} blocks), need {spec.excitation:.3g}; "
+                               "standing still was not seen while learning", window_blocks)
+                return
+            mode = spec.still
+        self.unjudged_blocks = 0
+        self.last_z = (residual - mode.bias) / mode.block_noise
+        stat = self.cusum.update(self.last_z)
+        h = spec.cusum.h
+        self.verdict = "failed" if stat >= h else "undecided" if stat >= h / 2 else "held"
+        self.reason = ""
+
+    def _unjudged(self, reason: str, window_blocks: int) -> None:
+        self.verdict = "unjudged"
+        self.reason = reason
+        self.unjudged_blocks += 1
+        if self.unjudged_blocks >= window_blocks:
+            self.cusum.reset()  # old evidence does not carry over a long blind spell
+
+
+def _std(values: deque[float]) -> float:
+    n = len(values)
+    mean = sum(values) / n
+    return math.sqrt(max(0.0, sum((v - mean) ** 2 for v in values) / n))
+
+
+class RelationObserver(ObserverBase):
+    """Learned relations between signals of ``topic`` and ``topic_b`` (docs/learn.md)."""
+
+    type_name: ClassVar[str] = "relation"
+
+    def __init__(self, topic: str, topic_b: str, relations: Sequence[RelationSpec], *,
+                 step: float, block: int, window: float, fresh: float,
+                 every: float = 1.0) -> None:
+        if not relations:
+            raise ValueError("a relation observer needs at least one relation")
+        if topic == topic_b:
+            raise ValueError("a relation relates two different topics")
+        self.topic, self.topic_b = topic, topic_b
+        self.resource = Resource(topic=topic, topic_b=topic_b)
+        self.interval = every
+        self.step, self.block, self.window, self.fresh = step, block, window, fresh
+        self.window_blocks = max(2, round(window / (step * block)))
+        self.relations = tuple(relations)
+        refs = {r.target: None for r in relations}
+        for r in relations:
+            refs.update({t.signal: None for t in r.taps})
+        self._refs = tuple(refs)
+        self._readers = {ref: SignalReader(ref) for ref in self._refs}
+        self._by_topic: dict[str, list[tuple[SignalReader, GridCell]]] = {}
+        self._cells = {ref: GridCell(fresh) for ref in self._refs}
+        for ref in self._refs:
+            self._by_topic.setdefault(ref.topic, []).append((self._readers[ref],
+                                                            self._cells[ref]))
+        depth = 1 + max(max((t.steps for r in relations for t in r.taps), default=0),
+                        max(r.target_steps for r in relations))
+        self._history = {ref: deque([math.nan] * depth, maxlen=depth) for ref in self._refs}
+        self._judges = [_Judge(r, self.window_blocks) for r in relations]
+        self._next: float | None = None
+        self._ticks = 0
+        self._undecodable = 0
+
+    def interest(self) -> Interest:
+        topics = frozenset({self.topic, self.topic_b})
+        return Interest(decoded=topics)
+
+    def quantity_names(self) -> tuple[str, ...]:
+        return tuple(n for r in self.relations for n in (f"{r.name}_z", f"{r.name}_cusum"))
+
+    # ---- the grid ------------------------------------------------------------------------------
+
+    def _advance(self, t: float) -> None:
+        nxt = self._next
+        if nxt is None:
+            self._next = math.ceil(t / self.step) * self.step
+            return
+        if t - nxt > MAX_GAP:
+            self._restart(t, f"no message for {t - nxt:.0f} s: restarted")
+            return
+        while nxt < t:
+            self._tick(nxt)
+            nxt += self.step
+        self._next = nxt
+
+    def _restart(self, t: float, why: str) -> None:
+        for cell in self._cells.values():
+            cell.reset()
+        for hist in self._history.values():
+            hist.extend([math.nan] * (hist.maxlen or 1))
+        for judge in self._judges:
+            judge.reset(why)
+        self._ticks = 0
+        self._next = math.ceil(t / self.step) * self.step
+
+    def _tick(self, g: float) -> None:
+        history = self._history
+        for ref, cell in self._cells.items():
+            history[ref].appendleft(cell.close(g))
+        for judge in self._judges:
+            spec = judge.spec
+            y = history[spec.target][spec.target_steps]
+            predicted = spec.intercept
+            for tap in spec.taps:
+                predicted += tap.gain * history[tap.signal][tap.steps]
+            if math.isnan(y) or math.isnan(predicted):
+                stale = [ref.label() for ref in (spec.target, *(t.signal for t in spec.taps))
+                         if math.isnan(history[ref][0])]
+                if stale:
+                    judge.reason = (f"stale: no fresh sample of {', '.join(dict.fromkeys(stale))}"
+                                    f" within {self.fresh:g} s")
+                continue
+            judge.res_sum += y - predicted
+            judge.pred_sum += predicted
+            judge.count += 1
+        self._ticks += 1
+        if self._ticks % self.block == 0:
+            for judge in self._judges:
+                judge.end_block(self.block, self.window_blocks)
+
+    # ---- events ---------------------------------------------------------------------------------
+
+    def on_message(self, msg: MessageArrival) -> None:
+        pairs = self._by_topic.get(msg.topic)
+        if pairs is None:
+            return
+        self._advance(msg.time)
+        try:
+            value = msg.value
+        except Exception:  # the robot's garbage, never the black box's crash
+            value = None
+        if value is None:
+            self._undecodable += 1
+            return
+        for reader, cell in pairs:
+            x = reader.read(value)
+            if x is not None:
+                cell.add(msg.time, x)
+
+    def evaluate(self, now: float) -> list[Observation]:
+        self._advance(now)
+        values: dict[str, float] = {}
+        failed: list[str] = []
+        held: list[str] = []
+        open_: list[str] = []
+        for judge in self._judges:
+            spec = judge.spec
+            stat = judge.cusum.statistic
+            if judge.verdict != "unjudged":
+                values[f"{spec.name}_z"] = round(judge.last_z, 4)
+                values[f"{spec.name}_cusum"] = round(stat, 4)
+            what = f"{spec.target.label()} ~ {spec.inputs()}"
+            if judge.verdict == "failed":
+                failed.append(f"{spec.target.label()} disagrees with {spec.inputs()} "
+                              f"(residual {judge.last_z:+.1f} noise std, CUSUM {stat:.1f} >= "
+                              f"{spec.cusum.h:.1f})")
+            elif judge.verdict == "held":
+                held.append(f"{what} (CUSUM {stat:.1f} < {spec.cusum.h / 2:.1f})")
+            elif judge.verdict == "undecided":
+                open_.append(f"{what}: undecided (CUSUM {stat:.1f} between "
+                             f"{spec.cusum.h / 2:.1f} and {spec.cusum.h:.1f})")
+            else:
+                open_.append(f"{what}: unjudged, {judge.reason}")
+        if failed:
+            text = "; ".join(failed)
+            if held:
+                text += "; held: " + "; ".join(held)
+            return [Observation(now, self.type_name, self.resource, Code.NO_STATE_FITS,
+                                values=values, message=text)]
+        if open_:
+            return [self.unavailable(now, "; ".join(open_ + held), values)]
+        return [Observation(now, self.type_name, self.resource, Code.GENERAL_OK,
+                            values=values, message="holds: " + "; ".join(held))]
+
+    def describe(self) -> str:
+        parts = [f"{r.name}: {r.target.label()} from {r.inputs()} (CUSUM k {r.cusum.k:g}, "
+                 f"h {r.cusum.h:g})" for r in self.relations]
+        return (f"relation {self.topic} <-> {self.topic_b}: {'; '.join(parts)}; grid "
+                f"{self.step:g} s, blocks of {self.block}, every {self.interval:g} s")
+
+
+# ---- configuration ------------------------------------------------------------------------------
+
+def _mode(node: ConfigNode) -> NoiseMode:
+    node.check_keys(("bias", "block_noise"))
+    bias = node.get("bias")
+    return NoiseMode(0.0 if bias is None else bias.float(),
+                     node["block_noise"].float(min=0.0, min_exclusive=True))
+
+
+def _steps(node: ConfigNode, step: float) -> int:
+    lag = node.float(min=0.0, max=60.0)
+    steps = round(lag / step)
+    if abs(steps * step - lag) > 1e-6 * max(1.0, lag):
+        raise node.error(f"lag {lag:g} s is not a multiple of the grid step {step:g} s")
+    return steps
+
+
+def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
+              names: set[str]) -> RelationSpec:
+    node.check_keys(("name", "target", "target_lag", "inputs", "intercept", "block_noise",
+                     "bias", "still", "cusum", "excitation", "span", "fit"))
+    name_node = node["name"]
+    name = name_node.str()
+    if not name or not set(name) <= _NAME_CHARS or name[0].isdigit():
+        raise name_node.error(f"relation name {name!r} must be letters, digits and '_', not "
+                              "starting with a digit")
+    if name in names:
+        raise name_node.error(f"relation {name!r} named twice")
+    names.add(name)
+    target = read_signal_ref(node["target"])
+    if target.topic not in topics:
+        raise node["target"]["topic"].error(f"target topic {target.topic!r} is neither "
+                                            f"{topics[0]!r} nor {topics[1]!r}")
+    lag_node = node.get("target_lag")
+    target_steps = 0 if lag_node is None else _steps(lag_node, step)
+    taps: list[Tap] = []
+    inputs = node["inputs"].list()
+    if not inputs:
+        raise node["inputs"].error("a relation needs at least one input")
+    for item in inputs:
+        item.check_keys(("topic", "field", "lags", "gains"))
+        ref = read_signal_ref(ConfigNode.mapping({"topic": item["topic"],
+                                                 "field": item["field"]}, item))
+        if ref.topic not in topics:
+            raise item["topic"].error(f"input topic {ref.topic!r} is neither {topics[0]!r} "
+                                      f"nor {topics[1]!r}")
+        lags, gains = item["lags"].list(), item["gains"].list()
+        if not lags or len(lags) != len(gains):
+            raise item["gains"].error(f"lags and gains must be lists of one length, got "
+                                      f"{len(lags)} and {len(gains)}")
+        taps.extend(Tap(ref, _steps(lag, step), gain.float())
+                    for lag, gain in zip(lags, gains, strict=True))
+    span_node = node["span"]
+    span = span_node.list()
+    if len(span) != 2 or not span[0].float() <= span[1].float():
+        raise span_node.error("span must be [low, high] with low <= high")
+    bias = node.get("bias")
+    moving = NoiseMode(0.0 if bias is None else bias.float(),
+                       node["block_noise"].float(min=0.0, min_exclusive=True))
+    still = node.get("still")
+    return RelationSpec(
+        name=name, target=target, target_steps=target_steps, taps=tuple(taps),
+        intercept=node["intercept"].float() if node.get("intercept") is not None else 0.0,
+        moving=moving, still=None if still is None or still.is_null else _mode(still),
+        cusum=CusumSpec.read(node["cusum"]),
+        excitation=node["excitation"].float(min=0.0) if node.get("excitation") else 0.0,
+        span=(span[0].float(), span[1].float()))
+
+
+def relation_from_config(node: ConfigNode) -> RelationObserver:
+    node.check_keys((*COMMON_KEYS, "topic", "topic_b", "step", "block", "window", "fresh",
+                     "relations"))
+    topic, topic_b = read_name(node, "topic"), read_name(node, "topic_b")
+    if topic == topic_b:
+        raise node["topic_b"].error("topic_b must differ from topic")
+    step = node["step"].float(min=0.001, max=10.0) if node.get("step") else 0.05
+    block = node["block"].int(min=1, max=10_000) if node.get("block") else 10
+    window = node["window"].float(min=0.0, min_exclusive=True) if node.get("window") else 5.0
+    fresh = node["fresh"].float(min=0.0, min_exclusive=True) if node.get("fresh") else 0.5
+    names: set[str] = set()
+    items = node["relations"].list()
+    if not items:
+        raise node["relations"].error("relations lists no relation")
+    relations = [_relation(item, step, (topic, topic_b), names) for item in items]
+    return RelationObserver(topic, topic_b, relations, step=step, block=block, window=window,
+                            fresh=fresh, every=read_every(node))
+
+
+OBSERVERS.add("relation", ObserverKind("relation", relation_from_config, Subject.TOPIC_PAIR,
+                                       (), judges=Mode.RIGHT, relation=True))

@@ -1,0 +1,205 @@
+"""The black box's own hiccups on the real ROS 1 thesis robot are measurement gaps, never
+alarms: a counters/subscription switch when the only on-robot subscriber dies, the black
+box itself stopped for 3 s, its wall clock stepped, the master restarted. Each test
+asserts a gap event and no faulty verdict the robot did not earn."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import pytest
+
+from blackbox.app import RunOptions, build
+from blackbox.model import BlackBoxEvent, Code, Observation
+from blackbox.sinks import SinkBase
+from conftest import black_box_running, wait_for
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros1_robot"))
+from robot import ThesisRobot, free_port
+
+pytestmark = [pytest.mark.ros1, pytest.mark.slow,
+              pytest.mark.skipif(shutil.which("roscore") is None, reason="needs Debian's ROS 1")]
+
+THESIS = Path(__file__).resolve().parent.parent / "src" / "blackbox" / "configs" / "thesis.yaml"
+COUNTED = ("/usb_cam/image_raw", "/audio")
+"""Topics whose only on-robot subscriber is /Signal_generator: their rates come from the
+publishers' counters while it lives, from the black box's own subscription otherwise."""
+
+
+class Seen(SinkBase):
+    """Observations and events of a black box running in a thread of the test."""
+
+    def __init__(self) -> None:
+        self.observations: list[Observation] = []
+        self.events: list[BlackBoxEvent] = []
+
+    def on_observations(self, now: float, observations: Sequence[Observation]) -> None:
+        self.observations.extend(observations)
+
+    def on_event(self, event: BlackBoxEvent) -> None:
+        self.events.append(event)
+
+    def alarms(self, since: float, topics: Sequence[str] = ()) -> list[Observation]:
+        """Faulty verdicts (not ``NOT_AVAILABLE``) since ``since``, on ``topics`` if given."""
+        return [o for o in list(self.observations)
+                if o.time >= since and o.faulty and o.code != Code.NOT_AVAILABLE
+                and (not topics or o.resource.topic in topics)]
+
+    def gaps(self, kind: str = "measured_again") -> list[BlackBoxEvent]:
+        return [e for e in list(self.events) if e.kind == kind]
+
+    def ok(self, since: float) -> bool:
+        """Every observer judged the robot healthy at least once since ``since`` and none
+        faulty in its latest verdict."""
+        latest: dict[tuple[str, object], Observation] = {}
+        for o in list(self.observations):
+            if o.time >= since:
+                latest[o.key()] = o
+        return len(latest) >= 10 and all(o.code == Code.GENERAL_OK for o in latest.values())
+
+
+@pytest.fixture
+def robot(tmp_path: Path) -> Iterator[ThesisRobot]:
+    r = ThesisRobot(free_port(), log_dir=tmp_path / "logs")
+    try:
+        yield r.start()
+    finally:
+        r.stop()
+
+
+def settled(seen: Seen) -> float:
+    start = time.time()
+    assert wait_for(lambda: seen.ok(start + 3.0), 40), \
+        "the thesis robot never showed healthy on every observer"
+    return time.time()
+
+
+def test_killing_the_only_subscriber_of_counted_topics_is_a_gap_not_a_wrong_rate(
+        robot: ThesisRobot) -> None:
+    seen = Seen()
+    options = RunOptions(config=THESIS, source=f"ros1://127.0.0.1:{robot.port}", live=False,
+                         extra_sinks=[seen])
+    with black_box_running(options):
+        start = settled(seen)
+        for _ in range(2):
+            os.kill(robot.pid("/Signal_generator"), signal.SIGKILL)
+            killed = time.time()
+            assert wait_for(lambda k=killed: {e.component for e in seen.gaps()
+                                              if e.time >= k} >= set(COUNTED), 15), \
+                "no gap closed on both counted topics after the kill"
+            robot.nodes["/Signal_generator"].wait(timeout=5)
+            robot.start_node("/Signal_generator")
+            robot.wait_registered(["/Signal_generator"])
+            back = time.time()
+            assert wait_for(lambda b=back: {e.component for e in seen.gaps()
+                                            if e.time >= b} >= set(COUNTED), 15), \
+                "no gap on both counted topics when the subscriber came back"
+            assert wait_for(lambda b=back: seen.ok(b + 3.0), 20)
+        assert seen.alarms(start, COUNTED) == []
+        closed = [e.message for e in seen.gaps() if e.component == "/audio"]
+        assert any("not measured from" in m and "counters to a subscription" in m
+                   for m in closed), closed
+
+
+def test_the_master_restarting_is_a_graph_gap_and_no_alarm(robot: ThesisRobot) -> None:
+    seen = Seen()
+    options = RunOptions(config=THESIS, source=f"ros1://127.0.0.1:{robot.port}", live=False,
+                         extra_sinks=[seen])
+    with black_box_running(options):
+        start = settled(seen)
+        robot.stop_master()
+        assert wait_for(lambda: any("the robot's graph" in e.message
+                                    for e in seen.gaps("not_measured")), 10), "no graph gap"
+        robot.start_master()
+        assert wait_for(lambda: any("the robot's graph: not measured from" in e.message
+                                    for e in seen.gaps()), 20), "the graph gap never closed"
+        settled_again = time.time()
+        assert wait_for(lambda: seen.ok(settled_again), 20)
+        assert seen.alarms(start) == []
+
+
+def test_a_wall_clock_step_either_way_is_a_gap_of_everything_and_no_alarm(
+        robot: ThesisRobot) -> None:
+    """NTP stepping the clock, faked at the source boundary: the ROS 1 source's
+    ``clock_offset`` shifts every time it reads or stamps (kernel stamps included), as a
+    stepped ``CLOCK_REALTIME`` would (a time namespace cannot step it)."""
+    seen = Seen()
+    box = build(RunOptions(config=THESIS, source=f"ros1://127.0.0.1:{robot.port}",
+                           live=False, extra_sinks=[seen]))
+    source = box.pipeline.source
+    stop = threading.Event()
+    thread = threading.Thread(target=box.run, args=(stop,), daemon=True)
+    thread.start()
+    try:
+        start = settled(seen)
+        for step in (30.0, -60.0):
+            before = len(seen.gaps())
+            source.clock_offset += step  # type: ignore[attr-defined]
+            assert wait_for(lambda b=before: len(seen.gaps()) > b, 10), f"no gap for {step}"
+            gap = seen.gaps()[-1]
+            assert gap.component == "blackbox" and "stepped" in gap.message
+            now = source.now()
+            assert wait_for(lambda n=now: seen.ok(n + 2.0), 20), f"not healthy after {step}"
+        assert seen.alarms(start) == []
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+
+
+def test_the_black_box_stopped_for_three_seconds_raises_no_alarm(
+        robot: ThesisRobot, tmp_path: Path) -> None:
+    """A real ``blackbox run`` process, SIGSTOPped for 3 s and continued."""
+    observations, events = tmp_path / "obs.jsonl", tmp_path / "events.jsonl"
+    blackbox = Path(sys.executable).parent / "blackbox"
+    proc = subprocess.Popen(
+        [str(blackbox), "run", "--source", f"ros1://127.0.0.1:{robot.port}", "--config",
+         str(THESIS), "--observations", str(observations), "--events", str(events),
+         "--quiet"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+    def records(path: Path) -> list[dict[str, object]]:
+        if not path.exists():
+            return []
+        text = path.read_text()
+        whole = text[:text.rfind("\n") + 1]  # a line still being written is left for later
+        return [json.loads(line) for line in whole.splitlines() if line]
+
+    def healthy_since(t: float) -> bool:
+        latest: dict[str, dict[str, object]] = {}
+        for r in records(observations):
+            if float(r["time"]) >= t:  # type: ignore[arg-type]
+                latest[json.dumps([r["observer"], r["resource"]])] = r
+        return len(latest) >= 10 and all(r["code"] == 0 for r in latest.values())
+
+    try:
+        began = time.time()
+        assert wait_for(lambda: healthy_since(began + 3.0), 40), "never healthy"
+        settled_at = time.time()
+        for _ in range(2):
+            proc.send_signal(signal.SIGSTOP)
+            stopped = time.time()
+            assert not wait_for(lambda: proc.poll() is not None, 3.0)  # 3 s stopped
+            proc.send_signal(signal.SIGCONT)
+            assert wait_for(lambda s=stopped: any(
+                r["kind"] == "measured_again" and "did not run" in str(r["message"])
+                and float(r["time"]) >= s for r in records(events)), 10), "no pause gap"  # type: ignore[arg-type]
+            cont = time.time()
+            assert wait_for(lambda c=cont: healthy_since(c + 2.0), 20), "not healthy after"
+        alarms = [r for r in records(observations)
+                  if float(r["time"]) >= settled_at and r["code"] not in (0, -3)]  # type: ignore[arg-type]
+        assert alarms == []
+    finally:
+        proc.send_signal(signal.SIGCONT)
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
