@@ -156,10 +156,16 @@ class ParsedCommand:
     errors: tuple[str, ...]
 
 
+@cache
+def blackbox_parser() -> argparse.ArgumentParser:
+    """The command line's parser, built once (it is only read here)."""
+    return build_parser()
+
+
 def parse_blackbox(command: DocCommand) -> ParsedCommand:
     """Walk ``command``'s words through the real parsers: subcommand names descend, options
     must be known to the parser they are given to, and an option's value is skipped."""
-    parser = build_parser()
+    parser = blackbox_parser()
     path: list[str] = []
     errors: list[str] = []
     words = [_unmark(w) for w in command.arguments]
