@@ -9,6 +9,7 @@ that instant; a torn WAL tail is simulated by cutting bytes off the copied WAL.
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 import signal
 import sqlite3
@@ -118,7 +119,34 @@ def test_a_foreign_database_with_a_wal_stays_foreign_and_untouched(tmp_path: Pat
     assert classify(text) == "foreign"
 
 
-# ---- SIGKILL of a real `blackbox run --record` ----------------------------------------------------
+KILLED_WHILE_CREATING = """
+import os, signal, sqlite3, sys
+from blackbox.record.store import APPLICATION_ID, MIGRATIONS
+db = sqlite3.connect(sys.argv[1], isolation_level=None)
+db.execute("PRAGMA cache_size = 5")  # pages spill into the file before the commit
+db.execute("BEGIN IMMEDIATE")
+for migrate in MIGRATIONS:
+    migrate(db)
+db.execute(f"PRAGMA application_id = {APPLICATION_ID}")
+db.executemany("INSERT INTO meta VALUES (?, ?)", [(str(i), "x" * 500) for i in range(200)])
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def test_a_log_killed_while_being_created_is_started_afresh(tmp_path: Path) -> None:
+    """A SIGKILL inside the creating transaction leaves pages in the file and a hot
+    journal that a read-only look cannot roll back; the journal says the file was empty."""
+    log = tmp_path / "log.db"
+    proc = subprocess.run([sys.executable, "-c", KILLED_WHILE_CREATING, str(log)])
+    assert proc.returncode == -signal.SIGKILL
+    assert log.stat().st_size > 0 and Path(f"{log}-journal").exists()
+    assert classify(log) == "empty"
+    rec = Recorder(RecorderSettings(log, commit_interval=0.05, snapshot=None), robot_id="r")
+    rec.close()
+    assert [e.payload["event"] for e in committed(log).values()] == ["start", "stop"]
+
+
+# ---- SIGKILL of a real `blackbox run --record` ---------------------------------------------
 
 
 def killed_run(log: Path, when: Callable[[subprocess.Popen[bytes]], None]) -> None:
@@ -181,7 +209,7 @@ def test_after_a_sigkill_the_next_run_starts_and_appends(tmp_path: Path, moment:
     assert not list(tmp_path.glob("log.db.*-*")), "nothing was moved aside"
 
 
-# ---- a power cut: the disk as it was at one instant -------------------------------------------------
+# ---- a power cut: the disk as it was at one instant -----------------------------------------
 
 
 def writing_recorder(log: Path, stop: threading.Event) -> threading.Thread:
@@ -208,9 +236,15 @@ def power_cut_copy(log: Path, target: Path, wal_cut: int = 0) -> Path:
     """The log and its WAL as the disk held them now (``wal_cut`` bytes of the WAL's tail
     not yet on the medium)."""
     target.mkdir()
+    # In the order that gives a state the disk really passes through: a rollback journal
+    # (only while the log is created) goes before the pages it protects and is deleted
+    # after them; the WAL is only appended to (no checkpoint runs in so small a log).
+    journal = Path(f"{log}-journal")
+    with contextlib.suppress(FileNotFoundError):
+        shutil.copy(journal, target / journal.name)
+    shutil.copy(log, target / log.name)
     wal = Path(f"{log}-wal")
     wal_bytes = wal.read_bytes() if wal.exists() else b""
-    shutil.copy(log, target / log.name)
     if wal_bytes:
         (target / f"{log.name}-wal").write_bytes(wal_bytes[:max(0, len(wal_bytes) - wal_cut)])
     return target / log.name
@@ -236,7 +270,8 @@ def test_after_a_power_cut_the_recorder_starts_on_the_same_log(tmp_path: Path,
         writer.join(30)
     for copy in copies:
         kind = classify(copy)
-        assert kind in ("health_log", "empty"), f"{copy.parent.name}: classified {kind}"
+        assert kind in ("health_log", "empty"), \
+            f"{copy.parent.name}: {kind} ({sorted(p.name for p in copy.parent.iterdir())})"
         before = committed(copy) if kind == "health_log" else {}
         rec = Recorder(RecorderSettings(copy, commit_interval=0.05, snapshot=None), robot_id="p")
         rec.close()
