@@ -15,6 +15,7 @@ import signal
 import sqlite3
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -33,9 +34,14 @@ BLACKBOX = [sys.executable, "-m", "blackbox"]
 
 
 def committed(log: Path) -> dict[int, LogEntry]:
-    """Every committed entry of ``log`` by id, read as the next start would see it."""
-    with Store.open(log, readonly=True, check=False) as store:
-        return {e.id: e for e in store.query()}
+    """Every committed entry of ``log`` by id, read as the next start would see it: from a
+    copy opened for writing, so a hot rollback journal is rolled back as a start would."""
+    with tempfile.TemporaryDirectory() as scratch:
+        for name in (log.name, f"{log.name}-wal", f"{log.name}-journal"):
+            with contextlib.suppress(FileNotFoundError):
+                shutil.copyfile(log.parent / name, Path(scratch) / name)
+        with Store.open(Path(scratch) / log.name, check=False) as store:
+            return {e.id: e for e in store.query()}
 
 
 def first_commit_done(log: Path) -> bool:
