@@ -17,6 +17,7 @@ and does not need the B-trees), so the original files are never written.
 
 from __future__ import annotations
 
+import bisect
 import fnmatch
 import mmap
 import shutil
@@ -48,6 +49,8 @@ class LostRange:
     first: int
     last: int
     pages: tuple[int, ...]
+    ids: tuple[int, int] | None = None
+    """For frames: the entry ids their entries had (bounded by the frames around them)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,10 +102,15 @@ class SalvageReport:
                 rows = "rows" if lost.last >= 2**62 else f"rows {lost.first}..{lost.last}"
                 out.append(f"lost: {lost.table} {rows} (pages {_pages(lost.pages)})")
                 continue
-            what = "entry ids" if lost.table == "entries" else "frames"
-            out.append(f"lost: {what} {lost.first}..{_end(lost.last)} stored as "
-                       f"{'rows' if lost.table == 'entries' else 'frame rows'} "
-                       f"(pages {_pages(lost.pages)})" + _between(by_id, lost))
+            if lost.table == "entries":
+                out.append(f"lost: entry ids {lost.first}..{_end(lost.last)} stored as rows "
+                           f"(pages {_pages(lost.pages)})"
+                           + _between(by_id, lost.first, lost.last))
+                continue
+            ids = "" if lost.ids is None else \
+                f": their entries have ids from {lost.ids[0]} on"
+            out.append(f"lost: frames {lost.first}..{_end(lost.last)} "
+                       f"(pages {_pages(lost.pages)}){ids}")
         for frame in self.lost_frames:
             span = "" if frame.t_min is None else f", time {frame.t_min!r}..{frame.t_max!r}"
             out.append(f"lost: frame {frame.frame} data ({frame.count} entries, ids "
@@ -158,13 +166,13 @@ def _span(entries: Sequence[LogEntry]) -> str:
     return f", time {min(e.time for e in entries)!r}..{max(e.time for e in entries)!r}"
 
 
-def _between(by_id: Sequence[LogEntry], lost: LostRange) -> str:
-    if lost.table != "entries":
-        return ""
-    before = [e for e in by_id if e.id < lost.first]
-    after = [e for e in by_id if e.id > lost.last]
-    t0 = f"{before[-1].time!r}" if before else "?"
-    t1 = f"{after[0].time!r}" if after else "the end"
+def _between(by_id: Sequence[LogEntry], first: int, last: int) -> str:
+    """The times of the salvaged entries just before and after ids ``first``..``last``."""
+    ids = [e.id for e in by_id]
+    before = bisect.bisect_left(ids, first) - 1
+    after = bisect.bisect_right(ids, last)
+    t0 = f"{by_id[before].time!r}" if before >= 0 else "the start"
+    t1 = f"{by_id[after].time!r}" if after < len(by_id) else "the end"
     return f", between time {t0} and {t1}"
 
 
@@ -430,6 +438,8 @@ def _salvage(db: _File, wal_applied: bool | None) -> Salvaged:
     for name in ("entries", "frames", "channels", "meta"):
         report.lost += [r for r in tables[name].lost
                         if not _refilled(r, tables[name])]
+    report.lost = [_with_ids(r, tables["frames"]) if r.table == "frames" else r
+                   for r in report.lost]
     channels = {rowid: values for rowid, (values, _) in tables["channels"].rows.items()
                 if len(values) >= 3}
     meta = {str(v[0]): v[1] for v, _ in tables["meta"].rows.values() if len(v) == 2}
@@ -452,6 +462,17 @@ def _salvage(db: _File, wal_applied: bool | None) -> Salvaged:
         report.frame_entries += len(decoded)
     entries.sort(key=lambda e: (e.time, e.id))
     return Salvaged(entries, str(meta.get("robot_id") or ""), report)
+
+
+def _with_ids(lost: LostRange, frames: _Table) -> LostRange:
+    """Frames are numbered in the order they were written, and a frame's first id is above
+    the first id of every frame before it (later commits have higher ids; within a commit
+    groups are written in the order of their first entry). Their last ids interleave
+    within a commit, so only the lower bound is known."""
+    before = [v[1] for rowid, (v, _) in frames.rows.items()
+              if rowid < lost.first and len(v) > 1 and isinstance(v[1], int)]
+    return LostRange(lost.table, lost.first, lost.last, lost.pages,
+                     (max(before, default=0) + 1, 2**63 - 1))
 
 
 def _refilled(lost: LostRange, table: _Table) -> bool:
