@@ -93,7 +93,9 @@ class SalvageReport:
         if self.pages_in_file < self.pages_expected:
             out.append(f"the file ends after page {self.pages_in_file} of "
                        f"{self.pages_expected} ({self.page_size}-byte pages): "
-                       f"{self.pages_expected - self.pages_in_file} pages missing")
+                       f"{self.pages_expected - self.pages_in_file} "
+                       f"page{'s' if self.pages_expected - self.pages_in_file > 1 else ''} "
+                       "missing")
         if self.wal_applied is False:
             out.append("the WAL beside the log could not be applied; read without it")
         by_id = sorted(entries, key=lambda e: e.id)
@@ -140,8 +142,10 @@ def _merged(ranges: Sequence[LostRange]) -> list[LostRange]:
     for r in sorted(ranges, key=lambda r: (r.table, r.first)):
         if out and out[-1].table == r.table and out[-1].last + 1 >= r.first:
             last = out[-1]
+            ids = None if last.ids is None or r.ids is None else \
+                (min(last.ids[0], r.ids[0]), max(last.ids[1], r.ids[1]))
             out[-1] = LostRange(r.table, last.first, max(last.last, r.last),
-                                last.pages + r.pages)
+                                last.pages + r.pages, ids)
         else:
             out.append(r)
     return out
