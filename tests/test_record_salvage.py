@@ -237,3 +237,19 @@ def test_salvage_reads_the_wal_of_a_crashed_log(tmp_path: Path) -> None:
         [T0 + i for i in range(50)]
     assert found.report.wal_applied is True
     assert (crashed / "log.db-wal").read_bytes() == wal_before, "the original is only read"
+
+
+def test_rows_under_a_lost_interior_page_are_found_on_their_orphaned_pages(
+        original: tuple[Path, dict[int, LogEntry]], tmp_path: Path) -> None:
+    """The root pages of ``entries`` and ``frames`` zeroed: no walk reaches a leaf, yet
+    every leaf is intact and is read; the report says the rows were found that way."""
+    source, entries = original
+    db = sqlite3.connect(f"{source.resolve().as_uri()}?mode=ro", uri=True)
+    roots = tuple(r[0] for r in db.execute(
+        "SELECT rootpage FROM sqlite_master WHERE name IN ('entries', 'frames')"))
+    db.close()
+    found = salvage(damaged_copy(source, tmp_path / "rootless.db", zero_pages=roots))
+    assert {e.id: e for e in found.entries} == entries
+    lines = found.report.lines(found.entries)
+    assert any(line.startswith("entries: ") and "found on pages whose parent page was lost"
+               in line for line in lines), lines

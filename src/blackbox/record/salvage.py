@@ -51,6 +51,8 @@ class LostRange:
     pages: tuple[int, ...]
     ids: tuple[int, int] | None = None
     """For frames: the entry ids their entries had (bounded by the frames around them)."""
+    recovered: int = 0
+    """Rows of the range found on pages whose parent was lost (so not all of it is lost)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,6 +102,9 @@ class SalvageReport:
             out.append("the WAL beside the log could not be applied; read without it")
         by_id = sorted(entries, key=lambda e: e.id)
         for lost in _merged(self.lost):
+            if lost.recovered:
+                out.append(f"{lost.table}: {lost.recovered} rows of the range below were "
+                           "found on pages whose parent page was lost; the rest is lost")
             if lost.table not in ("entries", "frames"):
                 rows = "rows" if lost.last >= 2**62 else f"rows {lost.first}..{lost.last}"
                 out.append(f"lost: {lost.table} {rows} (pages {_pages(lost.pages)})")
@@ -121,9 +126,6 @@ class SalvageReport:
             out.append(f"lost: the payload of {len(self.payloads_lost)} entries (ids "
                        f"{_short(self.payloads_lost)}); kept with payload "
                        "{\"salvage\": \"payload lost\"}")
-        if self.orphan_rows:
-            out.append(f"recovered {self.orphan_rows} rows from pages whose parent page "
-                       "was lost")
         if not self.damaged:
             out.append("nothing lost")
         return out
@@ -145,7 +147,7 @@ def _merged(ranges: Sequence[LostRange]) -> list[LostRange]:
             ids = None if last.ids is None or r.ids is None else \
                 (min(last.ids[0], r.ids[0]), max(last.ids[1], r.ids[1]))
             out[-1] = LostRange(r.table, last.first, max(last.last, r.last),
-                                last.pages + r.pages, ids)
+                                last.pages + r.pages, ids, last.recovered + r.recovered)
         else:
             out.append(r)
     return out
@@ -327,6 +329,12 @@ def _record(raw: bytes) -> list[Any]:
 class _Table:
     rows: dict[int, tuple[list[Any], bool]] = field(default_factory=dict)
     lost: list[LostRange] = field(default_factory=list)
+    orphans: list[int] = field(default_factory=list)  # row ids found on orphan pages
+
+
+def _recovered(lost: LostRange, table: _Table) -> LostRange:
+    found = sum(lost.first <= rowid <= lost.last for rowid in table.orphans)
+    return LostRange(lost.table, lost.first, lost.last, lost.pages, lost.ids, found)
 
 
 def _walk(db: _File, name: str, root: int, visited: set[int]) -> _Table:
@@ -393,6 +401,7 @@ def _orphans(db: _File, visited: set[int], tables: dict[str, _Table]) -> int:
                                                   for r in table.lost):
                     continue
                 table.rows[rowid] = (values, complete)
+                table.orphans.append(rowid)
                 found += 1
                 break
     return found
@@ -444,6 +453,7 @@ def _salvage(db: _File, wal_applied: bool | None) -> Salvaged:
                         if not _refilled(r, tables[name])]
     report.lost = [_with_ids(r, tables["frames"]) if r.table == "frames" else r
                    for r in report.lost]
+    report.lost = [_recovered(r, tables[r.table]) for r in report.lost]
     channels = {rowid: values for rowid, (values, _) in tables["channels"].rows.items()
                 if len(values) >= 3}
     meta = {str(v[0]): v[1] for v, _ in tables["meta"].rows.values() if len(v) == 2}
