@@ -18,9 +18,8 @@ from typing import TYPE_CHECKING, cast
 from blackbox.config.loader import LoadedConfig
 from blackbox.config.node import ConfigError
 from blackbox.diagnose.hybrid import make_diagnoser
-from blackbox.diagnose.live import DiagnosisSettings
 from blackbox.model import BlackBoxEvent, Observation
-from blackbox.observe.build import build_observers, load_config, load_config_text
+from blackbox.observe.build import build_observers, load_config_text
 from blackbox.output.jsonlines import JsonLinesSink
 from blackbox.output.live import LiveStatusView
 from blackbox.pipeline import Pipeline, RunStats
@@ -36,6 +35,7 @@ from blackbox.sources.base import (
     SourceOptions,
     source_kind,
 )
+from blackbox.validation import check_config_file
 
 if TYPE_CHECKING:
     from blackbox.sources.sim import Fault
@@ -122,10 +122,8 @@ def open_robot(options: RunOptions) -> Source:
 
 
 def build(options: RunOptions) -> BlackBox:
-    config = load_config(options.config)
-    observers = build_observers(config)
-    if not observers:
-        raise ConfigError("the configuration observes nothing", str(options.config))
+    checked = check_config_file(options.config, options.engine)
+    config, observers = checked.config, checked.observers
     sinks: list[Sink] = []
     if options.live:
         sinks.append(LiveStatusView(title=f"blackbox {config.robot_id} on {options.source}",
@@ -145,8 +143,7 @@ def build(options: RunOptions) -> BlackBox:
         recorder = open_recorder(options, config, source)
         sinks.append(recorder)
         observers.append(recorder_probe(recorder))
-    base_dir = Path(options.config).parent
-    settings = DiagnosisSettings.from_config(config.sections.get("diagnosis"), base_dir)
+    settings = checked.diagnosis
     diagnoser = None
     if options.diagnosis and settings.enabled:
         try:

@@ -11,13 +11,24 @@ from __future__ import annotations
 import argparse
 import importlib
 import pkgutil
+import signal
 import sys
 from collections.abc import Sequence
+from types import FrameType
 
 from blackbox import __version__
 from blackbox.config.node import ConfigError
 
 EXIT_USAGE = 2
+EXIT_TERMINATED = 128 + signal.SIGTERM
+
+
+class Terminated(SystemExit):
+    """SIGTERM arrived: unwind (closing logs and files on the way) and exit 143."""
+
+
+def _terminate(signum: int, frame: FrameType | None) -> None:
+    raise Terminated(EXIT_TERMINATED)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -43,8 +54,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_USAGE
+    if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
+        # Before any file is read: a SIGTERM while a configuration loads ends the command
+        # at once, through its ``finally`` blocks. Commands that run (``run``, ``station``)
+        # install their own handlers for a graceful stop once they are set up.
+        signal.signal(signal.SIGTERM, _terminate)
     try:
         return int(args.func(args) or 0)
+    except Terminated:
+        print("terminated", file=sys.stderr)
+        return EXIT_TERMINATED
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE

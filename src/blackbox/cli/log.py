@@ -22,6 +22,7 @@ from blackbox.record.retention import (
 )
 from blackbox.record.settings import DEFAULT_BUDGET, parse_size, recorder_settings
 from blackbox.record.store import KINDS, LogEntry, StorageError, Store
+from blackbox.safetext import terminal_text
 from blackbox.timestamps import parse_timestamp
 
 EXIT_ERROR = 1
@@ -159,8 +160,9 @@ def _query(args: argparse.Namespace) -> int:
         for e in entries:
             code = "" if e.code is None else str(e.code)
             summary = ", ".join(f"{k}={v}" for k, v in e.payload.items() if k != "text")
-            print(f"{e.id:>8} {_show_time(e.time)} {e.kind:<14} {e.entity or '-':<28} "
-                  f"{e.characteristic or '-':<10} {code:>3} {summary}"[:240])
+            print(terminal_text(f"{e.id:>8} {_show_time(e.time)} {e.kind:<14} "
+                                f"{e.entity or '-':<28} {e.characteristic or '-':<10} "
+                                f"{code:>3} {summary}"[:240]))
         print(f"{len(entries)} entries", file=sys.stderr)
     return 0
 
