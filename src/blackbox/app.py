@@ -35,6 +35,7 @@ from blackbox.sources.base import (
     SourceOptions,
     source_kind,
 )
+from blackbox.terminate import Terminated
 from blackbox.validation import check_config_file
 
 if TYPE_CHECKING:
@@ -247,21 +248,44 @@ def open_recorder(options: RunOptions, config: LoadedConfig, source: Source) -> 
                     clock=source.now)
 
 
+STOP_GRACE = 0.3
+"""Seconds a SIGTERM leaves the running loop to stop between steps before it is cut short."""
+
+
 @contextmanager
 def graceful_interrupts() -> Iterator[threading.Event]:
-    """A stop event set by SIGINT/SIGTERM, so Ctrl-C ends a run cleanly between steps."""
+    """A stop event set by SIGINT/SIGTERM, so Ctrl-C ends a run cleanly between steps.
+
+    A second signal, or a SIGTERM whose stop the loop has not reached after
+    :data:`STOP_GRACE` seconds (a step of a very large configuration can take longer),
+    unwinds at once through the ``finally`` blocks: a service manager's SIGTERM is
+    honoured within a second at every stage.
+    """
     stop = threading.Event()
     previous = {}
+    timers: list[threading.Timer] = []
 
     def handler(signum: int, frame: object) -> None:
         if stop.is_set():
+            if signum == signal.SIGTERM:
+                raise Terminated()
             raise KeyboardInterrupt
         stop.set()
+        if signum == signal.SIGTERM:
+            # A real signal to the main thread: it also cuts a sleep short (a real-time
+            # source waiting for its next tick), which _thread.interrupt_main would not.
+            timer = threading.Timer(STOP_GRACE, signal.pthread_kill,
+                                    (threading.main_thread().ident, signal.SIGTERM))
+            timer.daemon = True
+            timers.append(timer)
+            timer.start()
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         previous[sig] = signal.signal(sig, handler)
     try:
         yield stop
     finally:
+        for timer in timers:
+            timer.cancel()
         for sig, old in previous.items():
             signal.signal(sig, old)

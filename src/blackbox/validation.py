@@ -28,6 +28,14 @@ NAMED_FILE_SUFFIX = "_file"
 most :data:`~blackbox.config.node.MAX_FILE_BYTES`, checked before anything reads it."""
 
 
+class NothingObserved(ConfigError):
+    """The file is valid but observes nothing (a template): ``run`` refuses it."""
+
+    def __init__(self, message: str, file: str, warnings: tuple[str, ...]) -> None:
+        super().__init__(message, file)
+        self.warnings = warnings
+
+
 @dataclass(frozen=True, slots=True)
 class CheckedConfig:
     """A configuration that passed every check ``run`` makes, with what the checks built."""
@@ -47,7 +55,7 @@ def check_config_file(path: str | Path, engine: str | None = None) -> CheckedCon
     config = load_config(path)
     observers = build_observers(config)
     if not observers:
-        raise ConfigError("the configuration observes nothing", str(path))
+        raise NothingObserved("the configuration observes nothing", str(path), config.warnings)
     base_dir = path.parent
     for node in named_files(config.sections.values()):
         file = Path(node.str())

@@ -10,25 +10,17 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import signal
 import sys
 from collections.abc import Sequence
-from types import FrameType
 
 from blackbox import __version__
 from blackbox.config.node import ConfigError
+from blackbox.terminate import EXIT_TERMINATED, Terminated, raise_terminated
 
 EXIT_USAGE = 2
-EXIT_TERMINATED = 128 + signal.SIGTERM
-
-
-class Terminated(SystemExit):
-    """SIGTERM arrived: unwind (closing logs and files on the way) and exit 143."""
-
-
-def _terminate(signum: int, frame: FrameType | None) -> None:
-    raise Terminated(EXIT_TERMINATED)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -58,12 +50,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         # Before any file is read: a SIGTERM while a configuration loads ends the command
         # at once, through its ``finally`` blocks. Commands that run (``run``, ``station``)
         # install their own handlers for a graceful stop once they are set up.
-        signal.signal(signal.SIGTERM, _terminate)
+        signal.signal(signal.SIGTERM, raise_terminated)
     try:
         return int(args.func(args) or 0)
     except Terminated:
         print("terminated", file=sys.stderr)
-        return EXIT_TERMINATED
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(EXIT_TERMINATED)  # unwound already; skip the interpreter's slow teardown
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Sequence
 from typing import Any
 
@@ -13,7 +14,7 @@ from blackbox.config.loader import (
     read_document,
 )
 from blackbox.observe.base import Observer
-from blackbox.validation import check_config_file
+from blackbox.validation import NothingObserved, check_config_file
 
 _FORMAT_NAMES = {"native": "native format", "tug": "tug_observers format"}
 
@@ -35,7 +36,12 @@ def run(args: argparse.Namespace) -> int:
     if document_kind(root) == "diagnosis":
         print("\n".join(diagnosis_model_lines(outline_diagnosis_model(root))))
         return 0
-    checked = check_config_file(args.file)  # exactly what `blackbox run` checks
+    try:
+        checked = check_config_file(args.file)  # exactly what `blackbox run` checks
+    except NothingObserved as exc:
+        for warning in exc.warnings:
+            print(f"warning: {warning}", file=sys.stderr)
+        raise
     config, observers = checked.config, checked.observers
     fmt = _FORMAT_NAMES[config.format]
     count = f"{len(observers)} observer{'' if len(observers) == 1 else 's'}"

@@ -88,6 +88,15 @@ class BoundedLoader(yaml.SafeLoader):
             self._depth -= 1
 
 
+    def fetch_flow_collection_start(self, token_class: Any) -> None:
+        """The scanner reads ahead of the composer (a flow collection may be a key), so
+        flow nesting is bounded here too: 1,000 ``[`` would otherwise cost a second."""
+        if self.flow_level >= MAX_DEPTH:
+            raise yaml.scanner.ScannerError(None, None, f"nested deeper than {MAX_DEPTH} levels",
+                                            self.get_mark())
+        super().fetch_flow_collection_start(token_class)
+
+
 BoundedLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_WITH_EXPONENT,
                                     list("-+0123456789."))
 
@@ -100,24 +109,46 @@ def _scalar_value(node: yaml.Node) -> Any:
     return _CONSTRUCTOR.construct_object(node, deep=True)
 
 
-class _Budget:
-    """How many more nodes a document may expand to while it is turned into ConfigNodes."""
+def _check_expansion(root: yaml.Node, file: str) -> None:
+    """Refuse a document whose aliases expand it beyond :data:`MAX_NODES` values, or an
+    alias inside itself, before a single value is built: sizes are counted per distinct
+    node, so a billion laughs costs as little as its text."""
+    sizes: dict[int, int] = {}
+    open_nodes: set[int] = set()
 
-    def __init__(self, file: str) -> None:
-        self.file = file
-        self.left = MAX_NODES
+    def children(node: yaml.Node) -> list[yaml.Node]:
+        if isinstance(node, yaml.MappingNode):
+            return [n for pair in node.value for n in pair]
+        if isinstance(node, yaml.SequenceNode):
+            return list(node.value)
+        return []
 
-    def spend(self, node: yaml.Node, depth: int) -> None:
-        self.left -= 1
-        mark = node.start_mark
-        if self.left < 0:
-            raise ConfigError(f"invalid YAML: the document expands to more than {MAX_NODES:,} "
-                              "values (aliases are counted at every use)", self.file,
+    def size(node: yaml.Node) -> int:
+        key = id(node)
+        if key in sizes:
+            return sizes[key]
+        if key in open_nodes:
+            mark = node.start_mark
+            raise ConfigError("invalid YAML: an alias inside the value it names", file,
                               mark.line + 1, mark.column + 1)
-        if depth > MAX_DEPTH:
-            raise ConfigError(f"invalid YAML: nested deeper than {MAX_DEPTH} levels "
-                              "(an alias that contains itself?)", self.file, mark.line + 1,
-                              mark.column + 1)
+        open_nodes.add(key)
+        total = 1 + sum(size(child) for child in children(node))
+        open_nodes.discard(key)
+        sizes[key] = total
+        return total
+
+    node = root
+    if size(node) <= MAX_NODES:
+        return
+    while True:  # name the innermost value that alone expands too far
+        bigger = [c for c in children(node) if sizes[id(c)] > MAX_NODES]
+        if not bigger:
+            break
+        node = bigger[0]
+    mark = node.start_mark
+    raise ConfigError(f"invalid YAML: the document expands to more than {MAX_NODES:,} values "
+                      "(aliases are counted at every use)", file, mark.line + 1,
+                      mark.column + 1)
 
 
 def read_bounded(path: Path, limit: int = MAX_FILE_BYTES, what: str = "file") -> bytes:
@@ -164,7 +195,8 @@ class ConfigNode:
         try:
             text = data.decode("utf-8")
         except UnicodeDecodeError as exc:
-            raise ConfigError(f"not UTF-8 text (byte {exc.start})", str(p)) from None
+            raise ConfigError(f"cannot read file: not UTF-8 text (byte {exc.start})",
+                              str(p)) from None
         return cls.parse(text, str(p))
 
     @classmethod
@@ -176,7 +208,8 @@ class ConfigNode:
             root = yaml.compose(text, Loader=BoundedLoader)
             if root is None:
                 return cls(_SCALAR, None, file, 1, 1, "")
-            return cls._from_yaml(root, file, "", _Budget(file), 0)
+            _check_expansion(root, file)
+            return cls._from_yaml(root, file, "")
         except yaml.MarkedYAMLError as exc:
             mark = exc.problem_mark or exc.context_mark
             line, col = (mark.line + 1, mark.column + 1) if mark else (0, 0)
@@ -189,9 +222,7 @@ class ConfigNode:
             raise ConfigError(f"invalid YAML: {exc}", file) from None
 
     @classmethod
-    def _from_yaml(cls, node: yaml.Node, file: str, path: str, budget: _Budget,
-                   depth: int) -> ConfigNode:
-        budget.spend(node, depth)
+    def _from_yaml(cls, node: yaml.Node, file: str, path: str) -> ConfigNode:
         line, col = node.start_mark.line + 1, node.start_mark.column + 1
         if isinstance(node, yaml.MappingNode):
             children: dict[str, ConfigNode] = {}
@@ -201,14 +232,13 @@ class ConfigNode:
                 if key in children:
                     raise ConfigError(f"duplicate key {key!r}", file, knode.start_mark.line + 1,
                                       knode.start_mark.column + 1, child_path)
-                child = cls._from_yaml(vnode, file, child_path, budget, depth + 1)
+                child = cls._from_yaml(vnode, file, child_path)
                 child.key_line = knode.start_mark.line + 1
                 child.key_column = knode.start_mark.column + 1
                 children[key] = child
             return cls(_MAP, children, file, line, col, path)
         if isinstance(node, yaml.SequenceNode):
-            items = [cls._from_yaml(v, file, f"{path}[{i}]", budget, depth + 1)
-                     for i, v in enumerate(node.value)]
+            items = [cls._from_yaml(v, file, f"{path}[{i}]") for i, v in enumerate(node.value)]
             return cls(_SEQ, items, file, line, col, path)
         value = _scalar_value(node)
         return cls(_SCALAR, value, file, line, col, path)
