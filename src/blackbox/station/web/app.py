@@ -587,6 +587,7 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         if view not in snapshots:
             raise HTTPException(400, "unknown view")
         snapshot = snapshots[view]
+        snapshot()  # an unknown robot or a bad id is an error answer, not a broken stream
 
         async def events() -> AsyncIterator[str]:
             wake = changes.register()
@@ -610,7 +611,7 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
                     last_look = time.monotonic()
                     try:
                         text = json.dumps(snapshot())
-                    except LookupError:
+                    except (LookupError, OverflowError):
                         text = "{}"
                     if text != last_sent:
                         last_sent = text
