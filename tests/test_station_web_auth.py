@@ -133,3 +133,56 @@ def test_many_names_failing_from_one_address_do_not_throttle_another_name_there(
         auth.log_in(f"guess{i % 3}", "wrong password!", "10.0.0.3")
     assert auth.retry_after("guess0", "10.0.0.3") > 0
     assert auth.retry_after("someone-else", "10.0.0.3") == 0
+
+
+def test_back_off_is_capped_so_a_guesser_never_locks_a_name_for_good(
+        auth: Auth, clock: Clock) -> None:
+    auth.add_user("ana", PASSWORD, Role.VIEWER)
+    longest = 0.0
+    for _ in range(40):  # every attempt waits out its back-off, so each one is heard
+        clock.now += auth.retry_after("ana", "10.0.0.9") + 0.01
+        auth.log_in("ana", "wrong password!", "10.0.0.9")
+        longest = max(longest, auth.retry_after("ana", "10.0.0.9"))
+    assert longest <= auth.policy.max_backoff
+    clock.now += auth.policy.max_backoff
+    assert auth.log_in("ana", PASSWORD, "10.0.0.9").session is not None
+
+
+@pytest.mark.parametrize("password, words", [
+    (" " * 12, "only spaces"),
+    ("ana.nurse", "at least 10"),
+    ("nurse.ana.1", None),
+    ("ana.nurse1", "user name"),
+    ("1esrun.ana", "user name"),
+    ("aaaaaaaaaaaa", "repeated"),
+    ("abcdeabcde", "repeated"),
+    ("1234567890", "breaches"),
+    ("Password123!", "breaches"),
+    ("!!iloveyou2024", "breaches"),
+    ("x" * 2000, "at most 256"),
+    ("ward three night shift", None),
+])
+def test_the_password_policy(auth: Auth, password: str, words: str | None) -> None:
+    if words is None:
+        auth.add_user("ana.nurse", password, Role.VIEWER)
+        assert auth.log_in("ana.nurse", password, "x").session is not None
+        return
+    with pytest.raises(AuthError, match=words):
+        auth.add_user("ana.nurse", password, Role.VIEWER)
+    auth.add_user("ana.nurse", PASSWORD, Role.VIEWER)
+    with pytest.raises(AuthError, match=words):
+        auth.set_password("ana.nurse", password, by="admin", address="x")
+
+
+def test_the_last_admin_can_be_neither_demoted_nor_removed(auth: Auth) -> None:
+    auth.add_user("root1", PASSWORD, Role.ADMIN)
+    with pytest.raises(AuthError, match="last admin"):
+        auth.set_role("root1", Role.OPERATOR, by="root1", address="x")
+    with pytest.raises(AuthError, match="last admin"):
+        auth.remove_user("root1", by="cli", address="local")
+    auth.add_user("root2", PASSWORD, Role.ADMIN)
+    auth.set_role("root1", Role.VIEWER, by="root2", address="x")
+    with pytest.raises(AuthError, match="last admin"):
+        auth.remove_user("root2", by="cli", address="local")
+    assert [(u.name, u.role) for u in auth.users()] == [("root1", Role.VIEWER),
+                                                        ("root2", Role.ADMIN)]
