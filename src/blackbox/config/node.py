@@ -87,7 +87,6 @@ class BoundedLoader(yaml.SafeLoader):
         finally:
             self._depth -= 1
 
-
     def fetch_flow_collection_start(self, token_class: Any) -> None:
         """The scanner reads ahead of the composer (a flow collection may be a key), so
         flow nesting is bounded here too: 1,000 ``[`` would otherwise cost a second."""
@@ -100,13 +99,12 @@ class BoundedLoader(yaml.SafeLoader):
 BoundedLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_WITH_EXPONENT,
                                     list("-+0123456789."))
 
-_CONSTRUCTOR = yaml.constructor.SafeConstructor()
-
-
 def _scalar_value(node: yaml.Node) -> Any:
     if node.tag == _STR_TAG:
         return node.value
-    return _CONSTRUCTOR.construct_object(node, deep=True)
+    # A constructor of its own per value: it remembers what it built (a shared one would
+    # keep every document alive), and it is cheap, unlike a whole SafeLoader.
+    return yaml.constructor.SafeConstructor().construct_object(node, deep=True)
 
 
 def _check_expansion(root: yaml.Node, file: str) -> None:
