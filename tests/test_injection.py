@@ -58,6 +58,34 @@ def test_blackbox_log_export_csv_neutralises_formulas(tmp_path: Path) -> None:
     assert all(cell.startswith("'") for cell in entities), entities
 
 
+def test_the_stations_csv_download_neutralises_formulas(tmp_path: Path) -> None:
+    from blackbox.health.ids import robot_resource_id
+    from blackbox.record.store import LogEntry
+    from blackbox.station.store import StationStore
+
+    store = StationStore.open(tmp_path / "station.db")
+    try:
+        rid = robot_resource_id("ward-bot")
+        store.heard(rid, 100.0)
+        store.put_robot_id(rid, "ward-bot")
+        request = store.create_log_request(rid, "ward-bot", entity=None, characteristic=None,
+                                           since=0.0, until=200.0, kinds=[],
+                                           requested_by="otto")
+        store.add_log_rows(request, 0, [LogEntry(i, 100.0 + i, "failure", name, "=cmd()",
+                                                 -1, {"n": i})
+                                        for i, name in enumerate(FORMULAS)])
+        store.update_log_request(request, rid, status="done", rows=len(FORMULAS), pages=1,
+                                 progress=1.0)
+        store.flush()
+        out = io.StringIO()
+        store.export_log(request, "csv", out)
+    finally:
+        store.close()
+    rows = csv_rows(out.getvalue())[1:]
+    assert [row[3] for row in rows] == ["'" + f for f in FORMULAS]
+    assert {row[4] for row in rows} == {"'=cmd()"}
+
+
 def test_blackbox_log_query_shows_escape_sequences_as_text(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     log = log_with_entities(tmp_path / "log.db", [f"/cam{ESCAPES}"])
