@@ -188,3 +188,20 @@ def test_the_last_admin_can_be_neither_demoted_nor_removed(auth: Auth) -> None:
         auth.remove_user("root2", by="cli", address="local")
     assert [(u.name, u.role) for u in auth.users()] == [("root1", Role.VIEWER),
                                                         ("root2", Role.ADMIN)]
+
+
+def test_the_demo_account_is_renewed_although_it_is_the_only_admin(tmp_path: Path) -> None:
+    from blackbox.cli.demo import DEMO_USER, demo_account
+    from blackbox.cli.station import open_databases
+
+    db = tmp_path / "demo.db"
+    first = demo_account(db)
+    second = demo_account(db)  # a second demo run on the same database
+    assert first[0] == second[0] == DEMO_USER and first[1] != second[1]
+    store, auth = open_databases(db)
+    try:
+        assert auth.log_in(DEMO_USER, second[1], "x").session is not None
+        assert auth.log_in(DEMO_USER, first[1], "x").session is None
+    finally:
+        auth.close()
+        store.close()
