@@ -141,3 +141,37 @@ def test_names_with_bidi_or_zero_width_characters_are_refused(
     assert result.returncode == 2, result.stdout
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and where in lines[0] and character in lines[0], lines
+
+
+def test_an_export_to_a_terminal_shows_escape_sequences_as_text(tmp_path: Path) -> None:
+    """``blackbox log export`` without ``-o`` on a terminal (a pseudo-terminal here): CSV
+    and JSON lines keep their lines, names lose their power over the terminal."""
+    import os
+    import pty
+
+    log = log_with_entities(tmp_path / "log.db", [f"/cam{ESCAPES}"])
+    for fmt in ("csv", "jsonl"):
+        leader, follower = pty.openpty()
+        try:
+            process = subprocess.run([sys.executable, "-m", "blackbox", "log", "export",
+                                      "--db", str(log), "--format", fmt], stdout=follower,
+                                     stderr=subprocess.PIPE, timeout=60, check=False)
+            os.close(follower)
+            follower = -1
+            shown = b""
+            while True:
+                try:
+                    chunk = os.read(leader, 65536)
+                except OSError:  # EIO: the writer has gone and everything was read
+                    break
+                if not chunk:
+                    break
+                shown += chunk
+        finally:
+            os.close(leader)
+            if follower >= 0:
+                os.close(follower)
+        assert process.returncode == 0, process.stderr
+        text = shown.decode(errors="replace")
+        assert "\x1b" not in text and "\x07" not in text and "\x9b" not in text, text
+        assert "/cam" in text and text.count("\n") >= 1

@@ -17,7 +17,9 @@ commands rather than text, and each gets one function here:
 
 from __future__ import annotations
 
+import io
 import unicodedata
+from typing import IO
 
 CSV_FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
 """The first characters that make a spreadsheet read a cell as a formula (OWASP)."""
@@ -45,12 +47,28 @@ def _escape(char: str) -> str:
     return f"\\U{code:08x}"
 
 
-def terminal_text(text: object) -> str:
+def terminal_text(text: object, keep: str = "") -> str:
     """``text`` with every control, format and separator character shown as an escape, so
     printing it cannot drive the terminal (ESC, CSI, OSC, BEL, backspace, carriage return,
-    newlines inside a name, bidi overrides)."""
-    return "".join(_escape(c) if unicodedata.category(c) in _INVISIBLE_CATEGORIES else c
-                   for c in str(text))
+    newlines inside a name, bidi overrides); characters in ``keep`` pass as they are."""
+    return "".join(_escape(c) if c not in keep and unicodedata.category(c)
+                   in _INVISIBLE_CATEGORIES else c for c in str(text))
+
+
+class TerminalStream(io.TextIOBase):
+    """A text stream for a terminal: lines pass, every other control character is shown
+    as an escape (for exports written to standard output when that is a terminal)."""
+
+    def __init__(self, terminal: IO[str]) -> None:
+        super().__init__()
+        self._terminal = terminal
+
+    def write(self, text: str) -> int:
+        self._terminal.write(terminal_text(text.replace("\r\n", "\n"), keep="\n"))
+        return len(text)
+
+    def flush(self) -> None:
+        self._terminal.flush()
 
 
 def hidden_character(text: str, allowed: str = "") -> str | None:

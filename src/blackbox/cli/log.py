@@ -8,7 +8,7 @@ import sys
 import time
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, cast
+from typing import IO, Any, cast
 
 from blackbox.config.node import ConfigError, ConfigNode
 from blackbox.record.export import FORMATS, export
@@ -22,7 +22,7 @@ from blackbox.record.retention import (
 )
 from blackbox.record.settings import DEFAULT_BUDGET, parse_size, recorder_settings
 from blackbox.record.store import KINDS, LogEntry, StorageError, Store
-from blackbox.safetext import terminal_text
+from blackbox.safetext import TerminalStream, terminal_text
 from blackbox.timestamps import parse_timestamp
 
 EXIT_ERROR = 1
@@ -183,7 +183,8 @@ def _export(args: argparse.Namespace) -> int:
             return EXIT_USAGE
         try:
             n = export(entries, args.output, fmt, store.meta("robot_id") or "",
-                       stdout=sys.stdout)
+                       stdout=cast(IO[str], TerminalStream(sys.stdout))
+                       if sys.stdout.isatty() else sys.stdout)
         except (OSError, ValueError) as exc:
             return _fail(str(exc))
     if args.output:
