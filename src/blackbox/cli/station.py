@@ -36,6 +36,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="a robot silent this long is shown UNKNOWN (default 10 s)")
     p.add_argument("--tls-cert", type=Path, default=None, help="serve HTTPS with this certificate")
     p.add_argument("--tls-key", type=Path, default=None, help="... and this private key")
+    p.add_argument("--trusted-proxy", action="append", default=[], metavar="ADDRESS",
+                   help="a reverse proxy (address or network) whose X-Forwarded-For and "
+                        "X-Forwarded-Proto are believed; repeat for more (default: none, "
+                        "the audit shows the connecting address)")
     p.add_argument("--key", type=Path, default=None, metavar="FILE",
                    help="this station's private key (blackbox keygen) signing log requests "
                         "and IBIT commands; default $BLACKBOX_STATION_KEY. Robots answer only "
@@ -186,6 +190,7 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
 
     from blackbox.station.follow import StationFollower
     from blackbox.station.web.app import WebSettings, create_app
+    from blackbox.station.web.limits import uvicorn_options
     from blackbox.transport.participant import TransportSettings
 
     if not auth.users():
@@ -218,7 +223,8 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
     config = uvicorn.Config(app, log_level="warning", access_log=False,
                             ssl_certfile=str(args.tls_cert) if tls else None,
                             ssl_keyfile=str(args.tls_key) if tls else None,
-                            timeout_graceful_shutdown=3)
+                            timeout_graceful_shutdown=3,
+                            **uvicorn_options(args.trusted_proxy))
     server = uvicorn.Server(config)
     bound = sock.getsockname()
     url = f"{'https' if tls else 'http'}://{host if ':' not in host else f'[{host}]'}:{bound[1]}/"
