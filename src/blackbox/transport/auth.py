@@ -163,11 +163,11 @@ def load_private_key(path: Path) -> Ed25519PrivateKey:
     try:
         data = Path(path).read_bytes()
     except OSError as exc:
-        raise AuthError(f"{path}: cannot read the station key: {exc.strerror}") from None
+        raise AuthError(f"{path}: cannot read the key: {exc.strerror}") from None
     try:
         key = serialization.load_pem_private_key(data, password=None)
     except (ValueError, TypeError) as exc:
-        raise AuthError(f"{path}: not a station key ({exc})") from None
+        raise AuthError(f"{path}: not a private key ({exc})") from None
     if not isinstance(key, Ed25519PrivateKey):
         raise AuthError(f"{path}: not an Ed25519 key")
     return key
