@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 
 import pytest
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from blackbox.cli import main
 from blackbox.health.ids import SourceIds
@@ -27,7 +28,6 @@ from blackbox.transport.auth import (
     generate_key_pair,
 )
 from blackbox.transport.provenance import SampleSigner, reply_signed_by
-from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 ENTITY = "C_Monitored_Entity"
 FAILED = T_HealthStatus.L_HealthStatus_NOT_OPERATIONAL
