@@ -247,3 +247,25 @@ def test_a_captured_ibit_request_is_refused_after_the_robot_restarts(tmp_path: P
         bus.close()
     assert time.time() < captured.A_signed.A_expiresNs / 1e9, \
         "the request must still be unexpired for the refusal to prove replay protection"
+
+
+def test_blackbox_run_with_a_key_is_shown_as_signed(tmp_path: Path) -> None:
+    """The command line path: ``blackbox run --dds --key`` signs everything it publishes."""
+    domain = fresh_domain()
+    key, public = robot_key(tmp_path, "thesis-robot")
+    run = subprocess.Popen([sys.executable, "-m", "blackbox", "run", "--source", "sim:thesis",
+                            "--dds", "--domain", str(domain), "--quiet", "--key", str(key),
+                            "--duration", "60"], env=dds_env(), stdout=subprocess.DEVNULL,
+                           stderr=subprocess.PIPE, text=True)
+    try:
+        with station(tmp_path / "station.db", domain, {"thesis-robot": public},
+                     backfill=0) as (store, follower):
+            wait(lambda: health(store, "thesis-robot").get("/usb_cam") == "OPERATIONAL",
+                 "the signed state of the simulated robot", timeout=40)
+            trust = follower.gate.stats
+            assert trust.verified > 0
+            assert (trust.forged, trust.unsigned, trust.unauthenticated) == (0, 0, 0)
+    finally:
+        run.terminate()
+        _, err = run.communicate(timeout=20)
+    assert "Traceback" not in err, err[-2000:]
