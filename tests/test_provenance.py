@@ -169,3 +169,22 @@ def test_enrolment_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert [line.split("\t")[:2] for line in listed] == [["r1", "trusted"], ["r2", "trusted"]]
     assert main(["station", "robots", "remove", "r1", "--db", db]) == 0
     assert main(["station", "robots", "remove", "r1", "--db", db]) == 2
+
+
+def test_two_keys_signing_for_one_robot_that_is_not_enrolled_are_flagged(
+        tmp_path: Path) -> None:
+    from blackbox.station.follow import StationFollower
+    from blackbox.station.store import StationStore
+
+    store = StationStore.open(tmp_path / "station.db")
+    keys = RobotKeys(tmp_path / "station.db")
+    follower = StationFollower(store, robot_keys=keys)  # not started: no network needed
+    sample = camera(OPERATIONAL, 1.0)
+    for signer in (SampleSigner(Ed25519PrivateKey.generate(), "r1") for _ in range(2)):
+        follower.gate.signature(signer.sign(ENTITY, sample))
+    found = {p.source: p.message for p in store.problems()}
+    assert "signatures with 2 different keys claim this robot" in found["two writers r1"]
+    assert "blackbox station robots enrol r1 --seen" in found["not enrolled r1"]
+    assert len([k for k in keys.seen() if k.robot_id == "r1"]) == 2
+    keys.close()
+    store.close()

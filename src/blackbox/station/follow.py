@@ -459,6 +459,13 @@ class StationFollower:
         if self.robot_keys is None:
             return
         self.robot_keys.note_seen(robot_id, key)
+        keys = {k.public_key for k in self.robot_keys.seen() if k.robot_id == robot_id}
+        if len(keys) > 1:
+            self.gate.stats.second_writers += 1
+            self.store.report_problem(
+                f"two writers {robot_id}",
+                f"{robot_id}: signatures with {len(keys)} different keys claim this robot; "
+                "enrol the right one from the robot's key file (robots enrol --key)")
         self.store.report_problem(
             f"not enrolled {robot_id}",
             f"{robot_id} signs its health with key {public_key_text(key)} but is not "
