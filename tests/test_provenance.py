@@ -69,17 +69,36 @@ def test_the_gate_shows_what_the_robot_signed_and_rejects_forgeries_and_replays(
 
 def test_an_older_signed_state_is_refused_after_a_newer_one() -> None:
     key = Ed25519PrivateKey.generate()
-    clock = iter([10.0, 20.0]).__next__
-    signer = SampleSigner(key, "r1", clock=clock)
+    signer = SampleSigner(key, "r1", clock=iter([10.0, 20.0, 30.0]).__next__)
     g = Gate(key)
     operational, failed = camera(OPERATIONAL, 10.0), camera(FAILED, 20.0)
-    old, new = signer.sign(ENTITY, operational), signer.sign(ENTITY, failed)  # captured old
-    g.gate.signature(new)
-    assert g.gate.offer(ENTITY, failed, 0.0)
-    g.gate.signature(old)                                        # replayed by a spoofer
-    assert not g.gate.offer(ENTITY, operational, 0.0)
-    assert g.gate.stats.replayed == 1
+    for sample in (operational, failed):                         # both shown, in order
+        g.gate.signature(signer.sign(ENTITY, sample))
+        assert g.gate.offer(ENTITY, sample, 0.0)
+    assert not g.gate.offer(ENTITY, operational, 0.0)            # replayed by a spoofer
+    assert g.gate.stats.replayed == 1 and g.problems[-1][0] == "replayed"
     assert g.gate.offer(ENTITY, failed, 0.0)                     # the same state again: fine
+    late = camera(OPERATIONAL, 15.0)                             # signed earlier, came late
+    g.gate.signature(SampleSigner(key, "r1", clock=lambda: 15.0).sign(ENTITY, late))
+    assert not g.gate.offer(ENTITY, late, 0.0)
+    assert g.gate.stats.superseded == 1 and g.gate.stats.replayed == 1
+
+
+def test_states_are_shown_in_order_and_a_lost_signature_is_no_alarm() -> None:
+    key = Ed25519PrivateKey.generate()
+    signer = SampleSigner(key, "r1", clock=iter([1.0, 2.0, 3.0]).__next__)
+    g = Gate(key)
+    first, lost, last = (camera(s, t) for s, t in ((FAILED, 1.0), (OPERATIONAL, 2.0),
+                                                    (FAILED, 3.0)))
+    first_sig = signer.sign(ENTITY, first)
+    signer.sign(ENTITY, lost)                                    # this signature is lost
+    g.gate.signature(signer.sign(ENTITY, last))
+    assert not g.gate.offer(ENTITY, first, 0.0)                  # its signature is late
+    assert not g.gate.offer(ENTITY, lost, 0.0)
+    assert not g.gate.offer(ENTITY, last, 0.0)                   # waits behind the first
+    g.gate.signature(first_sig)
+    assert g.gate.released(0.5) == [(ENTITY, first), (ENTITY, last)]
+    assert (g.gate.stats.superseded, g.gate.stats.unsigned, g.problems) == (1, 0, [])
 
 
 def test_a_robot_that_is_not_enrolled_passes_unauthenticated() -> None:

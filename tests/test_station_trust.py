@@ -269,3 +269,25 @@ def test_blackbox_run_with_a_key_is_shown_as_signed(tmp_path: Path) -> None:
         run.terminate()
         _, err = run.communicate(timeout=20)
     assert "Traceback" not in err, err[-2000:]
+
+
+def test_a_signed_burst_is_shown_whole_without_false_alarms(tmp_path: Path) -> None:
+    """Signatures keep up with the robot: 200 failures and 200 rectifications as fast as
+    the robot makes them are all shown, none held back as unsigned."""
+    domain = fresh_domain()
+    key, public = robot_key(tmp_path)
+    box = ScriptedBlackBox("thesis", domain, key=key)
+    with running(box), station(tmp_path / "station.db", domain, {"thesis": public},
+                               backfill=0) as (store, follower):
+        box.send("ok")
+        wait(lambda: "/usb_cam" in health(store, "thesis"), "the robot's entities")
+        box.send("burst 200")
+
+        def count(kind: str) -> int:
+            return store.count_events("thesis", kinds=[kind])
+        wait(lambda: count("failure") == 200 and count("rectification") == 200,
+             "200 failures and 200 rectifications", timeout=60)
+        wait(lambda: follower.gate.holding == 0, "nothing held")
+        trust = follower.gate.stats
+        assert (trust.forged, trust.unsigned, trust.replayed) == (0, 0, 0)
+        assert not [p for p in store.problems() if "data thesis" in p.source]

@@ -1237,6 +1237,7 @@ class StationFollower:
                 "rejected": self.stats.rejected,
                 "trust": {"verified": trust.verified, "forged": trust.forged,
                           "unsigned": trust.unsigned, "replayed": trust.replayed,
+                          "superseded": trust.superseded,
                           "unauthenticated": trust.unauthenticated,
                           "second_writers": trust.second_writers},
                 "problems": [f"{p.source}: {p.message}" for p in self.store.problems()]}

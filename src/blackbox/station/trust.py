@@ -8,10 +8,14 @@ Every sample the follower takes passes :meth:`SampleGate.offer` first:
   (``BlackBox_Sample_Signature``, :mod:`blackbox.transport.provenance`) made with the
   enrolled key over exactly these bytes. A sample whose signature has not arrived is held
   up to :data:`SIGNATURE_WAIT` seconds (the robot writes the signature first, so it is
-  usually there already); then it is rejected as ``unsigned``.
+  usually there already); then it is rejected as ``unsigned``. Later samples of the same
+  instance wait behind it, so states are shown in the order the robot wrote them; one
+  whose signature never came but that a newer signed sample of its instance replaces is
+  dropped as ``superseded`` (a state changing faster than the link: not an alarm).
 * A signature that does not verify with the enrolled key is ``forged``.
 * A signed state older than one already shown for the same instance (signing time, then
-  the per-boot counter) is ``replayed``: a captured OPERATIONAL cannot undo a later FAILED.
+  the per-boot counter) is never shown: ``replayed`` if it was shown before (a captured
+  OPERATIONAL cannot undo a later FAILED), else ``superseded`` (it came late).
 
 Each rejection is counted (:class:`TrustStats`) and reported through ``on_problem`` (the
 store's problems, shown on every page). The follower separately flags two DDS
@@ -55,7 +59,9 @@ class TrustStats:
     unsigned: int = 0
     """Samples of an enrolled robot with no valid signature in time (rejected)."""
     replayed: int = 0
-    """Signed states older than one already shown (rejected)."""
+    """Signed samples shown before and sent again after a newer one (rejected)."""
+    superseded: int = 0
+    """Samples older than one already shown, or replaced before their signature came."""
     unauthenticated: int = 0
     """Samples of robots that are not enrolled (shown, unauthenticated)."""
     second_writers: int = 0
@@ -72,6 +78,7 @@ class _Held:
     sample: Any
     rid: int
     digest: bytes
+    instance: tuple[str, int, int]
 
 
 def _source(sample: Any) -> tuple[int, int]:
@@ -94,6 +101,8 @@ class SampleGate:
         self._verified: OrderedDict[tuple[int, bytes], SignedSample] = OrderedDict()
         self._last: OrderedDict[tuple[str, int, int], tuple[int, int]] = OrderedDict()
         self._held: list[_Held] = []
+        self._held_per_instance: dict[tuple[str, int, int], int] = {}
+        self._shown: OrderedDict[tuple[int, bytes], None] = OrderedDict()
         self._keys_seen: set[tuple[str, bytes]] = set()
 
     def enrolled(self, rid: int) -> tuple[str, Ed25519PublicKey] | None:
@@ -126,32 +135,46 @@ class SampleGate:
             return True
         sample_digest = digest(sample)
         signed = self._verified.get((rid, sample_digest))
-        if signed is None:
+        instance = (topic, *_source(sample))
+        if signed is None or instance in self._held_per_instance:
             if len(self._held) >= MAX_HELD:
                 self._reject_unsigned(rid, topic)
                 return False
-            self._held.append(_Held(now, topic, sample, rid, sample_digest))
+            self._held.append(_Held(now, topic, sample, rid, sample_digest, instance))
+            self._held_per_instance[instance] = self._held_per_instance.get(instance, 0) + 1
             return False
         return self._in_order(signed, topic, sample)
 
     def released(self, now: float) -> list[tuple[str, Any]]:
-        """Held samples whose signature has arrived since (to handle now, in arrival
-        order); those that waited too long are rejected as unsigned."""
+        """Held samples that may be shown now, in arrival order; see the module docstring
+        for those dropped (superseded) or rejected (unsigned after the wait)."""
+        verified = [self._verified.get((h.rid, h.digest)) for h in self._held]
+        newest_signed = {h.instance: i for i, (h, v) in enumerate(zip(self._held, verified,
+                                                                       strict=True))
+                         if v is not None}
         out: list[tuple[str, Any]] = []
         keep: list[_Held] = []
-        for held in self._held:
-            signed = self._verified.get((held.rid, held.digest))
-            if signed is not None:
+        waiting: set[tuple[str, int, int]] = set()
+        for i, (held, signed) in enumerate(zip(self._held, verified, strict=True)):
+            if held.instance in waiting:
+                keep.append(held)  # behind an earlier sample of its instance
+            elif signed is not None:
                 if self._in_order(signed, held.topic, held.sample):
                     out.append((held.topic, held.sample))
-            elif now - held.arrived >= self.wait or self.enrolled(held.rid) is None:
-                if self.enrolled(held.rid) is None:
-                    out.append((held.topic, held.sample))  # enrolment was withdrawn
-                else:
-                    self._reject_unsigned(held.rid, held.topic)
+            elif newest_signed.get(held.instance, -1) > i:
+                self.stats.superseded += 1
+            elif self.enrolled(held.rid) is None:
+                out.append((held.topic, held.sample))  # enrolment was withdrawn
+            elif now - held.arrived >= self.wait:
+                self._reject_unsigned(held.rid, held.topic)
             else:
                 keep.append(held)
+                waiting.add(held.instance)
         self._held = keep
+        counts: dict[tuple[str, int, int], int] = {}
+        for held in keep:
+            counts[held.instance] = counts.get(held.instance, 0) + 1
+        self._held_per_instance = counts
         return out
 
     @property
@@ -168,11 +191,19 @@ class SampleGate:
             return False
         instance = (topic, *source)
         last = self._last.get(instance)
+        shown = (int(source[0]), signed.digest)
         if last is not None and signed.order < last:
-            self.stats.replayed += 1
-            self.on_problem(signed.robot_id, "replayed", f"{signed.robot_id}: an older signed "
-                            f"{topic} sample was sent again after a newer one; not shown")
+            if shown in self._shown:
+                self.stats.replayed += 1
+                self.on_problem(signed.robot_id, "replayed", f"{signed.robot_id}: an older "
+                                f"signed {topic} sample was sent again after a newer one; "
+                                "not shown")
+            else:
+                self.stats.superseded += 1
             return False
+        self._shown[shown] = None
+        while len(self._shown) > MAX_VERIFIED:
+            self._shown.popitem(last=False)
         self._last[instance] = signed.order
         self._last.move_to_end(instance)
         while len(self._last) > MAX_INSTANCES:
