@@ -22,7 +22,7 @@ import ros1_watch
 from blackbox.events import GraphSnapshot, Interest, MessageArrival
 from blackbox.model import BlackBoxEvent
 from blackbox.sources.ros1 import Ros1Settings, Ros1Source
-from blackbox.sources.ros1.tcpros import encode_header
+from blackbox.sources.ros1.wire import encode_header
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros1_robot"))
 from robot import ThesisRobot, free_port

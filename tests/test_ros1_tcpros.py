@@ -12,17 +12,11 @@ import pytest
 
 from blackbox.config.node import ConfigError
 from blackbox.events import MessageArrival, NodeInfo
+from blackbox.sources.ros1.decoder import MessageDecoder, ros2_style_type
 from blackbox.sources.ros1.resources import ResourceSampler
 from blackbox.sources.ros1.source import master_uri_from_spec
-from blackbox.sources.ros1.tcpros import (
-    HeaderError,
-    MessageDecoder,
-    StreamKey,
-    TcprosReader,
-    decode_header,
-    encode_header,
-    ros2_style_type,
-)
+from blackbox.sources.ros1.stream_reader import StreamKey, TcprosReader
+from blackbox.sources.ros1.wire import HeaderError, decode_header, encode_header
 from conftest import wait_for
 
 FLOAT64_DEF = "float64 data\n"
@@ -226,7 +220,7 @@ def test_caller_ids_are_unique_per_source_and_ros_names() -> None:
 
 
 def test_arrival_time_is_when_the_bytes_reached_the_socket_not_when_they_were_read() -> None:
-    from blackbox.sources.ros1.tcpros import _ANCILLARY, SO_TIMESTAMPNS, kernel_time
+    from blackbox.sources.ros1.stream_reader import _ANCILLARY, SO_TIMESTAMPNS, kernel_time
 
     if SO_TIMESTAMPNS is None:
         pytest.skip("no SO_TIMESTAMPNS on this platform")

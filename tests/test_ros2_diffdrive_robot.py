@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 
 from blackbox.events import Interest
-from ros2_support import Watched, fresh_domain, needs_rclpy, ros2_robot
+from isolation import fresh_domain
+from ros2_support import Watched, needs_rclpy, ros2_robot
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "ros2_robot"))
 import diffdrive_robot

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from blackbox.station.auth import Auth, AuthError, AuthPolicy, Role
+from blackbox.station.auth import Auth, AuthPolicy, Role, StationAuthError
 from station_support import quick_auth
 
 PASSWORD = "correct horse battery"
@@ -50,12 +50,12 @@ def test_passwords_are_stored_as_argon2id_hashes(auth: Auth, tmp_path: Path) -> 
 
 
 def test_bad_names_short_passwords_and_duplicates_are_refused(auth: Auth) -> None:
-    with pytest.raises(AuthError):
+    with pytest.raises(StationAuthError):
         auth.add_user("<script>", PASSWORD, Role.VIEWER)
-    with pytest.raises(AuthError):
+    with pytest.raises(StationAuthError):
         auth.add_user("bob", "short", Role.VIEWER)
     auth.add_user("bob", PASSWORD, Role.VIEWER)
-    with pytest.raises(AuthError):
+    with pytest.raises(StationAuthError):
         auth.add_user("bob", PASSWORD, Role.ADMIN)
     with pytest.raises(ValueError, match="unknown role"):
         Role.parse("root")

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib.util
 import json
 import random
 import subprocess
@@ -28,12 +29,28 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import ModuleType
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from diffdrive_motion import DiffdriveMotion  # noqa: E402
-from robot import ros2_env  # noqa: E402
+
+
+def _launcher() -> ModuleType:
+    """The thesis robot's launcher beside this file, by path: another ``robot`` module (the
+    ROS 1 one) may already be imported under that name in the same process."""
+    name = "ros2_thesis_robot"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, HERE / "robot.py")
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+ros2_env = _launcher().ros2_env
 
 ROLES = {"/teleop": ("teleop", 20.0), "/base_driver": ("base_driver", 50.0),
          "/odometry": ("odometry", 20.0), "/imu_driver": ("imu_driver", 100.0),

@@ -15,7 +15,7 @@ import sys
 from collections.abc import Sequence
 
 from blackbox import __version__
-from blackbox.config.node import ConfigError
+from blackbox.errors import BlackBoxError
 
 EXIT_USAGE = 2
 
@@ -45,7 +45,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     try:
         return int(args.func(args) or 0)
-    except ConfigError as exc:
+    except BlackBoxError as exc:  # ConfigError, StorageError, RequestAuthError, ...
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:

@@ -228,12 +228,12 @@ DEMO_USER = "demo-admin"
 def demo_account(db: Path) -> tuple[str, str]:
     """The demo's admin account with a new random password (replacing the last run's)."""
     from blackbox.cli.station import open_databases
-    from blackbox.station.auth import AuthError, Role
+    from blackbox.station.auth import Role, StationAuthError
 
     store, auth = open_databases(db)
     try:
         password = secrets.token_urlsafe(12)
-        with contextlib.suppress(AuthError):
+        with contextlib.suppress(StationAuthError):
             auth.remove_user(DEMO_USER, by="demo", address="local")
         auth.add_user(DEMO_USER, password, Role.ADMIN, by="demo")
     finally:

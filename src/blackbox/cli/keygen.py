@@ -4,7 +4,6 @@ a robot (signed health: every sample, log reply and IBIT result)."""
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -27,14 +26,10 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from blackbox.transport.auth import AuthError, generate_key_pair
+    from blackbox.transport.auth import generate_key_pair
 
     name = args.robot or args.name or args.file.stem
-    try:
-        public = generate_key_pair(args.file, name)
-    except AuthError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    public = generate_key_pair(args.file, name)  # a refusal is a BlackBoxError: exit 2
     key = public.read_text().split()[1]
     if args.robot:
         print(f"robot key {args.file} (private, mode 0600) and {public} (public)\n"

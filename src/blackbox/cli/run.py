@@ -100,11 +100,11 @@ def options_from_args(args: argparse.Namespace) -> RunOptions:
 
 def run_command(args: argparse.Namespace) -> int:
     if args.key is not None:
-        from blackbox.transport.auth import AuthError, load_private_key
+        from blackbox.transport.auth import RequestAuthError, load_private_key
 
         try:
             load_private_key(args.key)
-        except AuthError as exc:
+        except RequestAuthError as exc:
             print(f"error: --key: {exc}", file=sys.stderr)
             return EXIT_USAGE
     try:

@@ -17,7 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from blackbox.station.auth import Auth, AuthError, Role
+from blackbox.station.auth import Auth, Role, StationAuthError
 
 EXIT_USAGE = 2
 
@@ -106,7 +106,7 @@ def read_password(name: str) -> str:
         first = getpass.getpass(f"password for {name}: ")
         second = getpass.getpass("again: ")
         if first != second:
-            raise AuthError("the two passwords differ")
+            raise StationAuthError("the two passwords differ")
         return first
     return sys.stdin.readline().rstrip("\r\n")
 
@@ -139,7 +139,7 @@ def _with_accounts(args: argparse.Namespace, action: Callable[[Auth], object]) -
     store, auth = opened
     try:
         action(auth)
-    except AuthError as exc:
+    except StationAuthError as exc:
         return _usage_error(exc)
     finally:
         auth.close()
@@ -274,12 +274,12 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
     if not auth.users():
         print(f"station: no account yet; add one with: blackbox station user add NAME "
               f"--role admin --db {args.db}", file=sys.stderr)
-    from blackbox.transport.auth import AuthError, RequestSigner
+    from blackbox.transport.auth import RequestAuthError, RequestSigner
 
     try:
         signer = (RequestSigner.from_file(args.key) if args.key is not None
                   else RequestSigner.from_environment())
-    except (AuthError, OSError) as exc:
+    except (RequestAuthError, OSError) as exc:
         return _usage_error(f"--key: {exc}")
     if signer is None:
         print("station: no station key (--key or $BLACKBOX_STATION_KEY): robots will refuse "

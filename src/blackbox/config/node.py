@@ -16,8 +16,10 @@ from typing import Any
 
 import yaml
 
+from blackbox.errors import BlackBoxError
 
-class ConfigError(Exception):
+
+class ConfigError(BlackBoxError):
     """A configuration problem at one place of one file."""
 
     def __init__(self, message: str, file: str = "<config>", line: int = 0, column: int = 0,

@@ -40,6 +40,8 @@ from typing import Any
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError, VerifyMismatchError
 
+from blackbox.errors import BlackBoxError
+
 
 class Role(IntEnum):
     """What a user may do; each role may do everything the roles below it may."""
@@ -64,8 +66,13 @@ USER_NAME = re.compile(r"^[A-Za-z0-9_.@-]{1,64}$")
 MIN_PASSWORD = 10
 
 
-class AuthError(Exception):
-    """A request the auth layer refuses; the message is safe to show to the user."""
+class StationAuthError(BlackBoxError):
+    """A log-in or account change the station refuses; the message is safe to show to the
+    user."""
+
+
+AuthError = StationAuthError
+"""The old name, kept until ``station/web`` imports :class:`StationAuthError`."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -186,9 +193,9 @@ class Auth:
     def add_user(self, name: str, password: str, role: Role, *, by: str = "cli",
                  address: str = "local") -> User:
         if not USER_NAME.match(name):
-            raise AuthError("a user name is 1-64 letters, digits or . _ @ -")
+            raise StationAuthError("a user name is 1-64 letters, digits or . _ @ -")
         if len(password) < MIN_PASSWORD:
-            raise AuthError(f"a password has at least {MIN_PASSWORD} characters")
+            raise StationAuthError(f"a password has at least {MIN_PASSWORD} characters")
         now = self.clock()
         hashed = self.hasher.hash(password)
         with self._lock:
@@ -196,7 +203,7 @@ class Auth:
                 self._db.execute("INSERT INTO web_users VALUES (?, ?, ?, ?)",
                                  (name, int(role), hashed, now))
             except sqlite3.IntegrityError:
-                raise AuthError(f"user {name!r} exists already") from None
+                raise StationAuthError(f"user {name!r} exists already") from None
         self.audit(by, "user.add", name, "ok", address, f"role={role.label}")
         return User(name, role, now)
 
@@ -205,19 +212,19 @@ class Auth:
             changed = self._db.execute("UPDATE web_users SET role = ? WHERE name = ?",
                                        (int(role), name)).rowcount
         if not changed:
-            raise AuthError(f"no user {name!r}")
+            raise StationAuthError(f"no user {name!r}")
         self.audit(by, "user.role", name, "ok", address, f"role={role.label}")
 
     def set_password(self, name: str, password: str, *, by: str, address: str) -> None:
         if len(password) < MIN_PASSWORD:
-            raise AuthError(f"a password has at least {MIN_PASSWORD} characters")
+            raise StationAuthError(f"a password has at least {MIN_PASSWORD} characters")
         hashed = self.hasher.hash(password)
         with self._lock:
             changed = self._db.execute("UPDATE web_users SET hash = ? WHERE name = ?",
                                        (hashed, name)).rowcount
             self._db.execute("DELETE FROM web_sessions WHERE user = ?", (name,))
         if not changed:
-            raise AuthError(f"no user {name!r}")
+            raise StationAuthError(f"no user {name!r}")
         self.audit(by, "user.password", name, "ok", address, "")
 
     def remove_user(self, name: str, *, by: str, address: str) -> None:
@@ -226,7 +233,7 @@ class Auth:
             removed = self._db.execute("DELETE FROM web_users WHERE name = ?",
                                        (name,)).rowcount
         if not removed:
-            raise AuthError(f"no user {name!r}")
+            raise StationAuthError(f"no user {name!r}")
         self.audit(by, "user.remove", name, "ok", address, "")
 
     def users(self) -> list[User]:

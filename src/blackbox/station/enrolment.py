@@ -26,8 +26,9 @@ from pathlib import Path
 
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
+from blackbox.errors import BlackBoxError
 from blackbox.health.ids import robot_resource_id
-from blackbox.transport.auth import AuthError, parse_public_key, public_key_text
+from blackbox.transport.auth import RequestAuthError, parse_public_key, public_key_text
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS trusted_robots (
@@ -49,7 +50,7 @@ MAX_SEEN_PER_ROBOT = 8
 SEEN_UPDATE = 30.0
 
 
-class EnrolmentError(Exception):
+class EnrolmentError(BlackBoxError):
     """A key or a robots file cannot be used; the message says where and why."""
 
 
@@ -93,7 +94,7 @@ def read_robots_file(path: Path) -> list[tuple[str, str]]:
             raise EnrolmentError(f"{path}:{number}: expected 'ed25519 <base64 key> <robot id>'")
         try:
             key = public_key_text(parse_public_key(parts[1]))
-        except AuthError as exc:
+        except RequestAuthError as exc:
             raise EnrolmentError(f"{path}:{number}: {exc}") from None
         if any(robot == parts[2] for robot, _ in out):
             raise EnrolmentError(f"{path}:{number}: robot {parts[2]!r} is listed twice")
@@ -109,7 +110,7 @@ def read_public_key_file(path: Path) -> str:
         raise EnrolmentError(f"{path}: cannot read: {getattr(exc, 'strerror', exc)}") from None
     try:
         return public_key_text(parse_public_key(text))
-    except AuthError as exc:
+    except RequestAuthError as exc:
         raise EnrolmentError(f"{path}: {exc}") from None
 
 
@@ -154,7 +155,7 @@ class RobotKeys:
         robot_id = _robot_id(robot_id)
         try:
             key = public_key_text(parse_public_key(public_key))
-        except AuthError as exc:
+        except RequestAuthError as exc:
             raise EnrolmentError(str(exc)) from None
         now = self.clock()
         with self._lock:

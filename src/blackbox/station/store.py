@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
+from blackbox.errors import BlackBoxError
 from blackbox.health.ids import robot_resource_id
 from blackbox.record.store import LogEntry
 
@@ -80,11 +81,11 @@ RobotRef = int | str
 """A robot: its robot id (``"thesis-robot"``), or its UCMS resource id (``123`` or ``"#123"``)."""
 
 
-class StationStoreError(Exception):
+class StationStoreError(BlackBoxError):
     """The station database cannot be opened or used; the message says what and where."""
 
 
-class UnknownRobot(LookupError):
+class UnknownRobot(BlackBoxError, LookupError):
     """No robot with this reference has been heard of."""
 
 

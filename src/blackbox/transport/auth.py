@@ -45,6 +45,7 @@ from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 
 from blackbox.config.node import ConfigNode
+from blackbox.errors import BlackBoxError
 from blackbox.health.types import C_Request_Signature
 
 ACTIONS = ("logs", "ibit")
@@ -58,7 +59,7 @@ KEY_ENV = "BLACKBOX_STATION_KEY"
 """Environment variable naming a station's private key file, used when no key is given."""
 
 
-class AuthError(Exception):
+class RequestAuthError(BlackBoxError):
     """A key file or an access list cannot be used; the message says why."""
 
 
@@ -115,7 +116,7 @@ def parse_public_key(text: str) -> Ed25519PublicKey:
         raw = base64.b64decode(token, validate=True)
         return Ed25519PublicKey.from_public_bytes(raw)
     except (ValueError, TypeError):
-        raise AuthError("not an Ed25519 public key (expected base64 of 32 bytes)") from None
+        raise RequestAuthError("not an Ed25519 public key (expected base64 of 32 bytes)") from None
 
 
 def generate_key_pair(private_path: Path, name: str) -> Path:
@@ -126,7 +127,7 @@ def generate_key_pair(private_path: Path, name: str) -> Path:
     public_path = private_path.with_name(private_path.name + ".pub")
     for path in (private_path, public_path):
         if path.exists():
-            raise AuthError(f"{path} exists; it is not overwritten")
+            raise RequestAuthError(f"{path} exists; it is not overwritten")
     key = Ed25519PrivateKey.generate()
     pem = key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
                             serialization.NoEncryption())
@@ -136,7 +137,7 @@ def generate_key_pair(private_path: Path, name: str) -> Path:
             fh.write(pem)
         public_path.write_text(f"ed25519 {public_key_text(key.public_key())} {name}\n")
     except OSError as exc:
-        raise AuthError(f"cannot write the key: {exc}") from None
+        raise RequestAuthError(f"cannot write the key: {exc}") from None
     return public_path
 
 
@@ -163,13 +164,13 @@ def load_private_key(path: Path) -> Ed25519PrivateKey:
     try:
         data = Path(path).read_bytes()
     except OSError as exc:
-        raise AuthError(f"{path}: cannot read the key: {exc.strerror}") from None
+        raise RequestAuthError(f"{path}: cannot read the key: {exc.strerror}") from None
     try:
         key = serialization.load_pem_private_key(data, password=None)
     except (ValueError, TypeError) as exc:
-        raise AuthError(f"{path}: not a private key ({exc})") from None
+        raise RequestAuthError(f"{path}: not a private key ({exc})") from None
     if not isinstance(key, Ed25519PrivateKey):
-        raise AuthError(f"{path}: not an Ed25519 key")
+        raise RequestAuthError(f"{path}: not an Ed25519 key")
     return key
 
 
@@ -183,9 +184,9 @@ class RequestSigner:
                  validity: float = DEFAULT_VALIDITY,
                  clock: Callable[[], float] = time.time) -> None:
         if not station:
-            raise AuthError("a signing station needs a name")
+            raise RequestAuthError("a signing station needs a name")
         if not 0 < validity <= MAX_VALIDITY:
-            raise AuthError(f"validity must be 0..{MAX_VALIDITY:g} s")
+            raise RequestAuthError(f"validity must be 0..{MAX_VALIDITY:g} s")
         self.key = key
         self.station = station
         self.validity = validity
@@ -277,7 +278,7 @@ def _station_key(item: ConfigNode, base_dir: Path) -> Ed25519PublicKey:
         raise item.error("a station needs 'public_key' or 'public_key_file'")
     try:
         return parse_public_key(value)
-    except AuthError as exc:
+    except RequestAuthError as exc:
         raise where.error(str(exc)) from None
 
 
@@ -361,7 +362,8 @@ class RequestVerifier:
         except FileNotFoundError:
             lines = []
         except OSError as exc:
-            raise AuthError(f"{path}: cannot read the replay record: {exc.strerror}") from None
+            raise RequestAuthError(f"{path}: cannot read the replay record: "
+                                   f"{exc.strerror}") from None
         for line in lines:
             parts = line.split()
             if len(parts) != 2 or not parts[0].isdigit() or not _NONCE.fullmatch(parts[1]):
@@ -377,7 +379,8 @@ class RequestVerifier:
                 os.fsync(fh.fileno())
             os.replace(tmp, path)
         except OSError as exc:
-            raise AuthError(f"{path}: cannot write the replay record: {exc.strerror}") from None
+            raise RequestAuthError(f"{path}: cannot write the replay record: "
+                                   f"{exc.strerror}") from None
 
     def _persist(self, nonce: str, expires_ns: int) -> bool:
         if self.nonce_file is None:

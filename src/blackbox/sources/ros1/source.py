@@ -50,12 +50,8 @@ from blackbox.sources.ros1.callerid import DEFAULT_PREFIX, unique_caller_id, val
 from blackbox.sources.ros1.graph import GraphPoller
 from blackbox.sources.ros1.readers import ReaderProcesses
 from blackbox.sources.ros1.resources import ResourceSampler
-from blackbox.sources.ros1.tcpros import (
-    DEFAULT_MAX_MESSAGE_BYTES,
-    Arrivals,
-    StreamKey,
-    TcprosSubscriber,
-)
+from blackbox.sources.ros1.stream_reader import Arrivals, StreamKey
+from blackbox.sources.ros1.subscriber import DEFAULT_MAX_MESSAGE_BYTES, TcprosSubscriber
 
 log = logging.getLogger("blackbox.sources.ros1")
 
