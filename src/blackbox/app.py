@@ -77,6 +77,8 @@ class RunOptions:
     """Publish the verdicts on ``/diagnostics`` of the watched ROS 1 master or ROS 2 domain
     (see ``docs/ros1.md``, ``docs/ros2.md``)."""
     extra_sinks: list[Sink] = field(default_factory=list)
+    signing_key: Path | None = None
+    """The robot's private key: sign what it publishes over DDS (docs/health.md)."""
 
 
 @dataclass
@@ -206,6 +208,8 @@ def open_dds(options: RunOptions, config: LoadedConfig, recorder: Recorder | Non
         kwargs["domain_id"] = options.dds_domain
     if recorder is not None:
         kwargs.setdefault("log_store_path", recorder.path)
+    if options.signing_key is not None:
+        kwargs["signing_key_file"] = options.signing_key
     descriptions = [describe_observer(entry) for entry in config.observers]
     return DdsHealthSink(config.robot_id, descriptions=descriptions, on_ibit=on_ibit,
                          ledger=ledger, **kwargs)

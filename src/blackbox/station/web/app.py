@@ -365,10 +365,33 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         summary = store.robot(r)
         entities = store.entities(r)
         ibits = store.ibit_runs(r, limit=1)
+        keys = getattr(operations, "robot_keys", None)  # trust on first use (enrolment.py)
+        seen = [k.public_key for k in keys.seen() if k.robot_id == summary.robot_id] \
+            if keys is not None and keys.trusted(summary.robot_id) is None else []
         return page(request, "robot.html", session, robot=summary, ref=r, entities=entities,
                     diagnosis=store.diagnosis(r), nav="fleet",
                     events=store.events(r, limit=20).events,
-                    last_ibit=ibits[0] if ibits else None)
+                    last_ibit=ibits[0] if ibits else None, seen_keys=seen)
+
+    @app.post("/robot/enrol")
+    async def robot_enrol(request: Request) -> Response:
+        """Trust on first use, confirmed by an administrator: enrol the one key seen."""
+        from blackbox.station.enrolment import EnrolmentError
+
+        session, form, target = await change(request, "robot.enrol", Role.ADMIN)
+        keys = getattr(operations, "robot_keys", None)
+        robot_id = form.get("robot", "")[:200]
+        try:
+            if keys is None:
+                raise EnrolmentError("this station keeps no robot keys")
+            enrolled = keys.confirm_seen(robot_id)
+        except EnrolmentError as exc:
+            auth.audit(session.user.name, "robot.enrol", target, "refused", address(request),
+                       str(exc))
+            raise HTTPException(400, str(exc)) from None
+        auth.audit(session.user.name, "robot.enrol", target, "ok", address(request),
+                   f"key {enrolled.public_key}")
+        return RedirectResponse(f"/robot?r={quote(robot_id, safe='')}", status_code=303)
 
     @app.get("/entity")
     async def entity(request: Request, r: str, id: Id) -> Response:
