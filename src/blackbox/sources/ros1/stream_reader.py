@@ -47,6 +47,9 @@ _SCRATCH_BYTES = 256 * 1024
 _SKIP_BYTES = 4 * 1024 * 1024
 _LOWAT_CAP = _SKIP_BYTES
 _READS_PER_WAKEUP = 16
+NATIVE_HAND_OVER = 0.002
+"""Seconds the native loop collects before it wakes the interpreter (as reader processes
+do): arrivals reach the pipeline at most this late, with their kernel times unchanged."""
 # Linux: SO_TIMESTAMPNS (== SCM_TIMESTAMPNS) delivers a struct timespec per recvmsg.
 SO_TIMESTAMPNS: int | None = getattr(socket, "SO_TIMESTAMPNS", 35 if hasattr(socket, "AF_NETLINK")
                                      else None)
@@ -100,7 +103,7 @@ class TcprosReader:
                  on_closed: Callable[[StreamKey, str, int], None],
                  on_first: Callable[[StreamKey], None], decoder: MessageDecoder,
                  on_batch: Callable[[Arrivals], None] | None = None,
-                 compact: bool = False, hand_over: float = 0.0,
+                 compact: bool = False, hand_over: float | None = None,
                  coalesce: float = 0.0) -> None:
         """``on_batch`` receives the arrivals of one wake-up together (preferred, one
         call per wake-up); without it ``on_message`` is called per message.
@@ -110,7 +113,9 @@ class TcprosReader:
         one :class:`MessageArrival` each (``on_message`` always gets arrivals).
 
         ``hand_over``: hand on at most every this many seconds what the wake-ups since
-        read (fewer wake-ups of whoever takes them; arrival times are unchanged).
+        read (fewer wake-ups of whoever takes them; arrival times are unchanged). By
+        default :data:`NATIVE_HAND_OVER` with the native loop (the interpreter then wakes
+        at most 500 times a second however many messages arrive), 0 in Python.
 
         ``coalesce``: at least this many seconds between two wake-ups (a quiet reader is
         woken at once, a busy one waits out the rest), so a fast topic's messages are
@@ -122,6 +127,9 @@ class TcprosReader:
         self._on_message = on_message
         self._on_batch = on_batch
         self._compact = compact
+        self._native = native_loop()
+        if hand_over is None:
+            hand_over = NATIVE_HAND_OVER if self._native is not None else 0.0
         self._hand_over_every = hand_over
         self._coalesce = coalesce
         self._held: Arrivals = []
@@ -132,7 +140,6 @@ class TcprosReader:
         self._selector = selectors.DefaultSelector()
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
-        self._native = native_loop()
         self._engine: Any = None
         self._sids: dict[int, _Stream] = {}
         self._next_sid = 1
