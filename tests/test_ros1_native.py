@@ -13,6 +13,7 @@ import subprocess
 import sys
 import sysconfig
 import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
@@ -220,3 +221,51 @@ def test_a_peer_that_stalls_mid_frame_is_idle_not_stuck(receive_path: str) -> No
             s.close()
     assert seen.closed[BAD] == ("half-open: the publisher's node does not answer", 1)
     assert seen.sizes[BAD] == [10]
+
+
+def test_the_native_loop_wakes_the_interpreter_when_asked_not_per_message() -> None:
+    """Spaced messages (a camera's frames) are held in C until ``flush`` (the source calls
+    it at every poll) or the hand-over backstop; after ``flush`` everything the socket had
+    received is handed on, with each receive's own kernel time."""
+    from blackbox.sources.ros1.native import native_loop
+
+    if native_loop() is None:
+        pytest.skip("the native TCPROS loop is not built here")
+    handed: list[Arrivals] = []
+    reader = TcprosReader(_unexpected, lambda *a: None, lambda key: None, MessageDecoder(),
+                          on_batch=handed.append, compact=True)
+    reader.start()
+    ours, theirs = socket.socketpair()
+    try:
+        assert reader.native
+        reader.add(GOOD, ours, 1 << 20, None)
+        theirs.sendall(_frame(b"first"))
+        wait_until(lambda: reader.idle_seconds().get(GOOD, 1.0) < 0.5, "the first receive")
+        reader.flush()
+        first_wakeups = len(handed)
+        for i in range(20):
+            theirs.sendall(_frame(bytes(i)))
+            time.sleep(0.005)  # one receive each
+
+        def counted() -> int:
+            reader.flush()  # hands on only when something is held
+            return sum(x.count for h in handed for x in h)
+
+        wait_until(lambda: counted() == 21, "all 21 messages after a flush")
+        items = [x for h in handed for x in h]
+        # flushes every 50 ms while waiting, not one wake-up per message
+        assert len(handed) - first_wakeups < 10
+        times = [x.time for x in items]
+        assert times == sorted(times) and len(set(times)) >= 15  # receive times kept
+    finally:
+        reader.close()
+        theirs.close()
+
+
+def test_flush_is_a_no_op_for_the_python_reader(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(FORCE_PYTHON, "1")
+    with _reader() as (reader, _):
+        assert not reader.native
+        started = time.monotonic()
+        reader.flush(timeout=5.0)
+        assert time.monotonic() - started < 1.0

@@ -42,8 +42,7 @@ typedef struct {
     uint64_t count;
     uint64_t bytes;
     double time;
-    char *body; /* REC_BODY: malloc'ed, handed to Python as bytes */
-    char reason[REASON_BYTES];
+    char *body; /* REC_BODY: the message; REC_CLOSED: the reason (malloc'ed, freed here) */
 } Record;
 
 typedef struct {
@@ -109,7 +108,6 @@ static Record *push(Engine *e, int kind, Stream *s) {
     r->bytes = 0;
     r->time = 0.0;
     r->body = NULL;
-    r->reason[0] = '\0';
     return r;
 }
 
@@ -120,7 +118,7 @@ static void close_stream(Engine *e, Stream *s, const char *reason) {
     s->body = NULL;
     Record *r = push(e, REC_CLOSED, s);
     if (r != NULL) {
-        snprintf(r->reason, REASON_BYTES, "%s", reason);
+        r->body = strdup(reason);
         r->count = s->messages;
     }
 }
@@ -477,7 +475,7 @@ static PyObject *records_to_list(Engine *self) {
             break;
         default:
             item = Py_BuildValue("(iIKs)", r->kind, r->sid, (unsigned long long)r->count,
-                                 r->reason);
+                                 r->body != NULL ? r->body : "connection closed");
         }
         if (item == NULL) {
             Py_DECREF(out);

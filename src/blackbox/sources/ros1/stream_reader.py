@@ -47,9 +47,13 @@ _SCRATCH_BYTES = 256 * 1024
 _SKIP_BYTES = 4 * 1024 * 1024
 _LOWAT_CAP = _SKIP_BYTES
 _READS_PER_WAKEUP = 16
-NATIVE_HAND_OVER = 0.002
-"""Seconds the native loop collects before it wakes the interpreter (as reader processes
-do): arrivals reach the pipeline at most this late, with their kernel times unchanged."""
+NATIVE_HAND_OVER = 0.25
+"""Seconds the native loop collects at most before it wakes the interpreter on its own;
+whoever takes the arrivals asks for them when it needs them (:meth:`TcprosReader.flush`,
+the source at every poll), so they are never late for the pipeline, and a camera's frames
+cost no interpreter wake-up each. Kernel times are unchanged."""
+FLUSH_TIMEOUT = 0.1
+"""At most this long :meth:`TcprosReader.flush` waits for the reader thread."""
 # Linux: SO_TIMESTAMPNS (== SCM_TIMESTAMPNS) delivers a struct timespec per recvmsg.
 SO_TIMESTAMPNS: int | None = getattr(socket, "SO_TIMESTAMPNS", 35 if hasattr(socket, "AF_NETLINK")
                                      else None)
@@ -114,8 +118,8 @@ class TcprosReader:
 
         ``hand_over``: hand on at most every this many seconds what the wake-ups since
         read (fewer wake-ups of whoever takes them; arrival times are unchanged). By
-        default :data:`NATIVE_HAND_OVER` with the native loop (the interpreter then wakes
-        at most 500 times a second however many messages arrive), 0 in Python.
+        default :data:`NATIVE_HAND_OVER` with the native loop (the consumer calls
+        :meth:`flush` when it wants what has arrived), 0 in Python.
 
         ``coalesce``: at least this many seconds between two wake-ups (a quiet reader is
         woken at once, a busy one waits out the rest), so a fast topic's messages are
@@ -156,6 +160,8 @@ class TcprosReader:
         # never written (MSG_TRUNC), so an anonymous mapping costs no memory
         self._skip_map = mmap.mmap(-1, _SKIP_BYTES)
         self._skip = memoryview(self._skip_map)
+        self._flushed = threading.Condition()
+        self._flush_asked = self._flush_done = 0
         self._stop = threading.Event()
         run = self._run if self._engine is None else self._run_native
         self._thread = threading.Thread(target=run, name="ros1-tcpros", daemon=True)
@@ -172,6 +178,20 @@ class TcprosReader:
         with self._lock:
             self._pending.append(_Stream(key, sock, max_bytes, decode_as))
         self._wake()
+
+    def flush(self, timeout: float = FLUSH_TIMEOUT) -> None:
+        """Hand on now everything received so far (the native loop holds arrivals up to
+        ``hand_over``); returns once the reader thread has, or after ``timeout``. A no-op
+        for the Python reader, which hands on at once."""
+        if self._engine is None or self._hand_over_every <= 0 or not self._thread.is_alive():
+            return
+        with self._flushed:
+            self._flush_asked += 1
+            want = self._flush_asked
+        self._wake()
+        with self._flushed:
+            self._flushed.wait_for(lambda: self._flush_done >= want or self._stop.is_set(),
+                                   timeout)
 
     def drop(self, key: StreamKey, reason: str) -> None:
         """Close ``key``'s connection from another thread (half-open, lost interest)."""
@@ -299,8 +319,14 @@ class TcprosReader:
                 held = self._held
             while self._closed_notes:
                 self._on_closed(*self._closed_notes.pop(0))
+            if woken and self._flush_done < self._flush_asked:
+                with self._flushed:  # what was asked for before this poll returned is out
+                    self._flush_done = self._flush_asked
+                    self._flushed.notify_all()
         if self._held:
             self._hand_over()
+        with self._flushed:
+            self._flushed.notify_all()
 
     def _hand_over(self) -> None:
         batch, self._held = self._held, []
