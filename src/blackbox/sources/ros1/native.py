@@ -27,9 +27,9 @@ def _load() -> tuple[ModuleType | None, str]:
         return None, f"{FORCE_PYTHON}={os.environ[FORCE_PYTHON]}"
     try:
         from blackbox.sources.ros1 import _tcpros  # type: ignore[attr-defined]
-    except ImportError as exc:
-        return None, f"the native loop is not built ({exc}; install a C compiler and run " \
-                     "scripts/setup.sh again)"
+    except ImportError:
+        return None, "the native loop is not built (no C compiler when scripts/setup.sh " \
+                     "ran, or not Linux); install one and run scripts/setup.sh again"
     module: ModuleType = _tcpros
     return module, ""
 
