@@ -453,6 +453,26 @@ static void sleep_seconds(double seconds) {
     }
 }
 
+static PyObject *arrivals_tuple(const Record *r) {
+    PyObject *t = PyTuple_New(5);
+    if (t == NULL)
+        return NULL;
+    PyObject *items[5] = {PyLong_FromLong(r->kind), PyLong_FromUnsignedLong(r->sid),
+                          PyLong_FromUnsignedLongLong(r->count),
+                          PyLong_FromUnsignedLongLong(r->bytes), PyFloat_FromDouble(r->time)};
+    for (int i = 0; i < 5; i++) {
+        if (items[i] == NULL) {
+            for (int k = 0; k < 5; k++)
+                Py_XDECREF(items[k]);
+            Py_DECREF(t);
+            return NULL;
+        }
+    }
+    for (int i = 0; i < 5; i++)
+        PyTuple_SET_ITEM(t, i, items[i]);
+    return t;
+}
+
 /* The records as Python tuples, in the order they happened. */
 static PyObject *records_to_list(Engine *self) {
     PyObject *out = PyList_New(self->nrecs);
@@ -462,9 +482,8 @@ static PyObject *records_to_list(Engine *self) {
         Record *r = &self->recs[i];
         PyObject *item = NULL;
         switch (r->kind) {
-        case REC_ARRIVALS:
-            item = Py_BuildValue("(iIKKd)", r->kind, r->sid, (unsigned long long)r->count,
-                                 (unsigned long long)r->bytes, r->time);
+        case REC_ARRIVALS: /* the common record: built directly, not via a format string */
+            item = arrivals_tuple(r);
             break;
         case REC_BODY:
             item = Py_BuildValue("(iIKy#d)", r->kind, r->sid, (unsigned long long)r->bytes,
