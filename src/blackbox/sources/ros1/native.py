@@ -8,6 +8,7 @@ robot builder who wonders about the black box's CPU sees the reason at start.
 
 from __future__ import annotations
 
+import importlib
 import logging
 import os
 import threading
@@ -25,12 +26,11 @@ _lock = threading.Lock()
 def _load() -> tuple[ModuleType | None, str]:
     if os.environ.get(FORCE_PYTHON, "") not in ("", "0"):
         return None, f"{FORCE_PYTHON}={os.environ[FORCE_PYTHON]}"
-    try:
-        from blackbox.sources.ros1 import _tcpros  # type: ignore[attr-defined]
+    try:  # by name: the compiled module imports nothing of the package
+        module = importlib.import_module("blackbox.sources.ros1._tcpros")
     except ImportError:
         return None, "the native loop is not built (no C compiler when scripts/setup.sh " \
                      "ran, or not Linux); install one and run scripts/setup.sh again"
-    module: ModuleType = _tcpros
     return module, ""
 
 
