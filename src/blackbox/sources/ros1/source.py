@@ -263,6 +263,8 @@ class Ros1Source:
         if back:
             assert gap is not None and gap.end is not None
             until = gap.end
+        if self._subscriber is not None:  # the native reader holds arrivals until asked
+            self._subscriber.reader.flush()
         queue = self._queue
         events = self._held
         self._held = []
