@@ -30,9 +30,11 @@ from isolation import fresh_domain
 from station_support import dds_env
 
 TYPES = {**UCMS_TOPICS, **EXTENSION_TOPICS, **REMOTE_TOPICS}
-WITHOUT_ENCODER = {"BlackBox_Log_Request", "BlackBox_IBIT_Request"}
+WITHOUT_ENCODER = {"BlackBox_Log_Request", "BlackBox_IBIT_Request", "BlackBox_Log_Reply",
+                   "BlackBox_IBIT_Result", "BlackBox_Sample_Signature"}
 """Topics whose type holds a byte sequence (a machine the compiler leaves to cyclonedds):
-the station's signed requests, never written by the black box."""
+the station's signed requests, and the robot's signatures (on log replies, IBIT results
+and its health samples), which cyclonedds's own serialisation writes."""
 
 _RANGES = {"b": 7, "h": 15, "i": 31, "q": 63, "B": 8, "H": 16, "I": 32, "Q": 64}
 
