@@ -34,6 +34,7 @@ from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 from starlette.middleware.base import BaseHTTPMiddleware
 
+from blackbox.station.alerts.service import AlertService
 from blackbox.station.auth import Auth, AuthError, Role, Session
 from blackbox.station.store import (
     EVENT_KINDS,
@@ -154,8 +155,10 @@ def robot_ref(robot_id: str, resource_id: int) -> str:
 
 def create_app(auth: Auth, store: StationStore, operations: Operations,
                settings: WebSettings | None = None,
-               stop: threading.Event | None = None) -> FastAPI:
-    """The web application. ``stop`` ends the live streams (set it before stopping uvicorn)."""
+               stop: threading.Event | None = None, alerts: AlertService | None = None,
+               metrics_token: str | None = None) -> FastAPI:
+    """The web application. ``stop`` ends the live streams (set it before stopping uvicorn).
+    ``alerts``: the alerting service (rules page, ``/api/v1``, ``/metrics``)."""
     settings = settings or WebSettings()
     stop = stop or threading.Event()
     app = FastAPI(title="Robot Black Box station", docs_url=None, redoc_url=None,
