@@ -7,6 +7,7 @@ import hashlib
 import hmac
 import http.server
 import json
+import socket
 import subprocess
 import threading
 import time
@@ -140,3 +141,62 @@ def self_signed_cert(tmp: Path) -> tuple[Path, Path]:
                     "-keyout", str(key), "-out", str(cert)], check=True, capture_output=True,
                    timeout=60)
     return cert, key
+
+
+@dataclass
+class Mailbox:
+    """What the SMTP server accepted, and how the client got there."""
+
+    host: str
+    port: int
+    messages: list[Any] = field(default_factory=list)
+    logins: list[str] = field(default_factory=list)
+    cond: threading.Condition = field(default_factory=threading.Condition)
+
+    def wait_for(self, count: int, timeout: float) -> list[Any]:
+        with self.cond:
+            ok = self.cond.wait_for(lambda: len(self.messages) >= count, timeout)
+        assert ok, f"the SMTP server got {len(self.messages)} of {count} messages in {timeout} s"
+        return list(self.messages)
+
+
+@contextmanager
+def smtp_server(tmp: Path, user: str, password: str) -> Iterator[tuple[Mailbox, Path]]:
+    """aiosmtpd on 127.0.0.1 requiring STARTTLS before AUTH (LOGIN/PLAIN) and mail; yields
+    the mailbox and the certificate a client must trust."""
+    import ssl
+
+    from aiosmtpd.controller import Controller
+    from aiosmtpd.smtp import AuthResult, LoginPassword
+
+    cert, key = self_signed_cert(tmp)
+    context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+    context.load_cert_chain(str(cert), str(key))
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = int(s.getsockname()[1])
+    box = Mailbox("127.0.0.1", port)
+
+    def authenticate(server: Any, session: Any, envelope: Any, mechanism: str,
+                     auth_data: Any) -> AuthResult:
+        ok = isinstance(auth_data, LoginPassword) and auth_data.login == user.encode() \
+            and auth_data.password == password.encode()
+        if ok:
+            box.logins.append(user)
+        return AuthResult(success=ok, handled=False)  # aiosmtpd answers 235 or 535
+
+    class Handler:
+        async def handle_DATA(self, server: Any, session: Any, envelope: Any) -> str:
+            with box.cond:
+                box.messages.append(envelope)
+                box.cond.notify_all()
+            return "250 OK"
+
+    controller = Controller(Handler(), hostname="127.0.0.1", port=port, tls_context=context,
+                            require_starttls=True, authenticator=authenticate,
+                            auth_require_tls=True, auth_exclude_mechanism=["LOGIN"])
+    controller.start()
+    try:
+        yield box, cert
+    finally:
+        controller.stop()
