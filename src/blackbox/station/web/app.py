@@ -42,6 +42,10 @@ from blackbox.station.store import (
     StationStoreError,
     UnknownRobot,
 )
+from blackbox.station.tokens import ApiTokens
+from blackbox.station.web.alerts_pages import PageTools, mount_alert_pages
+from blackbox.station.web.api_v1 import create_api
+from blackbox.station.web.metrics import metrics_router
 from blackbox.timestamps import parse_timestamp
 
 HERE = Path(__file__).resolve().parent
@@ -502,6 +506,12 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
             return page(request, "users.html", session, users=auth.users(), status=400,
                         audit=auth.audit_log(limit=100), nav="users", message=str(exc))
         return RedirectResponse("/users", status_code=303)
+
+    # ---- alerting, /api/v1, /metrics (their own modules) ------------------------------------
+    tokens = ApiTokens(auth.path, auth)
+    mount_alert_pages(app, PageTools(page, require, change, address), alerts, tokens)
+    app.mount("/api/v1", create_api(auth, tokens, store, operations, alerts))
+    app.include_router(metrics_router(store, alerts, metrics_token))
 
     # ---- live updates ---------------------------------------------------------------------
 
