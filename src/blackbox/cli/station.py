@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import getpass
+import os
 import socket
 import sys
 import threading
@@ -42,6 +43,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                         "stations their configuration lists (docs/health.md)")
     p.add_argument("--alerts", type=Path, default=None, metavar="FILE",
                    help="alert rules and channels (YAML; docs/station.md \"Alerts\")")
+    p.add_argument("--metrics-token-env", default=None, metavar="NAME",
+                   help="/metrics answers only 'Authorization: Bearer <token>' with the token "
+                        "in environment variable NAME (default: /metrics is open)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument("--ready-file", type=Path, default=None, metavar="FILE",
@@ -174,6 +178,10 @@ def serve_command(args: argparse.Namespace) -> int:
         return _usage_error(exc)
     from blackbox.station.alerts.rules import AlertConfig, load_alert_config
 
+    if args.metrics_token_env and len(os.environ.get(args.metrics_token_env, "")) < 16:
+        return _usage_error(f"--metrics-token-env: ${args.metrics_token_env} must hold a "
+                            "token of at least 16 characters")
+
     alerts = load_alert_config(args.alerts) if args.alerts is not None \
         else AlertConfig("<none>")  # a ConfigError here exits 2 naming file, line, key
     opened = _open_or_say(args.db, args.stale_after)
@@ -219,7 +227,8 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
     stop = threading.Event()
     tls = args.tls_cert is not None
     app = create_app(auth, store, follower, WebSettings(secure_cookies=tls), stop=stop,
-                     alerts=alerts)
+                     alerts=alerts, metrics_token=os.environ.get(args.metrics_token_env)
+                     if args.metrics_token_env else None)
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
