@@ -206,3 +206,20 @@ def test_a_robot_that_goes_silent_alerts_and_recovers(world: World) -> None:
     assert world.store.flush(force=True)
     world.engine.tick(heard + 100.5)
     assert world.sent() == [("alert", "hook"), ("resolved", "hook")]
+
+
+@pytest.mark.parametrize("world", ["""\
+rules:
+  - name: everything
+    send: hook
+"""], indirect=True)
+def test_a_rule_matching_everything_sends_at_most_its_limit_then_a_digest(
+        world: World) -> None:
+    for i in range(200):  # 200 different entities failing: 200 distinct alerts
+        world.event("failure", entity=f"/node_{i}", at=i * 0.1)
+    assert len(world.engine.alerts(limit=1000)) == 200
+    assert world.sent() == [("alert", "hook")] * 10  # the default limit: 10 per 600 s
+    world.engine.tick(world.t0 + 601)
+    digest = [e for e in world.engine.outbox.entries() if e.purpose == "digest"]
+    assert [d.payload["suppressed"] for d in digest] == [190]
+    assert world.engine.unmatched(0) == {}  # matched, so not counted as unmatched
