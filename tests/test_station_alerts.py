@@ -196,9 +196,11 @@ def test_a_webhook_that_fails_for_good_is_a_visible_problem(
                 "waited for the notification to fail for good"
             entry = service.outbox.entries()[0]
             assert entry.attempts == 2 and error in entry.last_error
-            problems = [p.message for p in store.problems() if p.source == "alerts"]
-            assert any("failed after 2 attempts" in m and error in m for m in problems), \
-                problems
+
+            def shown() -> list[str]:  # reported just after the row is marked failed
+                return [p.message for p in store.problems() if p.source == "alerts"
+                        and "failed after 2 attempts" in p.message and error in p.message]
+            assert wait_for(lambda: bool(shown()), 5), store.problems()
         assert hook.attempts == 2
 
 

@@ -100,6 +100,7 @@ class AlertEngine:
         self.config = config
         self.outbox = outbox
         self.audit = audit
+        self._page_cache: list[Rule] | None = None
         self._silent: set[str] = set()
         self._problems: set[str] = set()
         if self.db.meta("event_cursor") is None:  # a new station alerts on what is new
@@ -114,6 +115,10 @@ class AlertEngine:
         return (*self.config.rules, *self._page_rules())
 
     def _page_rules(self) -> list[Rule]:
+        """Parsed once after each change (rules are matched against every event)."""
+        cached = self._page_cache
+        if cached is not None:
+            return cached
         with self.db.reading() as db:
             rows = db.execute("SELECT name, text FROM alert_rules ORDER BY created").fetchall()
         rules = []
@@ -123,6 +128,7 @@ class AlertEngine:
             except ConfigError as exc:  # a channel left the file since: visible, not lost
                 self.store.report_problem("alerts", f"page rule {name!r} no longer valid: "
                                                     f"{exc}")
+        self._page_cache = rules
         return rules
 
     def rule(self, name: str) -> Rule | None:
@@ -141,12 +147,14 @@ class AlertEngine:
         with self.db.transaction() as db:
             db.execute("INSERT INTO alert_rules VALUES (?, ?, ?, ?)",
                        (rule.name, text, now, user))
+        self._page_cache = None
         self.audit(user, "alert.rule.add", rule.name, "ok", "")
         return rule
 
     def remove_rule(self, name: str, user: str) -> None:
         with self.db.transaction() as db:
             removed = db.execute("DELETE FROM alert_rules WHERE name = ?", (name,)).rowcount
+        self._page_cache = None
         if not removed:
             why = ("rules of the alerts file are changed in the file"
                    if any(r.name == name for r in self.config.rules) else "no such page rule")
