@@ -282,3 +282,23 @@ def test_blackbox_run_serves_its_own_metrics(tmp_path: Path) -> None:
     finally:
         proc.terminate()
         proc.wait(timeout=30)
+
+
+def test_the_acknowledge_link_of_a_message_needs_a_log_in_and_the_operator_role(
+        station: Station) -> None:
+    client = station.client
+    alert_id = station.alerts.engine.alerts()[0].id
+    reply = client.get(f"/alerts/{alert_id}", follow_redirects=False)
+    assert reply.status_code == 303
+    assert reply.headers["location"] == f"/login?next=%2Falerts%2F{alert_id}"
+    form = client.get("/login").text
+    login_token = re.search(r'name="login_token" value="([^"]+)"', form).group(1)  # type: ignore[union-attr]
+    client.post("/login", data={"username": "vera", "password": PASSWORD,
+                                "login_token": login_token, "next": f"/alerts/{alert_id}"})
+    page = client.get(f"/alerts/{alert_id}")
+    assert page.status_code == 200 and "/usb_cam stopped" in page.text
+    assert "Acknowledge</button>" not in page.text  # a viewer is not offered it ...
+    csrf = re.search(r'data-csrf="([^"]+)"', page.text).group(1)  # type: ignore[union-attr]
+    refused = client.post(f"/alerts/{alert_id}/ack", data={"csrf_token": csrf})
+    assert refused.status_code == 403  # ... nor allowed it
+    assert station.alerts.engine.alert(alert_id).state == "firing"  # type: ignore[union-attr]
