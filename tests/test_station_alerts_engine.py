@@ -223,3 +223,18 @@ def test_a_rule_matching_everything_sends_at_most_its_limit_then_a_digest(
     digest = [e for e in world.engine.outbox.entries() if e.purpose == "digest"]
     assert [d.payload["suppressed"] for d in digest] == [190]
     assert world.engine.unmatched(0) == {}  # matched, so not counted as unmatched
+
+
+@pytest.mark.parametrize("world", ["""\
+rules:
+  - name: thresholds
+    match: {kind: exceedance}
+    send: hook
+"""], indirect=True)
+def test_an_exceedance_is_resolved_when_the_entity_is_healthy_again(world: World) -> None:
+    world.event("exceedance")
+    world.event("exceedance", at=1)  # the same alert, counted
+    world.event("state_change", at=2)  # between healthy states: over
+    world.event("exceedance", at=3)  # a new one
+    assert world.sent() == [("alert", "hook"), ("resolved", "hook"), ("alert", "hook")]
+    assert [a.count for a in world.engine.alerts()] == [1, 2]

@@ -302,3 +302,38 @@ def test_the_acknowledge_link_of_a_message_needs_a_log_in_and_the_operator_role(
     refused = client.post(f"/alerts/{alert_id}/ack", data={"csrf_token": csrf})
     assert refused.status_code == 403  # ... nor allowed it
     assert station.alerts.engine.alert(alert_id).state == "firing"  # type: ignore[union-attr]
+
+
+def test_a_token_made_in_the_page_works_until_it_is_revoked_in_the_page(
+        station: Station) -> None:
+    client = station.client
+    form = client.get("/login").text
+    login_token = re.search(r'name="login_token" value="([^"]+)"', form).group(1)  # type: ignore[union-attr]
+    client.post("/login", data={"username": "otto", "password": PASSWORD,
+                                "login_token": login_token})
+    page = client.get("/tokens")
+    csrf = re.search(r'data-csrf="([^"]+)"', page.text).group(1)  # type: ignore[union-attr]
+    assert client.post("/tokens", data={"op": "create", "name": "grafana", "days": "9999",
+                                        "csrf_token": csrf}).status_code == 400
+    made = client.post("/tokens", data={"op": "create", "name": "grafana", "days": "30",
+                                        "csrf_token": csrf})
+    token = re.search(r"<code>(bbt_[^<]+)</code>", made.text).group(1)  # type: ignore[union-attr]
+    assert token not in client.get("/tokens").text  # shown once
+    client.cookies.clear()  # the API is used without the session
+    bearer = {"Authorization": f"Bearer {token}"}
+    assert client.get("/api/v1/fleet", headers=bearer).status_code == 200
+    assert client.post("/api/v1/alerts/rules", headers=bearer,
+                       json={"yaml": "name: x\nsend: hook"}).status_code == 403  # operator
+    mine = [t for t in station.tokens.tokens("otto") if t.name == "grafana"]
+    form = client.get("/login").text
+    login_token = re.search(r'name="login_token" value="([^"]+)"', form).group(1)  # type: ignore[union-attr]
+    client.post("/login", data={"username": "otto", "password": PASSWORD,
+                                "login_token": login_token})
+    csrf = re.search(r'data-csrf="([^"]+)"',  # type: ignore[union-attr]
+                     client.get("/tokens").text).group(1)
+    assert client.post("/tokens", data={"op": "revoke", "id": str(mine[0].id),
+                                        "csrf_token": csrf},
+                       follow_redirects=False).status_code == 303
+    assert client.get("/api/v1/fleet", headers=bearer).status_code == 401
+    actions = [(a.user, a.action) for a in station.auth.audit_log(limit=20)]
+    assert ("otto", "token.create") in actions and ("otto", "token.revoke") in actions

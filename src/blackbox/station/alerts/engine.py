@@ -194,6 +194,8 @@ class AlertEngine:
         robot = event.robot_id
         if event.kind == "rectification":
             self.resolve(robot, event.entity, ("failure", "exceedance"), now)
+        elif event.kind == "state_change":  # back between healthy states
+            self.resolve(robot, event.entity, ("exceedance",), now)
         elif event.kind == "acknowledgement" and event.refers_to is not None:
             who = str(event.details.get("user") or "station")
             for alert in self.alerts(event_id=event.refers_to, open_only=True):
