@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from alert_support import robot_with_entity, rules_file
+from blackbox.station.alerts.channels import Outcome
 from blackbox.station.alerts.db import AlertDB
 from blackbox.station.alerts.engine import AlertEngine, AlertRuleError
 from blackbox.station.alerts.outbox import Outbox
@@ -238,3 +239,23 @@ def test_an_exceedance_is_resolved_when_the_entity_is_healthy_again(world: World
     world.event("exceedance", at=3)  # a new one
     assert world.sent() == [("alert", "hook"), ("resolved", "hook"), ("alert", "hook")]
     assert [a.count for a in world.engine.alerts()] == [1, 2]
+
+
+@pytest.mark.parametrize("world", ["""\
+rules:
+  - name: dedup
+    match: {kind: failure}
+    send: hook
+"""], indirect=True)
+def test_history_older_than_thirty_days_is_pruned_but_failures_stay(world: World) -> None:
+    world.event("failure")
+    world.event("rectification", at=1)
+    outbox = world.engine.outbox
+    first, second = (e.id for e in reversed(outbox.entries()))
+    outbox.record(first, Outcome(True, "HTTP 204"), world.t0 + 2)
+    for _ in range(world.engine.outbox.delivery.attempts):
+        outbox.record(second, Outcome(False, "HTTP 500"), world.t0 + 2)
+    assert world.engine.prune(world.t0 + 29 * 86400) == 0
+    assert world.engine.prune(world.t0 + 31 * 86400) == 2  # the alert and the sent row
+    assert world.engine.alerts() == []
+    assert [e.state for e in outbox.entries()] == ["failed"]

@@ -45,6 +45,8 @@ Audit = Callable[[str, str, str, str, str], None]
 
 OPEN_STATES = ("pending", "firing", "acknowledged")
 UNMATCHED_KEEP = 7 * 86400.0
+HISTORY_KEEP = 30 * 86400.0
+"""Resolved alerts and delivered messages are kept this long (seconds)."""
 MAX_EXAMPLES = 10
 SCHEMA = "blackbox.alert/1"
 
@@ -394,6 +396,14 @@ class AlertEngine:
                 self._enqueue_digest(rule, int(suppressed), json.loads(examples), now)
                 db.execute("UPDATE alert_rate SET window_start = ?, sent = 0, "
                            "suppressed = 0, examples = '[]' WHERE rule = ?", (now, name))
+
+    def prune(self, now: float) -> int:
+        """Forget resolved alerts and delivered messages older than :data:`HISTORY_KEEP`
+        (the database stays bounded however long the station runs)."""
+        with self.db.transaction() as db:
+            gone = db.execute("DELETE FROM alert_alerts WHERE state = 'resolved' AND "
+                              "resolved_at < ?", (now - HISTORY_KEEP,)).rowcount
+        return int(gone) + self.outbox.prune(now - HISTORY_KEEP)
 
     def _watch_fleet(self, now: float) -> None:
         for robot in self.store.fleet(now):

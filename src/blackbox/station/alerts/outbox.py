@@ -118,6 +118,13 @@ class Outbox:
         with self.db.reading() as db:
             return [_entry(r) for r in db.execute(sql, [*args, max(1, min(limit, 1000))])]
 
+    def prune(self, before: float) -> int:
+        """Forget delivered rows finished before ``before`` (failed rows stay: they are
+        problems someone should read); returns how many went."""
+        with self.db.transaction() as db:
+            return int(db.execute("DELETE FROM alert_outbox WHERE state = 'sent' AND "
+                                  "finished < ?", (before,)).rowcount)
+
     def counts(self) -> dict[tuple[str, str], int]:
         """Rows by (channel, state), for the metrics."""
         with self.db.reading() as db:

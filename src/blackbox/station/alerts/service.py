@@ -50,6 +50,7 @@ class AlertService:
         self._wake = threading.Event()
         self._thread: threading.Thread | None = None
         self._last_tick = -float("inf")
+        self._last_prune = -float("inf")
         self.delivered = 0
         self.failed_attempts = 0
 
@@ -96,6 +97,9 @@ class AlertService:
         if now - self._last_tick >= self.tick_interval:  # not on every flush of a busy fleet
             self._last_tick = now
             self.engine.tick(now)
+        if now - self._last_prune >= 3600.0:
+            self._last_prune = now
+            self.engine.prune(now)
         with self._busy_lock:
             busy = frozenset(self._busy)
         for entry in self.outbox.due(now, busy=busy):
