@@ -100,8 +100,22 @@ def browser() -> Iterator[Any]:
         chromium.close()
 
 
+SCRIPT_ERRORS: list[str] = []
+
+
+@pytest.fixture(autouse=True)
+def no_script_errors() -> Iterator[None]:
+    """Any script error or CSP violation on a page fails the test."""
+    SCRIPT_ERRORS.clear()
+    yield
+    assert SCRIPT_ERRORS == []
+
+
 def logged_in(browser: Any, site: Site, user: str) -> Any:
     page = browser.new_context(base_url=site.url).new_page()
+    page.on("pageerror", lambda error: SCRIPT_ERRORS.append(str(error)))
+    page.on("console", lambda m: SCRIPT_ERRORS.append(m.text) if m.type == "error" and not
+            m.text.startswith("Failed to load resource") else None)  # refusals are tested
     page.set_default_timeout(20_000)
     page.goto("/login")
     page.fill("input[name=username]", user)
