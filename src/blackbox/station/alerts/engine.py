@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from blackbox.config.node import ConfigError
+from blackbox.errors import BlackBoxError
 from blackbox.station.alerts.db import AlertDB
 from blackbox.station.alerts.outbox import Outbox
 from blackbox.station.alerts.rules import (
@@ -51,7 +52,7 @@ MAX_EXAMPLES = 10
 SCHEMA = "blackbox.alert/1"
 
 
-class AlertRuleError(ValueError):
+class AlertRuleError(BlackBoxError, ValueError):
     """A rule change the engine refuses; the message is safe to show."""
 
 
