@@ -39,6 +39,7 @@ from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader
 from cyclonedds.util import duration
 
+from blackbox.errors import BlackBoxError
 from blackbox.health.extension import (
     C_Characteristic_Extension,
     C_Entity_Description,
@@ -97,7 +98,7 @@ _ORDER = {"BlackBox_Entity_Description": 0, "BlackBox_Event_Extension": 1,
           "C_Failure_Event": 2}
 
 
-class StationBusy(RuntimeError):
+class StationBusy(BlackBoxError, RuntimeError):
     """Too many log requests and built-in tests are waiting; try again later."""
 
 
