@@ -10,7 +10,7 @@ import sys
 import time
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, cast
+from typing import IO, Any, cast
 
 from blackbox.config.node import ConfigError, ConfigNode
 from blackbox.record.check import check_log
@@ -27,6 +27,7 @@ from blackbox.record.retention import (
 from blackbox.record.salvage import NotALog, Salvaged, salvage, select
 from blackbox.record.settings import DEFAULT_BUDGET, parse_size, recorder_settings
 from blackbox.record.store import KINDS, LogEntry, StorageError, Store, StoreCorrupt
+from blackbox.safetext import TerminalStream, terminal_text
 from blackbox.timestamps import parse_timestamp
 
 EXIT_ERROR = 1
@@ -200,8 +201,9 @@ def _query(args: argparse.Namespace) -> int:
         for e in entries:
             code = "" if e.code is None else str(e.code)
             summary = ", ".join(f"{k}={v}" for k, v in e.payload.items() if k != "text")
-            print(f"{e.id:>8} {_show_time(e.time)} {e.kind:<14} {e.entity or '-':<28} "
-                  f"{e.characteristic or '-':<10} {code:>3} {summary}"[:240])
+            print(terminal_text(f"{e.id:>8} {_show_time(e.time)} {e.kind:<14} "
+                                f"{e.entity or '-':<28} {e.characteristic or '-':<10} "
+                                f"{code:>3} {summary}"[:240]))
         print(f"{len(entries)} entries", file=sys.stderr)
     return 0
 
@@ -222,7 +224,9 @@ def _export(args: argparse.Namespace) -> int:
             return EXIT_USAGE
         robot_id = store.robot_id if isinstance(store, Salvaged) else store.meta("robot_id")
         try:
-            n = export(entries, args.output, fmt, robot_id or "", stdout=sys.stdout)
+            n = export(entries, args.output, fmt, robot_id or "",
+                       stdout=cast(IO[str], TerminalStream(sys.stdout))
+                       if sys.stdout.isatty() else sys.stdout)
         except (OSError, ValueError) as exc:
             return _fail(str(exc))
     if args.output:

@@ -76,6 +76,9 @@ def add_run_arguments(p: argparse.ArgumentParser, default_config: Path = DEFAULT
                    help="publish UCMS health over DDS (loopback unless configured; docs/health.md)")
     p.add_argument("--domain", type=domain_id, default=None, metavar="ID",
                    help="DDS domain id (default: transport.domain_id, else 0)")
+    p.add_argument("--key", type=Path, default=None, metavar="FILE",
+                   help="the robot's private key (blackbox keygen --robot): sign every "
+                        "health sample, log reply and IBIT result it publishes over DDS")
     p.add_argument("--publish-diagnostics", action="store_true",
                    help="also publish the verdicts as diagnostic_msgs/DiagnosticArray on "
                         "/diagnostics: with --source ros1 registers with that ROS 1 master "
@@ -94,11 +97,19 @@ def options_from_args(args: argparse.Namespace) -> RunOptions:
         diagnoses=args.diagnoses, events=args.events, live=not args.quiet,
         faults=args.faults, seed=args.seed, ground_truth=args.ground_truth,
         record=args.record, force_record=args.force, dds=args.dds, dds_domain=args.domain,
-        publish_diagnostics=args.publish_diagnostics,
+        publish_diagnostics=args.publish_diagnostics, signing_key=args.key,
     )
 
 
 def run_command(args: argparse.Namespace) -> int:
+    if args.key is not None:
+        from blackbox.transport.auth import RequestAuthError, load_private_key
+
+        try:
+            load_private_key(args.key)
+        except RequestAuthError as exc:
+            print(f"error: --key: {exc}", file=sys.stderr)
+            return EXIT_USAGE
     from blackbox.output.metrics import MetricsServer, RobotMetrics
 
     options = options_from_args(args)

@@ -29,14 +29,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from blackbox.record.store import KIND_NAMES, KINDS, LogEntry, _loads, frame_entries
+from blackbox.record.store import (
+    KIND_NAMES,
+    KINDS,
+    LogEntry,
+    StorageError,
+    _loads,
+    frame_entries,
+)
 
 TABLES = {"entries": 6, "frames": 10, "channels": 4}
 """The tables salvage reads, with their number of columns (how an orphan page's rows are
 recognised)."""
 
 
-class NotALog(Exception):
+class NotALog(StorageError):
     """The file is not a SQLite database this reader can make sense of."""
 
 
@@ -185,7 +192,7 @@ def _between(by_id: Sequence[LogEntry], first: int, last: int) -> str:
 # ---- the file format ---------------------------------------------------------------------------
 
 
-class _Gone(Exception):
+class _Gone(StorageError):
     """A page needed for a value is missing."""
 
 
