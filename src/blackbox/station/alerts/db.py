@@ -41,7 +41,8 @@ CREATE TABLE IF NOT EXISTS alert_alerts (
     level INTEGER NOT NULL DEFAULT 0,
     acked_by TEXT,
     acked_at REAL,
-    resolved_at REAL
+    resolved_at REAL,
+    notified INTEGER NOT NULL DEFAULT 1
 );
 CREATE INDEX IF NOT EXISTS alert_alerts_key ON alert_alerts (key, state);
 CREATE INDEX IF NOT EXISTS alert_alerts_state ON alert_alerts (state, id);

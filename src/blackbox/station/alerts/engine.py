@@ -77,18 +77,22 @@ class Alert:
     acked_by: str | None
     acked_at: float | None
     resolved_at: float | None
+    notified: bool
+    """Its alert message went out (``False``: held back by the rate limit, counted in a
+    digest; its resolution is then not sent either)."""
 
     def as_json(self) -> dict[str, Any]:
         return {k: getattr(self, k) for k in Alert.__slots__}
 
 
 _ALERT_SELECT = ("SELECT id, rule, robot, entity, kind, status, text, event_id, first, last, "
-                 "count, state, fired_at, level, acked_by, acked_at, resolved_at "
+                 "count, state, fired_at, level, acked_by, acked_at, resolved_at, notified "
                  "FROM alert_alerts")
 
 
 def _alert(r: Sequence[Any]) -> Alert:
-    return Alert(*r)
+    return Alert(r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11],
+                 r[12], r[13], r[14], r[15], r[16], bool(r[17]))
 
 
 def _nobody(user: str, action: str, target: str, outcome: str, detail: str) -> None:
@@ -257,6 +261,9 @@ class AlertEngine:
         alert = self.alert(alert_id)
         assert alert is not None
         sent = self._notify(rule, alert, "alert", rule.send, now)
+        if not sent:
+            with self.db.transaction() as db:
+                db.execute("UPDATE alert_alerts SET notified = 0 WHERE id = ?", (alert_id,))
         self.audit("station", "alert.fire", self._target(alert), "ok" if sent else "suppressed",
                    f"rule={rule.name}")
 
@@ -338,7 +345,7 @@ class AlertEngine:
                        "('pending', 'firing', 'acknowledged')", (now, robot, entity, *kinds))
         for alert in map(_alert, rows):
             rule = self.rule(alert.rule)
-            if alert.state != "pending" and rule is not None:
+            if alert.state != "pending" and alert.notified and rule is not None:
                 told = list(rule.send)
                 for step in rule.escalate[: alert.level]:
                     told.extend(c for c in step.send if c not in told)
