@@ -23,10 +23,12 @@ from typing import Any, cast
 
 from cyclonedds.idl import _machinery as m
 
+from blackbox.errors import BlackBoxError
+
 Encoder = Callable[[Any], bytes]
 
 
-class Unsupported(Exception):
+class UnsupportedMachine(BlackBoxError):
     """A machine this compiler does not translate (the type keeps cyclonedds's encoder)."""
 
 
@@ -151,7 +153,7 @@ def _member(gen: _Gen, machine: Any, expr: str, depth: int) -> None:
     elif type(machine) is m.SequenceMachine and machine.maxlen is None:
         _sequence(gen, machine, expr, depth)
     else:
-        raise Unsupported(type(machine).__name__)
+        raise UnsupportedMachine(type(machine).__name__)
 
 
 def _sequence(gen: _Gen, machine: Any, expr: str, depth: int) -> None:
@@ -187,13 +189,13 @@ def _sequence(gen: _Gen, machine: Any, expr: str, depth: int) -> None:
 
 def compile_encoder(datatype: type, use_version_2: bool) -> Encoder:
     """An encoder producing exactly ``sample.serialize(use_version_2=...)`` for samples of
-    ``datatype`` (little-endian), or :class:`Unsupported`."""
+    ``datatype`` (little-endian), or :class:`UnsupportedMachine`."""
     idl = datatype.__idl__  # type: ignore[attr-defined]
     if idl.v1_machine is None:
         idl.populate()
     machine = idl.v2_machine if use_version_2 else idl.v1_machine
     if type(machine) is not m.StructMachine:
-        raise Unsupported(type(machine).__name__)
+        raise UnsupportedMachine(type(machine).__name__)
     head = idl.xcdrv2_head if use_version_2 else idl.xcdrv1_head
     gen = _Gen(align_max=4 if use_version_2 else 8)
     gen.emit(f"out = bytearray({bytes([0, 1 | head, 0, 0])!r})")
@@ -219,7 +221,7 @@ def encoder_for(datatype: type, use_version_2: bool) -> Encoder | None:
     if key not in _CACHE:
         try:
             _CACHE[key] = compile_encoder(datatype, use_version_2)
-        except Unsupported:
+        except UnsupportedMachine:
             _CACHE[key] = None
     return _CACHE[key]
 
