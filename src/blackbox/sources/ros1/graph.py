@@ -10,7 +10,7 @@ the robot never sees the black box in its graph.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -47,13 +47,22 @@ class GraphPoller:
 
     When the master is unreachable the last known topics are kept and the known nodes are
     still probed directly, so liveness keeps working through a master restart.
+
+    ``heard_from(node)``: the wall-clock (kernel) time of the latest message received from
+    one of ``node``'s publications, if any. A node that does not answer its API in time but
+    whose messages arrived after the probe was sent is running, only slow to answer (a
+    stopped or dead process sends nothing): it stays alive, and ``slow_api`` is reported.
     """
 
     def __init__(self, master_uri: str, report: Report, probe_timeout: float = 0.5,
                  master_timeout: float = 1.0, max_workers: int = 8,
-                 master_period: float = 1.0) -> None:
+                 master_period: float = 1.0,
+                 heard_from: Callable[[str], float | None] | None = None) -> None:
         self.master = MasterClient(master_uri, master_timeout)
         self._report = report
+        self._heard_from = heard_from
+        self._slow: set[str] = set()
+        """Nodes currently alive by their messages while their API does not answer in time."""
         self._probe_timeout = probe_timeout
         self._slaves = SlaveProbe()
         self._pool = ThreadPoolExecutor(max_workers=max_workers,
@@ -151,6 +160,7 @@ class GraphPoller:
     def _probe(self, states: Iterable[NodeState],
                extra: Mapping[str, tuple[str, ...]]) -> None:
         states = list(states)
+        sent = time.time()
         batched = {n: m for n, m in extra.items()
                    if n in self.nodes and self.nodes[n].unbatched_rounds == 0}
         for st in states:
@@ -176,7 +186,12 @@ class GraphPoller:
             result = results[st.name]
             if isinstance(result, int):
                 st.pid, st.alive, st.reason = result, True, ""
-            else:
+                if st.name in self._slow:
+                    self._slow.discard(st.name)
+                    self._report("api_answers", st.name, f"node {st.name} answers its "
+                                 f"slave API in time again (pid {st.pid})")
+            elif not self._running_by_messages(st, sent, result):
+                self._slow.discard(st.name)
                 st.alive = False
                 st.reason = (str(result) if isinstance(result, RosApiError)
                              else f"probe failed: {result!r}")
@@ -186,6 +201,23 @@ class GraphPoller:
             elif st.alive and not was_alive and old_reason != "not yet probed":
                 self._report("node_alive", st.name, f"node {st.name} answers again "
                              f"(pid {st.pid})")
+
+    def _running_by_messages(self, st: NodeState, sent: float,
+                             error: int | Exception) -> bool:
+        """A node whose probe failed but whose messages arrived after it was sent: running,
+        slow to answer (reported once until it answers in time again)."""
+        heard = self._heard_from(st.name) if self._heard_from is not None else None
+        if heard is None or heard <= sent:
+            return False
+        st.alive, st.reason = True, f"slow to answer its slave API ({error})"
+        if st.name not in self._slow:
+            self._slow.add(st.name)
+            self._report("slow_api", st.name,
+                         f"node {st.name} does not answer its slave API within "
+                         f"{self._probe_timeout:g} s ({error}), but its messages keep "
+                         "arriving: running, slow to answer; its liveness now rests on its "
+                         "messages")
+        return True
 
     def _probe_one(self, st: NodeState, first: int | RosApiError | None) -> int:
         """After a failed quick probe: look the node up again (it may have restarted)."""
