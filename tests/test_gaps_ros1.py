@@ -203,3 +203,37 @@ def test_the_black_box_stopped_for_three_seconds_raises_no_alarm(
             proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             proc.kill()
+
+
+def test_a_lost_connection_to_a_live_publisher_is_a_gap_until_it_reconnects(
+        robot: ThesisRobot) -> None:
+    """The black box's own TCPROS connections break while the publishers live on: the
+    reader process holding the camera and audio connections (``readers=1``, subscriptions
+    only) is killed. Each topic is a gap from the round before the loss until the first
+    message on its new connection, and nothing times out or reads a wrong rate."""
+    seen = Seen()
+    box = build(RunOptions(config=THESIS, live=False, extra_sinks=[seen],
+                           source=f"ros1://127.0.0.1:{robot.port}?readers=1&counters=0"))
+    source = box.pipeline.source
+    stop = threading.Event()
+    thread = threading.Thread(target=box.run, args=(stop,), daemon=True)
+    thread.start()
+    try:
+        start = settled(seen)
+        processes = source.reader_processes  # type: ignore[attr-defined]
+        assert processes is not None
+        for _ in range(2):
+            before = time.time()
+            (pid,) = processes.pids()
+            os.kill(pid, signal.SIGKILL)
+            assert wait_for(lambda b=before: {e.component for e in seen.gaps()
+                                              if e.time >= b
+                                              and "reconnecting" in e.message} >= set(COUNTED),
+                            15), "no reconnection gap closed on both topics"
+            assert wait_for(lambda p=pid: processes.pids() not in ([], [p]), 10)
+            back = time.time()
+            assert wait_for(lambda b=back: seen.ok(b + 2.0), 20), "not healthy after"
+        assert seen.alarms(start) == []
+    finally:
+        stop.set()
+        thread.join(timeout=5)

@@ -63,6 +63,8 @@ from blackbox.sources.ros1.tcpros import (
 log = logging.getLogger("blackbox.sources.ros1")
 
 MAX_READERS = 64
+BACKLOG_EPSILON = 1e-6
+"""Seconds past the last arrival of a gap's first read at which the gap ends."""
 
 
 def master_uri_from_spec(spec: str, environ: dict[str, str] | os._Environ[str] = os.environ
@@ -352,8 +354,16 @@ class Ros1Source:
                 if msg.time < floor:
                     msg.time = floor
             if self._waiting:
+                # The first read on a new connection may hold a backlog (the reader started
+                # late) under one kernel stamp: it belongs to the gap, which ends just
+                # after it, so the backlog never reads as a burst of zero periods.
+                first: dict[tuple[str, str], float] = {}
                 for msg in batch:
-                    self._resume((msg.topic, msg.publisher), msg.time)
+                    key = (msg.topic, msg.publisher)
+                    if key in self._waiting:
+                        first[key] = max(first.get(key, msg.time), msg.time)
+                for key, last in first.items():
+                    self._resume(key, last + BACKLOG_EPSILON)
             self._queue.extend(batch)
 
     def _resume(self, key: tuple[str, str], end: float) -> None:
