@@ -35,7 +35,7 @@ from typing import Any, Protocol
 import psutil
 
 from blackbox.app import RunOptions, build
-from blackbox.events import Event, Interest, TopicSchema
+from blackbox.events import Event, Interest, MessageArrival, TopicSchema
 from blackbox.model import Diagnosis, Observation
 from blackbox.pipeline import RunStats
 from blackbox.registry import Registry
@@ -102,7 +102,12 @@ class _ResourceMeter:
 
 class RecordingSource:
     """Passes a source's events through and keeps them, for replaying the same real run
-    through other observer settings (the filter experiments)."""
+    through other observer settings (the filter experiments).
+
+    A kept message keeps its time, size and value but not its serialized bytes: a ROS 2
+    arrival holds its payload for snapshots, and five minutes of a 15 Hz camera would keep
+    4 GB alive. The value is taken at once, so only topics the pipeline decodes anyway are
+    decoded."""
 
     def __init__(self, inner: Source) -> None:
         self.inner = inner
@@ -118,7 +123,8 @@ class RecordingSource:
 
     def poll(self, until: float) -> list[Event]:
         events = self.inner.poll(until)
-        self.events.extend(events)
+        self.events.extend(_without_payload(e) if type(e) is MessageArrival else e
+                           for e in events)
         return events
 
     def schema(self, topic: str) -> TopicSchema | None:
@@ -302,6 +308,11 @@ class Ros2ThesisHarness:
         finally:
             stop_process_group(proc)
             out.close()
+
+
+def _without_payload(arrival: MessageArrival) -> MessageArrival:
+    return MessageArrival(arrival.time, arrival.topic, arrival.publisher, arrival.size,
+                          value=arrival.value)
 
 
 def _drain(stream: Any) -> None:
