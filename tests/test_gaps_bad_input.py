@@ -70,7 +70,7 @@ def test_a_publisher_sending_in_bursts_reads_as_its_mean_rate_and_raises_no_alar
         master: AwkwardRobot, tmp_path: Path) -> None:
     """100 messages at once every second: an ``hz`` window of at least one whole burst
     cycle (100 periods) reads the mean period, 0.01 s, steadily; no time-out, the node
-    alive, and the black box neither behind nor in a gap."""
+    alive, and the black box neither behind nor in a gap of the topic."""
     config = write_config(tmp_path / "burst.yaml", """\
   - {type: activated, node: /burst_node, start_up_time: 1.0}
   - type: hz
@@ -93,7 +93,11 @@ def test_a_publisher_sending_in_bursts_reads_as_its_mean_rate_and_raises_no_alar
         periods = [o.values["period"] for o in seen.observations
                    if o.time >= settled and o.observer == "hz"]
         assert periods and all(0.005 <= float(p) <= 0.015 for p in periods), periods  # type: ignore[arg-type]
-        assert not [e for e in seen.events if e.kind in ("ros1_behind", "not_measured")]
+        # bursts are neither a gap of the topic nor more than the black box can take (a gap
+        # of everything, the black box itself starved on a busy machine, may come)
+        odd = [e for e in seen.events if e.kind == "ros1_behind"
+               or (e.kind == "not_measured" and e.component == "/burst")]
+        assert odd == [], [e.message for e in odd]
 
 
 def test_a_topic_whose_only_publisher_keeps_restarting_is_a_gap_at_each_return(

@@ -14,6 +14,8 @@ from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
+import psutil
+
 from blackbox.events import GraphSnapshot, NodeInfo, TopicInfo
 from blackbox.sources.ros1.callerid import is_black_box
 from blackbox.sources.ros1.master import (
@@ -24,7 +26,15 @@ from blackbox.sources.ros1.master import (
     host_of,
     probe_pid,
 )
+from blackbox.sources.ros1.resources import is_local_host
 from blackbox.sources.ros1.slave_probe import NodeReply, SlaveProbe
+
+HUNG_LIMIT = 5.0
+"""Seconds a local node whose process runs but whose API does not answer (and whose
+messages do not arrive) counts as running, slowed by a busy machine; past that it is hung."""
+
+_NOT_RUNNING = frozenset({psutil.STATUS_STOPPED, psutil.STATUS_TRACING_STOP,
+                          psutil.STATUS_ZOMBIE, psutil.STATUS_DEAD})
 
 
 @dataclass(slots=True)
@@ -40,6 +50,8 @@ class NodeState:
     unbatched_rounds: int = 0
     """Rounds left without extra calls: after ``system.multicall`` failed as a whole the
     node is asked for its pid alone for a while (``GraphPoller.batch_pause``)."""
+    unanswered_since: float | None = None
+    """Monotonic time of the first of the probes in a row that got no answer in time."""
 
 
 class GraphPoller:
@@ -48,10 +60,17 @@ class GraphPoller:
     When the master is unreachable the last known topics are kept and the known nodes are
     still probed directly, so liveness keeps working through a master restart.
 
-    ``heard_from(node)``: the wall-clock (kernel) time of the latest message received from
-    one of ``node``'s publications, if any. A node that does not answer its API in time but
-    whose messages arrived after the probe was sent is running, only slow to answer (a
-    stopped or dead process sends nothing): it stays alive, and ``slow_api`` is reported.
+    A node whose probe got no answer in time (a refused connection is death) is still
+    running, only slow to answer, when
+
+    * messages of its publications arrived after the probe was sent (``heard_from(node)``:
+      the wall-clock kernel time of its latest message; a stopped or dead process sends
+      nothing), or
+    * its process runs on this machine and is not stopped, for at most ``HUNG_LIMIT`` s of
+      unanswered probes (a machine so busy that the node's XML-RPC thread gets no CPU for
+      half a second is not a dead node; a process that stays silent longer is hung).
+
+    It then stays alive, and ``slow_api`` is reported once.
     """
 
     def __init__(self, master_uri: str, report: Report, probe_timeout: float = 0.5,
@@ -186,6 +205,7 @@ class GraphPoller:
             result = results[st.name]
             if isinstance(result, int):
                 st.pid, st.alive, st.reason = result, True, ""
+                st.unanswered_since = None
                 if st.name in self._slow:
                     self._slow.discard(st.name)
                     self._report("api_answers", st.name, f"node {st.name} answers its "
@@ -204,20 +224,41 @@ class GraphPoller:
 
     def _running_by_messages(self, st: NodeState, sent: float,
                              error: int | Exception) -> bool:
-        """A node whose probe failed but whose messages arrived after it was sent: running,
+        """A node whose probe failed but that is running all the same (see the class):
         slow to answer (reported once until it answers in time again)."""
-        heard = self._heard_from(st.name) if self._heard_from is not None else None
-        if heard is None or heard <= sent:
+        why = self._running_anyway(st, sent, error)
+        if why is None:
             return False
-        st.alive, st.reason = True, f"slow to answer its slave API ({error})"
+        st.alive, st.reason = True, f"slow to answer its slave API ({error}); {why}"
         if st.name not in self._slow:
             self._slow.add(st.name)
             self._report("slow_api", st.name,
                          f"node {st.name} does not answer its slave API within "
-                         f"{self._probe_timeout:g} s ({error}), but its messages keep "
-                         "arriving: running, slow to answer; its liveness now rests on its "
-                         "messages")
+                         f"{self._probe_timeout:g} s ({error}), but {why}: running, "
+                         "slow to answer")
         return True
+
+    def _running_anyway(self, st: NodeState, sent: float, error: int | Exception
+                        ) -> str | None:
+        if "timed out" not in str(error):
+            st.unanswered_since = None
+            return None
+        now = time.monotonic()
+        if st.unanswered_since is None:
+            st.unanswered_since = now
+        heard = self._heard_from(st.name) if self._heard_from is not None else None
+        if heard is not None and heard > sent:
+            return "its messages keep arriving"
+        if (not st.alive or st.pid is None or not st.uri or now - st.unanswered_since >
+                HUNG_LIMIT or not is_local_host(host_of(st.uri))):
+            return None
+        try:
+            status = psutil.Process(st.pid).status()
+        except (psutil.NoSuchProcess, psutil.AccessDenied):
+            return None
+        if status in _NOT_RUNNING:
+            return None
+        return f"its process {st.pid} runs on this machine ({status})"
 
     def _probe_one(self, st: NodeState, first: int | RosApiError | None) -> int:
         """After a failed quick probe: look the node up again (it may have restarted)."""
