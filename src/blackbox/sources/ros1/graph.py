@@ -30,8 +30,11 @@ from blackbox.sources.ros1.resources import is_local_host
 from blackbox.sources.ros1.slave_probe import NodeReply, SlaveProbe
 
 HUNG_LIMIT = 5.0
-"""Seconds a local node whose process runs but whose API does not answer (and whose
-messages do not arrive) counts as running, slowed by a busy machine; past that it is hung."""
+"""Seconds a node whose API does not answer the quick probe counts as running on the
+strength of a late answer or (a local node) of its running process; past that it is hung."""
+
+LATE_TIMEOUT = 5.0
+"""Seconds a second, patient probe waits for a node that did not answer the quick one."""
 
 _NOT_RUNNING = frozenset({psutil.STATUS_STOPPED, psutil.STATUS_TRACING_STOP,
                           psutil.STATUS_ZOMBIE, psutil.STATUS_DEAD})
@@ -52,6 +55,10 @@ class NodeState:
     node is asked for its pid alone for a while (``GraphPoller.batch_pause``)."""
     unanswered_since: float | None = None
     """Monotonic time of the first of the probes in a row that got no answer in time."""
+    late_answer: float | None = None
+    """Monotonic time of the latest answer to a patient probe (``LATE_TIMEOUT``)."""
+    late_probe: bool = False
+    """A patient probe of this node is under way."""
 
 
 class GraphPoller:
@@ -66,6 +73,8 @@ class GraphPoller:
     * messages of its publications arrived after the probe was sent (``heard_from(node)``:
       the wall-clock kernel time of its latest message; a stopped or dead process sends
       nothing), or
+    * it answered a patient probe (sent beside the rounds, waiting ``LATE_TIMEOUT`` s)
+      within the last ``HUNG_LIMIT`` s: it answers, only late, or
     * its process runs on this machine and is not stopped, for at most ``HUNG_LIMIT`` s of
       unanswered probes (a machine so busy that the node's XML-RPC thread gets no CPU for
       half a second is not a dead node; a process that stays silent longer is hung).
@@ -84,6 +93,8 @@ class GraphPoller:
         """Nodes currently alive by their messages while their API does not answer in time."""
         self._probe_timeout = probe_timeout
         self._slaves = SlaveProbe()
+        self._late_pool = ThreadPoolExecutor(max_workers=2,
+                                             thread_name_prefix="ros1-late-probe")
         self._pool = ThreadPoolExecutor(max_workers=max_workers,
                                         thread_name_prefix="ros1-probe")
         self.nodes: dict[str, NodeState] = {}
@@ -100,6 +111,7 @@ class GraphPoller:
 
     def close(self) -> None:
         self._pool.shutdown(wait=False, cancel_futures=True)
+        self._late_pool.shutdown(wait=False, cancel_futures=True)
         self._slaves.close()
 
     def uri_of(self, node: str) -> str | None:
@@ -246,19 +258,54 @@ class GraphPoller:
         now = time.monotonic()
         if st.unanswered_since is None:
             st.unanswered_since = now
+        self._probe_late(st)
+        status = self._local_status(st)
+        if status in _NOT_RUNNING:  # stopped or gone: nothing else makes it run
+            return None
         heard = self._heard_from(st.name) if self._heard_from is not None else None
         if heard is not None and heard > sent:
             return "its messages keep arriving"
-        if (not st.alive or st.pid is None or not st.uri or now - st.unanswered_since >
-                HUNG_LIMIT or not is_local_host(host_of(st.uri))):
+        if st.late_answer is not None and now - st.late_answer <= HUNG_LIMIT:
+            return f"it answered {now - st.late_answer:.1f} s ago, late"
+        if status is not None and st.alive and now - st.unanswered_since <= HUNG_LIMIT:
+            return f"its process {st.pid} runs on this machine ({status})"
+        return None
+
+    @staticmethod
+    def _local_status(st: NodeState) -> str | None:
+        """The state of a local node's process (``psutil`` status; ``dead`` when it is
+        gone), ``None`` for a remote node or one whose pid is not known."""
+        if st.pid is None or not st.uri or not is_local_host(host_of(st.uri)):
             return None
         try:
-            status = psutil.Process(st.pid).status()
-        except (psutil.NoSuchProcess, psutil.AccessDenied):
+            return str(psutil.Process(st.pid).status())
+        except psutil.NoSuchProcess:
+            return str(psutil.STATUS_DEAD)
+        except psutil.AccessDenied:
             return None
-        if status in _NOT_RUNNING:
-            return None
-        return f"its process {st.pid} runs on this machine ({status})"
+
+    def _probe_late(self, st: NodeState) -> None:
+        """Ask ``st`` once more, patiently, beside the rounds (one such probe at a time)."""
+        if st.late_probe or not st.uri:
+            return
+        st.late_probe = True
+        uri = st.uri
+
+        def probe() -> None:
+            try:
+                pid = probe_pid(uri, LATE_TIMEOUT)
+                if st.uri == uri:
+                    st.late_answer = time.monotonic()
+                    st.pid = st.pid if st.pid is not None else pid
+            except Exception:  # no answer: nothing learnt
+                pass
+            finally:
+                st.late_probe = False
+
+        try:
+            self._late_pool.submit(probe)
+        except RuntimeError:  # shut down
+            st.late_probe = False
 
     def _probe_one(self, st: NodeState, first: int | RosApiError | None) -> int:
         """After a failed quick probe: look the node up again (it may have restarted)."""
