@@ -248,6 +248,9 @@ class Ros1Source:
         self._limits: dict[tuple[str, str], float] = {}
         """Open gaps with a limit other than ``gap_limit`` (reconnections)."""
         self._connected: set[StreamKey] = set()
+        self._counted_until: dict[tuple[str, str], float] = {}
+        """(topic, publisher) -> the time of the last counted arrival queued: the next
+        round's arrivals continue from there (see :meth:`_push_counted`)."""
         self._uris: dict[str, str] = {}
         self._last_round = 0.0
 
@@ -463,7 +466,10 @@ class Ros1Source:
                     # nobody measured live; replayed, they would overlap the next round's
                     self._open_gap(key, f"a late round of the publisher's counters "
                                    f"({span:.3g} s) for {key[1]}", start=now - span)
+                    self._counted_until.pop(key, None)
                     continue
+                if not r.arrivals:  # a silent round: the next counts start afresh
+                    self._counted_until.pop(key, None)
                 self._push_counted(now, r.arrivals, key if switched else None)
             else:
                 self._check_behind(now, r)
@@ -571,9 +577,25 @@ class Ros1Source:
 
         ``switched``: the (topic, publisher) whose subscription was just released for these
         counts; the switch is a gap from now to the first counted arrival (the last
-        subscribed messages and the first counts cover the same round)."""
+        subscribed messages and the first counts cover the same round).
+
+        A round's counts cover the time since the previous round's; they continue where the
+        previous round's arrivals ended when that is not yet handed out and at most one
+        graph period ahead of now. Queued at "now" alone, a round that waited longer for
+        its replies (a stopped node's probe timing out, a busy machine) and a quick one
+        after it laid their arrivals over each other: a doubled rate for a moment, the
+        false alarms of the real campaign on the other counted topic during a stall."""
         with self._lock:
             shift = self._wall() - round_start
+            key = (arrivals[0].topic, arrivals[0].publisher) if arrivals else None
+            if key is not None and switched is None:
+                last = self._counted_until.get(key)
+                start = round_start + shift  # where this round's interval begins: now
+                if (last is not None and last >= self._floor
+                        and last <= start + self._graph_period):
+                    shift += last - start
+            if key is not None:
+                self._counted_until[key] = arrivals[-1].time + shift
             if switched is not None:
                 now = self._wall()
                 self._resume(switched, now)  # a gap still open for the old path
