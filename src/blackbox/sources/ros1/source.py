@@ -579,11 +579,12 @@ class Ros1Source:
         counts; the switch is a gap from now to the first counted arrival (the last
         subscribed messages and the first counts cover the same round).
 
-        A round's counts cover the time since the previous round's; they continue where the
-        previous round's arrivals ended when that is not yet handed out and at most one
-        graph period ahead of now. Queued at "now" alone, a round that waited longer for
-        its replies (a stopped node's probe timing out, a busy machine) and a quick one
-        after it laid their arrivals over each other: a doubled rate for a moment, the
+        A round's counts cover the time since the previous round's, so they continue where
+        the previous round's arrivals ended (or at the last time ``poll`` handed out, if
+        that is later), unless that is more than two graph periods and a probe time-out
+        ahead of now. Queued at "now", a round that waited longer for its replies (a
+        stopped node's probe timing out, a busy machine) left a hole and a quick one after
+        it laid its arrivals over the previous ones: a doubled rate for a moment, the
         false alarms of the real campaign on the other counted topic during a stall."""
         with self._lock:
             shift = self._wall() - round_start
@@ -591,9 +592,9 @@ class Ros1Source:
             if key is not None and switched is None:
                 last = self._counted_until.get(key)
                 start = round_start + shift  # where this round's interval begins: now
-                if (last is not None and last >= self._floor
-                        and last <= start + self._graph_period):
-                    shift += last - start
+                ahead = 2 * self._graph_period + self.settings.probe_timeout
+                if last is not None and last <= start + ahead:
+                    shift += max(last, self._floor) - start
             if key is not None:
                 self._counted_until[key] = arrivals[-1].time + shift
             if switched is not None:
