@@ -50,6 +50,7 @@ from fault_injection import (
 )
 
 KINDS = ("kill", "stall", "rate", "offset", "scale")
+SET_ATTEMPTS = 3
 
 
 class Injector:
@@ -72,13 +73,13 @@ class Injector:
         elif kind == "rate":
             node = TOPICS[_check(component, TOPICS)]
             hz = params["hz"] if "hz" in params else DEFAULT_RATES[component] * params["factor"]
-            self.params.set(node, rate=float(hz))
+            self._set(node, rate=float(hz))
         elif kind in ("offset", "scale"):
             if component != "/signal":
                 raise ValueError(f"{kind} acts on /signal, not {component}")
             node = TOPICS[component]
             key = "value" if kind == "offset" else "factor"
-            self.params.set(node, **{kind: float(params[key])})
+            self._set(node, **{kind: float(params[key])})
         else:
             raise ValueError(f"unknown fault kind {kind!r}; expected one of {', '.join(KINDS)}")
         fault = ActiveFault(kind, component, node, time.time(), dict(params))
@@ -92,15 +93,27 @@ class Injector:
         elif fault.kind == "stall":
             self.robot.kill(fault.node, signal.SIGCONT)
         elif fault.kind == "rate":
-            self.params.set(fault.node, rate=DEFAULT_RATES[fault.component])
+            self._set(fault.node, rate=DEFAULT_RATES[fault.component])
         elif fault.kind == "offset":
-            self.params.set(fault.node, offset=0.0)
+            self._set(fault.node, offset=0.0)
         elif fault.kind == "scale":
-            self.params.set(fault.node, scale=1.0)
+            self._set(fault.node, scale=1.0)
         rec = fault.record(end)
         self.records.append(rec)
         self._write(rec)
         return rec
+
+    def _set(self, node: str, **values: float) -> None:
+        """Set parameters, asking again when a busy machine makes the service call time out
+        (a lost call must not end the campaign and take the robot down with it)."""
+        for attempt in range(SET_ATTEMPTS):
+            try:
+                self.params.set(node, **values)
+                return
+            except TimeoutError as exc:
+                print(f"warning: {exc} (attempt {attempt + 1} of {SET_ATTEMPTS})",
+                      file=sys.stderr, flush=True)
+        raise TimeoutError(f"{node} did not take {values} in {SET_ATTEMPTS} attempts")
 
     def _write(self, rec: dict[str, Any]) -> None:
         """Append one ground-truth line now, so a crash loses nothing already injected."""
