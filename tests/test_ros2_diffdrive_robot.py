@@ -14,6 +14,7 @@ from blackbox.events import Interest
 from ros2_support import Watched, fresh_domain, needs_rclpy, ros2_robot
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "ros2_robot"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "robots"))
 import diffdrive_robot
 from diffdrive_motion import DiffdriveMotion
 
