@@ -45,7 +45,7 @@ sys.path.insert(0, str(HERE.parent / "robots"))  # the motion model both robots 
 sys.path.insert(0, str(HERE))
 
 from diffdrive_motion import DiffdriveMotion  # noqa: E402
-from robot import ROS_PYTHON, ThesisRobot  # noqa: E402
+from robot import ROS_PYTHON, ThesisRobot, free_port  # noqa: E402
 
 ROLES = {"/teleop": ("teleop", 20.0), "/base_driver": ("base_driver", 50.0),
          "/odometry": ("odometry", 20.0), "/imu_driver": ("imu_driver", 100.0),
@@ -67,6 +67,8 @@ SIGNALS = (("/cmd_vel", "linear.x"), ("/cmd_vel", "angular.z"),
 """The numeric fields that measure the shared motion."""
 
 YAW_OFFSET_PARAM = "/imu_driver/yaw_offset"
+
+__all__ = ["ROLES", "SIGNALS", "TOPICS", "DiffdriveRobot1", "free_port", "run_node"]
 
 
 def run_node(role: str, epoch: float, seed: int) -> None:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib.util
 import json
 import random
 import subprocess
@@ -29,13 +30,28 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import ModuleType
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent / "robots"))  # the motion model both robots share
 
 from diffdrive_motion import DiffdriveMotion  # noqa: E402
-from robot import ros2_env  # noqa: E402
+
+
+def _ros2_robot_module() -> ModuleType:
+    """This directory's ``robot.py`` under the name ``ros2_thesis_robot`` (as tests/ros2_support
+    loads it): in a test process ``robot`` is the ROS 1 robot's module."""
+    name = "ros2_thesis_robot"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, HERE / "robot.py")
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+ros2_env = _ros2_robot_module().ros2_env
 
 ROLES = {"/teleop": ("teleop", 20.0), "/base_driver": ("base_driver", 50.0),
          "/odometry": ("odometry", 20.0), "/imu_driver": ("imu_driver", 100.0),
