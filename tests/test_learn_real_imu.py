@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from blackbox.app import RunOptions
+from blackbox.events import Interest
 from blackbox.learn import learn_from, render_config, render_model
 from blackbox.model import Diagnosis, Observation
 from blackbox.observe.build import load_config
@@ -27,7 +28,7 @@ from blackbox.sources import open_source
 from conftest import black_box_running, wait_for
 from diffdrive_support import motion_model, ros1_diffdrive, ros2_diffdrive
 from isolation import fresh_domain
-from ros2_support import needs_rclpy, ros2_robot
+from ros2_support import Watched, needs_rclpy, ros2_robot
 
 pytestmark = pytest.mark.slow
 
@@ -168,7 +169,17 @@ def ros2_robot_running(tmp_path: Path) -> Iterator[ros2_diffdrive.DiffdriveRobot
     robot = ros2_diffdrive.DiffdriveRobot2(fresh_domain(), seed=SEED, log_dir=tmp_path / "logs",
                                            epoch=time.time() - LEAD)
     try:
-        yield robot.start()
+        robot.start()
+        # Learning watches a running robot: wait until every node publishes (rclpy nodes
+        # take seconds to start here), or discovery sees only part of the graph.
+        topics = frozenset(ros2_diffdrive.TOPICS)
+        watched = Watched(robot.domain_id, Interest(topics))
+        try:
+            assert watched.until(lambda: all(watched.arrivals(t) for t in topics), 30), \
+                "every topic of the ROS 2 robot publishing within 30 s"
+        finally:
+            watched.close()
+        yield robot
     finally:
         robot.stop()
 

@@ -146,7 +146,7 @@ def run_node(role: str, epoch: float, seed: int) -> None:
         delay = next_t - time.time()
         if delay > 0:
             time.sleep(delay)
-        elif -delay > 1.0:  # descheduled for long: do not burst to catch up
+        elif -delay > 2.0 / rate:  # descheduled: skip the missed cycles, as rospy.Rate does
             next_t = time.time()
 
 
