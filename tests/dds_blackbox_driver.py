@@ -3,9 +3,9 @@ through the real recorder when ``--store`` is given), driven line by line on std
 
 Commands: ``ok`` (one round of healthy observations of the thesis robot), ``fault`` (the
 camera's rate fails and the diagnosis names ``/usb_cam``), ``burst N`` (N faults and N
-recoveries at once), ``unpublished N`` (as many, lost on the network), ``quit``. Each command is
-answered with ``done <command>`` on stdout once written. Observation times are wall-clock
-so that log requests by time range work.
+recoveries at once), ``unpublished N`` (as many, lost on the network), ``quit``. Each
+command is answered with ``done <command>`` on stdout once written. Observation times are
+wall-clock so that log requests by time range work. ``--key`` signs what it publishes.
 """
 
 from __future__ import annotations
@@ -49,6 +49,9 @@ def main() -> int:
     p.add_argument("--store", default=None)
     p.add_argument("--allow", action="append", default=[], metavar="PUBFILE=RIGHTS",
                    help="trust this station key for RIGHTS (comma separated: logs,ibit)")
+    p.add_argument("--key", default=None,
+                   help="the robot's private key: sign every sample and reply; accepted "
+                        "request nonces are kept in KEY.nonces across restarts")
     args = p.parse_args()
     stations = []
     for item in args.allow:
@@ -72,7 +75,8 @@ def main() -> int:
 
     sink = DdsHealthSink(args.robot, domain_id=args.domain, partition=args.partition,
                          log_store_path=args.store, on_ibit=lambda: healthy(time.time()),
-                         access=AccessPolicy.of(stations), ledger=ledger)
+                         access=AccessPolicy.of(stations), ledger=ledger,
+                         signing_key_file=args.key)
     sinks = [s for s in (sink, recorder) if s is not None]  # the publisher assigns ids first
     print("ready", flush=True)
     for line in sys.stdin:

@@ -136,9 +136,12 @@ class DriverBlackBox:
     ``allow``: public key file of a station -> the rights the robot grants it."""
 
     def __init__(self, robot: str, domain: int, store: Path | None = None,
-                 partition: str = "blackbox", allow: Mapping[Path, str] | None = None) -> None:
+                 partition: str = "blackbox", allow: Mapping[Path, str] | None = None,
+                 key: Path | None = None) -> None:
         cmd = [sys.executable, str(DRIVER), "--robot", robot, "--domain", str(domain),
                "--partition", partition]
+        if key is not None:
+            cmd += ["--key", str(key)]
         if store is not None:
             cmd += ["--store", str(store)]
         for public_key, rights in (allow or {}).items():
@@ -173,8 +176,9 @@ class ScriptedBlackBox(DriverBlackBox):
     """A :class:`DriverBlackBox` that answers one station's log requests and IBIT."""
 
     def __init__(self, robot: str, domain: int, store: Path | None = None,
-                 trust: Path | None = None) -> None:
+                 trust: Path | None = None, key: Path | None = None) -> None:
         """``trust``: the public key file of a station this robot answers (logs, ibit);
-        default: the tests' station key (:func:`station_key_for_tests`)."""
+        default: the tests' station key (:func:`station_key_for_tests`). ``key``: the
+        robot's own key (it then signs what it publishes)."""
         trust = trust or station_key_for_tests().with_suffix(".key.pub")
-        super().__init__(robot, domain, store, allow={trust: "logs,ibit"})
+        super().__init__(robot, domain, store, allow={trust: "logs,ibit"}, key=key)

@@ -139,15 +139,15 @@ def test_thesis_configuration_summary() -> None:
     assert sum(line.startswith("  ") for line in lines) == 10
 
 
-def test_template_summary_shows_the_warnings() -> None:
+def test_a_template_that_observes_nothing_fails_as_run_would_and_shows_the_warnings() -> None:
     path = TUG / "observer_template_velocity.yaml"
     result = check_config(path)
-    assert result.returncode == 0, result.stderr
-    assert result.stdout.splitlines() == [
-        f"{path}: tug_observers format, robot 'robot', 0 observers",
+    assert result.returncode == 2, result.stdout
+    assert result.stderr.splitlines() == [
         f"warning: {path}:35: at setup[0].correlations.source_A: template entry has no topic; "
         "it observes nothing until filled in",
         f"warning: {path}:174: at setup[0].correlations.source_B: template entry has no topic; "
         "it observes nothing until filled in",
         f"warning: {path}:1: no observers; nothing will be observed",
+        f"error: {path}:0:0: the configuration observes nothing",
     ]

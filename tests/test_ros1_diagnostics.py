@@ -28,7 +28,7 @@ from rosbags.typesys import Stores, get_typestore
 from blackbox.app import RunOptions
 from blackbox.output.diagnostics import DiagnosticStatusEntry
 from blackbox.output.ros1_diagnostics import Ros1DiagnosticsSink
-from blackbox.sources.ros1.tcpros import decode_header, encode_header
+from blackbox.sources.ros1.wire import decode_header, encode_header
 from conftest import black_box_running, wait_for
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros1_robot"))

@@ -12,17 +12,11 @@ import pytest
 
 from blackbox.config.node import ConfigError
 from blackbox.events import MessageArrival, NodeInfo
+from blackbox.sources.ros1.decoder import MessageDecoder, ros2_style_type
 from blackbox.sources.ros1.resources import ResourceSampler
 from blackbox.sources.ros1.source import master_uri_from_spec
-from blackbox.sources.ros1.tcpros import (
-    HeaderError,
-    MessageDecoder,
-    StreamKey,
-    TcprosReader,
-    decode_header,
-    encode_header,
-    ros2_style_type,
-)
+from blackbox.sources.ros1.stream_reader import StreamKey, TcprosReader
+from blackbox.sources.ros1.wire import HeaderError, decode_header, encode_header
 from conftest import wait_for
 
 FLOAT64_DEF = "float64 data\n"
@@ -99,10 +93,12 @@ class _Collected:
         self.done.set()
 
 
-def _reader(decoder: MessageDecoder | None = None) -> tuple[TcprosReader, _Collected]:
+def _reader(path: str, decoder: MessageDecoder | None = None
+            ) -> tuple[TcprosReader, _Collected]:
     got = _Collected()
     reader = TcprosReader(got.on_message, got.on_closed, got.first.append,
                           decoder or MessageDecoder())
+    assert reader.native == (path == "native")
     reader.start()
     return reader, got
 
@@ -119,10 +115,11 @@ def _tcp_pair() -> tuple[socket.socket, socket.socket]:
 
 
 @pytest.mark.parametrize("pair", [socket.socketpair, _tcp_pair], ids=["unix", "tcp"])
-def test_reader_splits_a_byte_stream_into_messages_however_it_arrives(pair: Any) -> None:
+def test_reader_splits_a_byte_stream_into_messages_however_it_arrives(
+        pair: Any, receive_path: str) -> None:
     """Length prefixes and bodies split across writes, an empty message, one large body
     (over TCP the kernel drops its bytes uncopied and wakes the reader when it is whole)."""
-    reader, got = _reader()
+    reader, got = _reader(receive_path)
     ours, theirs = pair()
     payloads = [b"abc", b"", b"x" * 700_000, b"\x01\x02\x03\x04\x05"]
     stream = _frames(payloads)
@@ -145,10 +142,10 @@ def test_reader_splits_a_byte_stream_into_messages_however_it_arrives(pair: Any)
     assert got.closed == [(key, "publisher closed the connection", 4)]
 
 
-def test_decoded_topics_keep_their_bytes_and_decode_lazily() -> None:
+def test_decoded_topics_keep_their_bytes_and_decode_lazily(receive_path: str) -> None:
     decoder = MessageDecoder()
     name = decoder.register("std_msgs/Float64", FLOAT64_DEF)
-    reader, got = _reader(decoder)
+    reader, got = _reader(receive_path, decoder)
     ours, theirs = socket.socketpair()
     try:
         reader.add(StreamKey("/v", "/pub"), ours, max_bytes=64, decode_as=name)
@@ -163,8 +160,9 @@ def test_decoded_topics_keep_their_bytes_and_decode_lazily() -> None:
     assert bad.value is None  # undecodable bytes give no value instead of an exception
 
 
-def test_an_absurd_length_prefix_closes_only_that_connection_with_a_reason() -> None:
-    reader, got = _reader()
+def test_an_absurd_length_prefix_closes_only_that_connection_with_a_reason(
+        receive_path: str) -> None:
+    reader, got = _reader(receive_path)
     ours, theirs = socket.socketpair()
     try:
         reader.add(StreamKey("/t", "/evil"), ours, max_bytes=1000, decode_as=None)
@@ -176,7 +174,8 @@ def test_an_absurd_length_prefix_closes_only_that_connection_with_a_reason() -> 
     assert [m.size for m in got.messages] == [2]
     (key, reason, count), = got.closed
     assert key == StreamKey("/t", "/evil")
-    assert "4294967280 bytes exceeds the cap of 1000 bytes" in reason
+    assert reason == ("message length prefix of 4294967280 bytes exceeds the cap of 1000 "
+                      "bytes for /t (garbage or oversized message)")
     assert count == 1
 
 
@@ -226,7 +225,7 @@ def test_caller_ids_are_unique_per_source_and_ros_names() -> None:
 
 
 def test_arrival_time_is_when_the_bytes_reached_the_socket_not_when_they_were_read() -> None:
-    from blackbox.sources.ros1.tcpros import _ANCILLARY, SO_TIMESTAMPNS, kernel_time
+    from blackbox.sources.ros1.stream_reader import _ANCILLARY, SO_TIMESTAMPNS, kernel_time
 
     if SO_TIMESTAMPNS is None:
         pytest.skip("no SO_TIMESTAMPNS on this platform")
@@ -249,7 +248,7 @@ def test_arrival_time_is_when_the_bytes_reached_the_socket_not_when_they_were_re
             s.close()
 
 
-def test_the_arrivals_of_one_read_are_handed_on_together() -> None:
+def test_the_arrivals_of_one_read_are_handed_on_together(receive_path: str) -> None:
     batches: list[list[MessageArrival]] = []
     got = _Collected()
     reader = TcprosReader(got.on_message, got.on_closed, got.first.append, MessageDecoder(),
@@ -267,7 +266,8 @@ def test_the_arrivals_of_one_read_are_handed_on_together() -> None:
         a.close()
 
 
-def test_compact_reader_hands_on_one_batch_per_receive_and_counts_every_message() -> None:
+def test_compact_reader_hands_on_one_batch_per_receive_and_counts_every_message(
+        receive_path: str) -> None:
     from blackbox.events import ArrivalBatch
 
     handed: list[list[Any]] = []

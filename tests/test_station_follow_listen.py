@@ -19,10 +19,11 @@ from station_support import ScriptedBlackBox, dds_env
 pytestmark = pytest.mark.dds
 
 
-def _read_all(fd: int, proc: subprocess.Popen[bytes], timeout: float) -> bytes:
-    out = b""
+def _read_all(fd: int, proc: subprocess.Popen[bytes], timeout: float,
+              until: bytes | None = None, out: bytes = b"") -> bytes:
+    """What the terminal shows until the process ends (or ``until`` appears)."""
     deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
+    while time.monotonic() < deadline and (until is None or until not in out):
         ready, _, _ = select.select([fd], [], [], 0.2)
         if ready:
             try:
@@ -50,9 +51,10 @@ def test_listen_on_a_terminal_redraws_one_table_in_place(tmp_path: Path) -> None
             stdin=follower, stdout=follower, stderr=follower, env=env)
         os.close(follower)
         try:
-            time.sleep(3)
+            shown = _read_all(leader, proc, 8, until=b"robot thesis")
+            assert b"robot thesis" in shown, f"listen never showed the robot: {shown[-500:]!r}"
             box.send("fault")
-            out = _read_all(leader, proc, 30).decode("utf-8", "replace")
+            out = _read_all(leader, proc, 30, out=shown).decode("utf-8", "replace")
         finally:
             proc.wait(timeout=30)
             os.close(leader)

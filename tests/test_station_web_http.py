@@ -263,6 +263,7 @@ def test_over_tls_cookies_are_secure(tmp_path: Path) -> None:
         with httpx.Client(base_url=url, verify=False) as client:
             form = client.get("/login")
             assert "Secure" in form.headers["set-cookie"]
+            assert form.headers["strict-transport-security"] == "max-age=31536000"
             token = re.search(r'name="login_token" value="([^"]+)"', form.text).group(1)
             reply = client.post("/login", data={"username": "ana", "password": PASSWORD,
                                                 "login_token": token})

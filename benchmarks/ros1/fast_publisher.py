@@ -32,7 +32,7 @@ import xmlrpc.client
 import xmlrpc.server
 from typing import Any
 
-from blackbox.sources.ros1.tcpros import encode_header, read_header
+from blackbox.sources.ros1.wire import encode_header, read_header
 
 TYPE = "std_msgs/Float64"
 MD5 = "fdb28210bfa9d7c91146260178d9a584"

@@ -38,9 +38,9 @@ sys.path.insert(0, str(HERE.parent / "robots"))  # the motion model both robots 
 from diffdrive_motion import DiffdriveMotion  # noqa: E402
 
 
-def _ros2_robot_module() -> ModuleType:
-    """This directory's ``robot.py`` under the name ``ros2_thesis_robot`` (as tests/ros2_support
-    loads it): in a test process ``robot`` is the ROS 1 robot's module."""
+def _launcher() -> ModuleType:
+    """The thesis robot's launcher beside this file, by path: another ``robot`` module (the
+    ROS 1 one) may already be imported under that name in the same process."""
     name = "ros2_thesis_robot"
     if name not in sys.modules:
         spec = importlib.util.spec_from_file_location(name, HERE / "robot.py")
@@ -51,7 +51,7 @@ def _ros2_robot_module() -> ModuleType:
     return sys.modules[name]
 
 
-ros2_env = _ros2_robot_module().ros2_env
+ros2_env = _launcher().ros2_env
 
 ROLES = {"/teleop": ("teleop", 20.0), "/base_driver": ("base_driver", 50.0),
          "/odometry": ("odometry", 20.0), "/imu_driver": ("imu_driver", 100.0),

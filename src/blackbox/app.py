@@ -18,10 +18,9 @@ from typing import TYPE_CHECKING, cast
 from blackbox.config.loader import LoadedConfig
 from blackbox.config.node import ConfigError
 from blackbox.diagnose.hybrid import make_diagnoser
-from blackbox.diagnose.live import DiagnosisSettings
 from blackbox.health.identity import EventLedger
 from blackbox.model import BlackBoxEvent, Observation
-from blackbox.observe.build import build_observers, load_config, load_config_text
+from blackbox.observe.build import build_observers, load_config_text
 from blackbox.output.jsonlines import JsonLinesSink
 from blackbox.output.live import LiveStatusView
 from blackbox.pipeline import Pipeline, RunStats
@@ -37,6 +36,8 @@ from blackbox.sources.base import (
     SourceOptions,
     source_kind,
 )
+from blackbox.terminate import Terminated
+from blackbox.validation import check_config_file
 
 if TYPE_CHECKING:
     from blackbox.sources.sim import Fault
@@ -76,6 +77,8 @@ class RunOptions:
     """Publish the verdicts on ``/diagnostics`` of the watched ROS 1 master or ROS 2 domain
     (see ``docs/ros1.md``, ``docs/ros2.md``)."""
     extra_sinks: list[Sink] = field(default_factory=list)
+    signing_key: Path | None = None
+    """The robot's private key: sign what it publishes over DDS (docs/health.md)."""
 
 
 @dataclass
@@ -123,10 +126,8 @@ def open_robot(options: RunOptions) -> Source:
 
 
 def build(options: RunOptions) -> BlackBox:
-    config = load_config(options.config)
-    observers = build_observers(config)
-    if not observers:
-        raise ConfigError("the configuration observes nothing", str(options.config))
+    checked = check_config_file(options.config, options.engine)
+    config, observers = checked.config, checked.observers
     sinks: list[Sink] = []
     if options.live:
         sinks.append(LiveStatusView(title=f"blackbox {config.robot_id} on {options.source}",
@@ -150,8 +151,7 @@ def build(options: RunOptions) -> BlackBox:
         recorder = open_recorder(options, config, source, ledger)
         sinks.append(recorder)
         observers.append(recorder_probe(recorder))
-    base_dir = Path(options.config).parent
-    settings = DiagnosisSettings.from_config(config.sections.get("diagnosis"), base_dir)
+    settings = checked.diagnosis
     diagnoser = None
     if options.diagnosis and settings.enabled:
         try:
@@ -208,6 +208,8 @@ def open_dds(options: RunOptions, config: LoadedConfig, recorder: Recorder | Non
         kwargs["domain_id"] = options.dds_domain
     if recorder is not None:
         kwargs.setdefault("log_store_path", recorder.path)
+    if options.signing_key is not None:
+        kwargs["signing_key_file"] = options.signing_key
     descriptions = [describe_observer(entry) for entry in config.observers]
     return DdsHealthSink(config.robot_id, descriptions=descriptions, on_ibit=on_ibit,
                          ledger=ledger, **kwargs)
@@ -260,21 +262,44 @@ def open_recorder(options: RunOptions, config: LoadedConfig, source: Source,
                     clock=source.now, ledger=ledger)
 
 
+STOP_GRACE = 0.3
+"""Seconds a SIGTERM leaves the running loop to stop between steps before it is cut short."""
+
+
 @contextmanager
 def graceful_interrupts() -> Iterator[threading.Event]:
-    """A stop event set by SIGINT/SIGTERM, so Ctrl-C ends a run cleanly between steps."""
+    """A stop event set by SIGINT/SIGTERM, so Ctrl-C ends a run cleanly between steps.
+
+    A second signal, or a SIGTERM whose stop the loop has not reached after
+    :data:`STOP_GRACE` seconds (a step of a very large configuration can take longer),
+    unwinds at once through the ``finally`` blocks: a service manager's SIGTERM is
+    honoured within a second at every stage.
+    """
     stop = threading.Event()
     previous = {}
+    timers: list[threading.Timer] = []
 
     def handler(signum: int, frame: object) -> None:
         if stop.is_set():
+            if signum == signal.SIGTERM:
+                raise Terminated()
             raise KeyboardInterrupt
         stop.set()
+        if signum == signal.SIGTERM:
+            # A real signal to the main thread: it also cuts a sleep short (a real-time
+            # source waiting for its next tick), which _thread.interrupt_main would not.
+            timer = threading.Timer(STOP_GRACE, signal.pthread_kill,
+                                    (threading.main_thread().ident, signal.SIGTERM))
+            timer.daemon = True
+            timers.append(timer)
+            timer.start()
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         previous[sig] = signal.signal(sig, handler)
     try:
         yield stop
     finally:
+        for timer in timers:
+            timer.cancel()
         for sig, old in previous.items():
             signal.signal(sig, old)

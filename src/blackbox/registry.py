@@ -6,13 +6,17 @@ that package the first time it is read, the way the command line finds its comma
 built-in plug-in needs no import line anywhere else. A plug-in outside the package (a
 test's throw-away observer, a site's own source) registers the same way: importing its
 module is enough.
+
+Each entry may carry an ``example``: a configuration mapping that builds it. The contract
+tests (``tests/test_observe_contracts.py``) build every registered kind from its example
+and check the behaviour all kinds share, so a kind registered without one fails there.
 """
 
 from __future__ import annotations
 
 import importlib
 import pkgutil
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from typing import Generic, TypeVar
 
 T = TypeVar("T")
@@ -26,17 +30,27 @@ class Registry(Generic[T]):
         self._package = package
         self._loaded = package is None
         self._entries: dict[str, T] = {}
+        self._examples: dict[str, Mapping[str, object]] = {}
 
-    def add(self, name: str, entry: T) -> T:
-        """Register ``entry`` under ``name``; a name registered twice is a programming error."""
+    def add(self, name: str, entry: T, example: Mapping[str, object] | None = None) -> T:
+        """Register ``entry`` under ``name``, with an ``example`` configuration that builds
+        it; a name registered twice is a programming error."""
         if name in self._entries:
             raise ValueError(f"{self.what} {name!r} registered twice")
         self._entries[name] = entry
+        if example is not None:
+            self._examples[name] = example
         return entry
+
+    def example(self, name: str) -> Mapping[str, object] | None:
+        """The example configuration ``name`` was registered with, if any."""
+        self._all()
+        return self._examples.get(name)
 
     def remove(self, name: str) -> None:
         """Forget ``name`` (for tests that register a throw-away plug-in)."""
         self._entries.pop(name, None)
+        self._examples.pop(name, None)
 
     def get(self, name: str) -> T | None:
         return self._all().get(name)

@@ -68,4 +68,7 @@ def burst_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
 
 OBSERVERS.add("burst", ObserverKind(
     "burst", burst_from_config, Subject.TOPIC, (Quantity("burst", "msg"),), judges=Mode.RIGHT,
-    thresholds=(FixedThreshold("burst", "min", 1.0),), tug=burst_from_tug))
+    thresholds=(FixedThreshold("burst", "min", 1.0),), tug=burst_from_tug),
+    example={"type": "burst", "topic": "/toy",
+             "states": [{"number": 1, "name": "steady",
+                         "burst": {"value": {"type": "greater_than", "greater_than": 2}}}]})

@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
+import signal
 import sys
 from collections.abc import Sequence
 
 from blackbox import __version__
-from blackbox.config.node import ConfigError
+from blackbox.errors import BlackBoxError
+from blackbox.terminate import EXIT_TERMINATED, Terminated, raise_terminated
 
 EXIT_USAGE = 2
 
@@ -43,9 +46,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_USAGE
+    if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
+        # Before any file is read: a SIGTERM while a configuration loads ends the command
+        # at once, through its ``finally`` blocks. Commands that run (``run``, ``station``)
+        # install their own handlers for a graceful stop once they are set up.
+        signal.signal(signal.SIGTERM, raise_terminated)
     try:
         return int(args.func(args) or 0)
-    except ConfigError as exc:
+    except Terminated:
+        print("terminated", file=sys.stderr)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(EXIT_TERMINATED)  # unwound already; skip the interpreter's slow teardown
+    except BlackBoxError as exc:  # ConfigError, StorageError, RequestAuthError, ...
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Sequence
 from typing import Any
 
@@ -13,7 +14,7 @@ from blackbox.config.loader import (
     read_document,
 )
 from blackbox.observe.base import Observer
-from blackbox.observe.build import build_observers, load_config
+from blackbox.validation import NothingObserved, check_config_file
 
 _FORMAT_NAMES = {"native": "native format", "tug": "tug_observers format"}
 
@@ -24,6 +25,7 @@ def register(subparsers: Any) -> None:
         help="check a configuration file and list what it will observe",
         description="Check an observer configuration (native or tug_observers format) and "
                     "print one line per observer; a diagnosis model is listed instead. "
+                    "Runs exactly the checks `blackbox run` makes before it starts. "
                     "On an error prints file:line:column, the key path and exits with 2.")
     parser.add_argument("file", metavar="FILE", help="YAML configuration file")
     parser.set_defaults(func=run)
@@ -34,8 +36,13 @@ def run(args: argparse.Namespace) -> int:
     if document_kind(root) == "diagnosis":
         print("\n".join(diagnosis_model_lines(outline_diagnosis_model(root))))
         return 0
-    config = load_config(args.file)
-    observers = build_observers(config)
+    try:
+        checked = check_config_file(args.file)  # exactly what `blackbox run` checks
+    except NothingObserved as exc:
+        for warning in exc.warnings:
+            print(f"warning: {warning}", file=sys.stderr)
+        raise
+    config, observers = checked.config, checked.observers
     fmt = _FORMAT_NAMES[config.format]
     count = f"{len(observers)} observer{'' if len(observers) == 1 else 's'}"
     print(f"{config.file}: {fmt}, robot {config.robot_id!r}, {count}")

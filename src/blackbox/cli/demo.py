@@ -12,7 +12,6 @@ printing state changes.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import importlib.util
 import os
 import secrets
@@ -228,14 +227,16 @@ DEMO_USER = "demo-admin"
 def demo_account(db: Path) -> tuple[str, str]:
     """The demo's admin account with a new random password (replacing the last run's)."""
     from blackbox.cli.station import open_databases
-    from blackbox.station.auth import AuthError, Role
+    from blackbox.station.auth import Role
 
     store, auth = open_databases(db)
     try:
         password = secrets.token_urlsafe(12)
-        with contextlib.suppress(AuthError):
-            auth.remove_user(DEMO_USER, by="demo", address="local")
-        auth.add_user(DEMO_USER, password, Role.ADMIN, by="demo")
+        if auth.user(DEMO_USER) is None:
+            auth.add_user(DEMO_USER, password, Role.ADMIN, by="demo")
+        else:  # a new password (ending the last run's sessions); it may be the only admin
+            auth.set_password(DEMO_USER, password, by="demo", address="local")
+            auth.set_role(DEMO_USER, Role.ADMIN, by="demo", address="local")
     finally:
         auth.close()
         store.close()

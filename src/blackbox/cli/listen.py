@@ -61,17 +61,20 @@ def open_bus(args: argparse.Namespace) -> Any:
 
 def render(state: dict[str, Any], colour: bool = True) -> Any:
     """The state (``StationFollower.snapshot()``) as a rich renderable: one table per
-    robot with its entities in status colours and its latest events."""
+    robot with its entities in status colours and its latest events. Every text a robot
+    chose passes :func:`~blackbox.safetext.terminal_text` (rich lets ESC through)."""
     from rich.console import Group
     from rich.table import Table
     from rich.text import Text
+
+    from blackbox.safetext import terminal_text as shown
 
     parts: list[Any] = [Text(time.strftime("%H:%M:%S") + f"  robots: {len(state['robots'])}"
                              f"  samples: {state.get('received', 0)}"
                              f"  rejected: {state.get('rejected', 0)}")]
     for name, robot in state["robots"].items():
-        status = robot.get("status", "UNKNOWN")
-        title = Text(f"robot {name}  ")
+        status = shown(robot.get("status", "UNKNOWN"))
+        title = Text(f"robot {shown(name)}  ")
         title.append(status + (" (silent)" if robot.get("stale") else "")
                      + ("" if robot.get("online", True) else " (stopped)"),
                      style=STYLE.get(status, "") if colour else "")
@@ -82,12 +85,12 @@ def render(state: dict[str, Any], colour: bool = True) -> Any:
         table.add_column("failures", justify="right")
         for ename, entity in sorted(robot["entities"].items(),
                                     key=lambda kv: (kv[1]["kind"] != "robot", kv[0])):
-            health = entity["health"] if entity["online"] else "UNKNOWN"
+            health = shown(entity["health"]) if entity["online"] else "UNKNOWN"
             word = health if entity["online"] else f"{health} (offline)"
             if entity["bit"]:
                 word += " [BIT]"
-            label = "(robot)" if entity["kind"] == "robot" else ename
-            table.add_row(Text(label), entity["kind"],
+            label = "(robot)" if entity["kind"] == "robot" else shown(ename)
+            table.add_row(Text(label), Text(shown(entity["kind"])),
                           Text(word, style=STYLE.get(health, "") if colour else ""),
                           str(entity["failures"] or ""))
         parts.append(table)
@@ -95,12 +98,12 @@ def render(state: dict[str, Any], colour: bool = True) -> Any:
         for event in list(robot["events"])[-8:]:
             stamp = time.strftime("%H:%M:%S", time.localtime(event["time"]))
             origin = " [log]" if event["origin"] == "log" else ""
-            events.add_row(stamp, event["kind"], Text(f"{event['entity']}: {event['text']}"
-                                                      f"{origin}"))
+            events.add_row(stamp, Text(shown(event["kind"])),
+                           Text(f"{shown(event['entity'])}: {shown(event['text'])}{origin}"))
         if events.row_count:
             parts.append(events)
     for problem in state.get("problems", [])[:5]:
-        parts.append(Text("problem: " + problem, style="red" if colour else ""))
+        parts.append(Text("problem: " + shown(problem), style="red" if colour else ""))
     return Group(*parts)
 
 

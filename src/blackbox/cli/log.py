@@ -1,17 +1,21 @@
-"""``blackbox log``: query, export, purge and import the health log; estimate its capacity."""
+"""``blackbox log``: query, export (or salvage), check, purge and import the health log;
+estimate its capacity."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sqlite3
 import sys
 import time
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, cast
+from typing import IO, Any, cast
 
 from blackbox.config.node import ConfigError, ConfigNode
+from blackbox.record.check import check_log
 from blackbox.record.export import FORMATS, export
+from blackbox.record.logfile import classify
 from blackbox.record.recorder import config_entry_row
 from blackbox.record.retention import (
     ObservedCharacteristic,
@@ -20,8 +24,10 @@ from blackbox.record.retention import (
     hundred_topic_robot,
     thesis_robot,
 )
+from blackbox.record.salvage import NotALog, Salvaged, salvage, select
 from blackbox.record.settings import DEFAULT_BUDGET, parse_size, recorder_settings
-from blackbox.record.store import KINDS, LogEntry, StorageError, Store
+from blackbox.record.store import KINDS, LogEntry, StorageError, Store, StoreCorrupt
+from blackbox.safetext import TerminalStream, terminal_text
 from blackbox.timestamps import parse_timestamp
 
 EXIT_ERROR = 1
@@ -47,10 +53,16 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                        help=f"entry kind, repeatable or comma separated: {', '.join(KINDS)}")
         p.add_argument("--limit", type=int)
 
+    def with_salvage(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--salvage", action="store_true",
+                       help="read every intact entry of a damaged log, page by page, and "
+                            "say what was lost (standard error)")
+
     q = sub.add_parser("query", help="print entries")
     with_db(q)
     with_filters(q)
     q.add_argument("--format", choices=["table", "jsonl"], default="table")
+    with_salvage(q)
     q.set_defaults(func=_query)
 
     e = sub.add_parser("export", help="write entries as JSON lines, CSV or MCAP")
@@ -58,7 +70,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     with_filters(e)
     e.add_argument("--format", choices=FORMATS, help="default: from the output file's suffix")
     e.add_argument("-o", "--output", type=Path, help="output file (default: standard output)")
+    with_salvage(e)
     e.set_defaults(func=_export)
+
+    k = sub.add_parser("check", help="check the health log's integrity (exit 0 intact, 1 damaged)")
+    with_db(k)
+    k.set_defaults(func=_check)
 
     p = sub.add_parser("purge", help="empty the health log (asks for confirmation)")
     with_db(p)
@@ -118,9 +135,13 @@ def parse_time(text: str | None) -> float | None:
         raise ValueError(f"not a time: {text!r} (seconds or ISO 8601)") from None
 
 
-def _entries(args: argparse.Namespace, store: Store) -> list[LogEntry] | None:
+def _entries(args: argparse.Namespace, store: Store | Salvaged) -> list[LogEntry] | None:
     kinds = [k.strip() for arg in args.kind for k in arg.split(",") if k.strip()]
     try:
+        if isinstance(store, Salvaged):
+            return select(store.entries, entity=args.entity, characteristic=args.characteristic,
+                          start=parse_time(args.since), end=parse_time(args.until),
+                          kinds=kinds or None, limit=args.limit)
         return list(store.query(entity=args.entity, characteristic=args.characteristic,
                                 start=parse_time(args.since), end=parse_time(args.until),
                                 kinds=kinds or None, limit=args.limit))
@@ -132,8 +153,29 @@ def _entries(args: argparse.Namespace, store: Store) -> list[LogEntry] | None:
 def _open(args: argparse.Namespace, readonly: bool) -> Store | int:
     try:
         return Store.open(_db_path(args), readonly=readonly)
+    except StoreCorrupt as exc:
+        hint = " (read what is intact with --salvage)" if hasattr(args, "salvage") else ""
+        return _fail(f"{exc}; see blackbox log check{hint}")
     except StorageError as exc:
         return _fail(str(exc))
+
+
+def _salvaged(args: argparse.Namespace) -> Salvaged | int:
+    """The intact entries of a damaged log, the report of what was lost on standard error."""
+    path = _db_path(args)
+    if classify(path) == "missing":
+        return _fail(f"{path}: no such health log")
+    try:
+        found = salvage(path)
+    except (NotALog, OSError) as exc:
+        return _fail(f"{path}: cannot salvage: {exc}")
+    for line in found.report.lines(found.entries):
+        print(f"salvage: {line}", file=sys.stderr)
+    return found
+
+
+def _source(args: argparse.Namespace) -> Store | Salvaged | int:
+    return _salvaged(args) if args.salvage else _open(args, readonly=True)
 
 
 def _show_time(t: float) -> str:
@@ -146,10 +188,10 @@ def _show_time(t: float) -> str:
 
 
 def _query(args: argparse.Namespace) -> int:
-    store = _open(args, readonly=True)
+    store = _source(args)
     if isinstance(store, int):
         return store
-    with store:
+    with _closing(store):
         entries = _entries(args, store)
         if entries is None:
             return EXIT_USAGE
@@ -159,8 +201,9 @@ def _query(args: argparse.Namespace) -> int:
         for e in entries:
             code = "" if e.code is None else str(e.code)
             summary = ", ".join(f"{k}={v}" for k, v in e.payload.items() if k != "text")
-            print(f"{e.id:>8} {_show_time(e.time)} {e.kind:<14} {e.entity or '-':<28} "
-                  f"{e.characteristic or '-':<10} {code:>3} {summary}"[:240])
+            print(terminal_text(f"{e.id:>8} {_show_time(e.time)} {e.kind:<14} "
+                                f"{e.entity or '-':<28} {e.characteristic or '-':<10} "
+                                f"{code:>3} {summary}"[:240]))
         print(f"{len(entries)} entries", file=sys.stderr)
     return 0
 
@@ -172,21 +215,40 @@ def _export(args: argparse.Namespace) -> int:
         fmt = {"json": "jsonl", "ndjson": "jsonl"}.get(suffix, suffix)
         if fmt not in FORMATS:
             return _fail(f"cannot tell the format from {args.output}; give --format", EXIT_USAGE)
-    store = _open(args, readonly=True)
+    store = _source(args)
     if isinstance(store, int):
         return store
-    with store:
+    with _closing(store):
         entries = _entries(args, store)
         if entries is None:
             return EXIT_USAGE
+        robot_id = store.robot_id if isinstance(store, Salvaged) else store.meta("robot_id")
         try:
-            n = export(entries, args.output, fmt, store.meta("robot_id") or "",
-                       stdout=sys.stdout)
+            n = export(entries, args.output, fmt, robot_id or "",
+                       stdout=cast(IO[str], TerminalStream(sys.stdout))
+                       if sys.stdout.isatty() else sys.stdout)
         except (OSError, ValueError) as exc:
             return _fail(str(exc))
     if args.output:
         print(f"exported {n} entries to {args.output} ({fmt})", file=sys.stderr)
     return 0
+
+
+def _closing(store: Store | Salvaged) -> contextlib.AbstractContextManager[Any]:
+    return store if isinstance(store, Store) else contextlib.nullcontext()
+
+
+def _check(args: argparse.Namespace) -> int:
+    path = _db_path(args)
+    kind = classify(path)
+    if kind in ("missing", "empty"):
+        return _fail(f"{path}: {'no such' if kind == 'missing' else 'an empty'} health log")
+    if kind == "foreign":
+        return _fail(f"{path}: not a health log of this black box", EXIT_USAGE)
+    result = check_log(path)
+    for line in result.lines:
+        print(line)
+    return 0 if result.intact else EXIT_ERROR
 
 
 def _purge(args: argparse.Namespace) -> int:
@@ -293,6 +355,9 @@ def _capacity(args: argparse.Namespace) -> int:
 
 
 def _characteristic(node: ConfigNode) -> ObservedCharacteristic:
+    """The log's view of one observer entry: its size and subject come from its type."""
+    from blackbox.observe.base import Subject, observer_kind
+
     kind = node["type"].str() if "type" in node else "observer"
     entity = "robot"
     for key in ("node", "topic", "topic_a", "interface"):
@@ -301,6 +366,8 @@ def _characteristic(node: ConfigNode) -> ObservedCharacteristic:
             entity = str(child.raw)
             break
     every = node["every"].float(min=0, min_exclusive=True) if node.get("every") else 1.0
-    values = {"activated": 0, "timeout": 1, "resources": 4, "network": 4, "velocity": 6,
-              "moving": 6}.get(kind, 2)
-    return ObservedCharacteristic(entity, kind, every, values)
+    registered = observer_kind(kind)
+    if registered is None:  # not built, so not checked: size it as a typical observer
+        return ObservedCharacteristic(entity, kind, every)
+    return ObservedCharacteristic(entity, kind, every, registered.logged_values,
+                                  on_node=registered.subject is Subject.NODE)

@@ -58,15 +58,11 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from blackbox.transport.auth import AuthError, RequestSigner
+    from blackbox.transport.auth import RequestSigner
     from blackbox.transport.logservice import LogClient
 
-    try:
-        signer = RequestSigner.from_file(args.key) if args.key else \
-            RequestSigner.from_environment()
-    except AuthError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    # a key that cannot be used raises RequestAuthError, a BlackBoxError: main says why, exit 2
+    signer = RequestSigner.from_file(args.key) if args.key else RequestSigner.from_environment()
     bus = open_bus(args)
     if bus is None:
         return 2

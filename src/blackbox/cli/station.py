@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import getpass
+import os
 import socket
 import sys
 import threading
@@ -17,7 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from blackbox.station.auth import Auth, AuthError, Role
+from blackbox.station.auth import Auth, Role, StationAuthError
 
 EXIT_USAGE = 2
 
@@ -36,10 +37,22 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="a robot silent this long is shown UNKNOWN (default 10 s)")
     p.add_argument("--tls-cert", type=Path, default=None, help="serve HTTPS with this certificate")
     p.add_argument("--tls-key", type=Path, default=None, help="... and this private key")
+    p.add_argument("--trusted-proxy", action="append", default=[], metavar="ADDRESS",
+                   help="a reverse proxy (address or network) whose X-Forwarded-For and "
+                        "X-Forwarded-Proto are believed; repeat for more (default: none, "
+                        "the audit shows the connecting address)")
     p.add_argument("--key", type=Path, default=None, metavar="FILE",
                    help="this station's private key (blackbox keygen) signing log requests "
                         "and IBIT commands; default $BLACKBOX_STATION_KEY. Robots answer only "
                         "stations their configuration lists (docs/health.md)")
+    p.add_argument("--alerts", type=Path, default=None, metavar="FILE",
+                   help="alert rules and channels (YAML; docs/station.md \"Alerts\")")
+    p.add_argument("--metrics-token-env", default=None, metavar="NAME",
+                   help="/metrics answers only 'Authorization: Bearer <token>' with the token "
+                        "in environment variable NAME (default: /metrics is open)")
+    p.add_argument("--robots", type=Path, default=None, metavar="FILE",
+                   help="enrol the robots of FILE at start: lines 'ed25519 <base64> ROBOT_ID' "
+                        "(their keygen .pub files); their health is then authenticated")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument("--ready-file", type=Path, default=None, metavar="FILE",
@@ -68,6 +81,26 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     remove.add_argument("--db", dest="user_db", type=Path, default=None)
     remove.set_defaults(func=user_remove_command)
 
+    robots = users.add_parser("robots", help="the robots this station trusts (their keys)")
+    robot_actions = robots.add_subparsers(dest="robots_command", metavar="ACTION")
+    enrol = robot_actions.add_parser(
+        "enrol", help="trust a robot's key: --key ROBOT.key.pub, or --seen to confirm the "
+                      "one key the station saw its signatures carry (trust on first use)")
+    enrol.add_argument("robot")
+    how = enrol.add_mutually_exclusive_group(required=True)
+    how.add_argument("--key", dest="robot_key", type=Path, metavar="FILE.pub")
+    how.add_argument("--seen", action="store_true")
+    enrol.add_argument("--db", dest="user_db", type=Path, default=None)
+    enrol.set_defaults(func=robots_enrol_command)
+    rlist = robot_actions.add_parser("list", help="trusted robots, then keys seen but not "
+                                                  "trusted")
+    rlist.add_argument("--db", dest="user_db", type=Path, default=None)
+    rlist.set_defaults(func=robots_list_command)
+    rremove = robot_actions.add_parser("remove", help="stop trusting a robot's key")
+    rremove.add_argument("robot")
+    rremove.add_argument("--db", dest="user_db", type=Path, default=None)
+    rremove.set_defaults(func=robots_remove_command)
+
 
 def open_databases(path: Path, stale_after: float = 10.0) -> tuple[Any, Auth]:
     """The station store, then the accounts in the same file (the store must create the
@@ -83,7 +116,7 @@ def read_password(name: str) -> str:
         first = getpass.getpass(f"password for {name}: ")
         second = getpass.getpass("again: ")
         if first != second:
-            raise AuthError("the two passwords differ")
+            raise StationAuthError("the two passwords differ")
         return first
     return sys.stdin.readline().rstrip("\r\n")
 
@@ -116,7 +149,7 @@ def _with_accounts(args: argparse.Namespace, action: Callable[[Auth], object]) -
     store, auth = opened
     try:
         action(auth)
-    except AuthError as exc:
+    except StationAuthError as exc:
         return _usage_error(exc)
     finally:
         auth.close()
@@ -152,6 +185,61 @@ def user_remove_command(args: argparse.Namespace) -> int:
                                                                address="local"))
 
 
+def _with_robot_keys(args: argparse.Namespace, action: Callable[[Any], int]) -> int:
+    """Run one ``station robots`` action on the station database's trusted robots."""
+    from blackbox.station.enrolment import EnrolmentError, RobotKeys
+
+    opened = _open_or_say(_db(args))
+    if opened is None:
+        return EXIT_USAGE
+    store, auth = opened
+    auth.close()
+    try:
+        keys = RobotKeys(_db(args))
+        try:
+            return action(keys)
+        finally:
+            keys.close()
+    except EnrolmentError as exc:
+        return _usage_error(exc)
+    finally:
+        store.close()
+
+
+def robots_enrol_command(args: argparse.Namespace) -> int:
+    from blackbox.station.enrolment import read_public_key_file
+
+    def enrol(keys: Any) -> int:
+        if args.seen:
+            robot = keys.confirm_seen(args.robot)
+        else:
+            robot = keys.enrol(args.robot, read_public_key_file(args.robot_key))
+        print(f"station: robot {robot.robot_id} enrolled with key {robot.public_key} "
+              f"({robot.source})", file=sys.stderr)
+        return 0
+    return _with_robot_keys(args, enrol)
+
+
+def robots_list_command(args: argparse.Namespace) -> int:
+    def show(keys: Any) -> int:
+        trusted = {r.robot_id: r.public_key for r in keys.robots()}
+        for robot, key in trusted.items():
+            print(f"{robot}\ttrusted\t{key}")
+        for seen in keys.seen():
+            if trusted.get(seen.robot_id) != seen.public_key:
+                print(f"{seen.robot_id}\tseen\t{seen.public_key}")
+        return 0
+    return _with_robot_keys(args, show)
+
+
+def robots_remove_command(args: argparse.Namespace) -> int:
+    def remove(keys: Any) -> int:
+        if not keys.remove(args.robot):
+            return _usage_error(f"robot {args.robot!r} is not enrolled")
+        return 0
+    return _with_robot_keys(args, remove)
+
+
 def parse_bind(text: str) -> tuple[str, int]:
     host, sep, port = text.rpartition(":")
     if not sep or not port.isdigit() or int(port) > 65535:
@@ -164,49 +252,80 @@ def serve_command(args: argparse.Namespace) -> int:
                                                                           None):
         print("usage: blackbox station user {add,passwd,list,remove} ...", file=sys.stderr)
         return EXIT_USAGE
+    if getattr(args, "station_command", None) == "robots" and not getattr(
+            args, "robots_command", None):
+        print("usage: blackbox station robots {enrol,list,remove} ...", file=sys.stderr)
+        return EXIT_USAGE
     if (args.tls_cert is None) != (args.tls_key is None):
         return _usage_error("--tls-cert and --tls-key go together")
     try:
         host, port = parse_bind(args.bind)
     except ValueError as exc:
         return _usage_error(exc)
+    from blackbox.station.alerts.rules import AlertConfig, load_alert_config
+
+    if args.metrics_token_env and len(os.environ.get(args.metrics_token_env, "")) < 16:
+        return _usage_error(f"--metrics-token-env: ${args.metrics_token_env} must hold a "
+                            "token of at least 16 characters")
+
+    alerts = load_alert_config(args.alerts) if args.alerts is not None \
+        else AlertConfig("<none>")  # a ConfigError here exits 2 naming file, line, key
     opened = _open_or_say(args.db, args.stale_after)
     if opened is None:
         return EXIT_USAGE
     store, auth = opened
     try:
-        return serve(args, store, auth, host, port)
+        return serve(args, store, auth, host, port, alerts)
     finally:
         auth.close()
         store.close()
 
 
-def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int) -> int:
+def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int,
+          alert_config: Any = None) -> int:
     import uvicorn
 
+    from blackbox.station.alerts.rules import AlertConfig
+    from blackbox.station.alerts.service import AlertService
+    from blackbox.station.enrolment import EnrolmentError, RobotKeys, read_robots_file
     from blackbox.station.follow import StationFollower
     from blackbox.station.web.app import WebSettings, create_app
+    from blackbox.station.web.limits import uvicorn_options
     from blackbox.transport.participant import TransportSettings
 
     if not auth.users():
         print(f"station: no account yet; add one with: blackbox station user add NAME "
               f"--role admin --db {args.db}", file=sys.stderr)
-    from blackbox.transport.auth import AuthError, RequestSigner
+    from blackbox.transport.auth import RequestAuthError, RequestSigner
 
     try:
         signer = (RequestSigner.from_file(args.key) if args.key is not None
                   else RequestSigner.from_environment())
-    except (AuthError, OSError) as exc:
+    except (RequestAuthError, OSError) as exc:
         return _usage_error(f"--key: {exc}")
     if signer is None:
         print("station: no station key (--key or $BLACKBOX_STATION_KEY): robots will refuse "
               "its log requests and IBIT commands", file=sys.stderr)
+    try:
+        robot_keys = RobotKeys(args.db)
+        for robot_id, key in read_robots_file(args.robots) if args.robots else []:
+            robot_keys.enrol(robot_id, key, "file")
+    except EnrolmentError as exc:
+        return _usage_error(f"--robots: {exc}")
+    if not robot_keys.robots():
+        print("station: no robot enrolled (--robots or blackbox station robots enrol): "
+              "robot health is shown unauthenticated", file=sys.stderr)
     follower = StationFollower(store, TransportSettings(args.domain, args.partition),
-                               signer=signer)
+                               signer=signer, robot_keys=robot_keys)
     follower.start()
+    alerts = AlertService(store, args.db, alert_config or AlertConfig("<none>"),
+                          audit=lambda u, a, t, o, d: auth.audit(u, a, t, o, "station", d))
+    alerts.start()
     stop = threading.Event()
     tls = args.tls_cert is not None
-    app = create_app(auth, store, follower, WebSettings(secure_cookies=tls), stop=stop)
+    app = create_app(auth, store, follower, WebSettings(secure_cookies=tls), stop=stop,
+                     alerts=alerts, metrics_token=os.environ.get(args.metrics_token_env)
+                     if args.metrics_token_env else None)
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
@@ -214,11 +333,13 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
         sock.listen(2048)  # connections wait in the backlog from here on: "ready" is true
     except OSError as exc:
         follower.stop()
+        alerts.stop()
         return _usage_error(f"cannot listen on {host}:{port}: {exc.strerror}")
     config = uvicorn.Config(app, log_level="warning", access_log=False,
                             ssl_certfile=str(args.tls_cert) if tls else None,
                             ssl_keyfile=str(args.tls_key) if tls else None,
-                            timeout_graceful_shutdown=3)
+                            timeout_graceful_shutdown=3,
+                            **uvicorn_options(args.trusted_proxy))
     server = uvicorn.Server(config)
     bound = sock.getsockname()
     url = f"{'https' if tls else 'http'}://{host if ':' not in host else f'[{host}]'}:{bound[1]}/"
@@ -250,4 +371,5 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
         if timer is not None:
             timer.cancel()
         follower.stop()
+        alerts.stop()
     return 0

@@ -10,14 +10,32 @@ from __future__ import annotations
 import builtins
 import difflib
 import math
+import re
+import stat
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from blackbox.errors import BlackBoxError
+from blackbox.safetext import hidden_character
 
-class ConfigError(Exception):
+MAX_FILE_BYTES = 1024 * 1024
+"""The largest configuration (or fault schedule, robot model) file read: checked before
+parsing, so a huge or endless file (``/dev/zero``) costs nothing."""
+MAX_NODES = 200_000
+"""The most values a document may expand to, aliases counted at every use: a
+billion-laughs document stops here instead of exhausting memory."""
+MAX_ALIASES = 10_000
+MAX_DEPTH = 64
+"""The deepest nesting of mappings and lists."""
+TEXT_WHITESPACE = "\n\t"
+"""The only invisible characters a string value may hold (multi-line blocks)."""
+
+
+
+class ConfigError(BlackBoxError):
     """A configuration problem at one place of one file."""
 
     def __init__(self, message: str, file: str = "<config>", line: int = 0, column: int = 0,
@@ -39,10 +57,115 @@ _MAP, _SEQ, _SCALAR = "map", "seq", "scalar"
 _STR_TAG = "tag:yaml.org,2002:str"
 
 
+_FLOAT_WITH_EXPONENT = re.compile(r"^[-+]?(?:[0-9][0-9_]*)?(?:\.[0-9_]*)?[eE][-+]?[0-9]+$")
+
+
+class BoundedLoader(yaml.SafeLoader):
+    """PyYAML's safe loader with limits on nesting and alias uses, and YAML 1.2 numbers.
+
+    YAML 1.1 reads ``1e-300`` and ``1e5`` as strings (it wants a dot and a signed
+    exponent); people mean numbers, so they are resolved as floats.
+    """
+
+    def __init__(self, stream: str) -> None:
+        super().__init__(stream)
+        self._depth = 0
+        self._aliases = 0
+
+    def compose_node(self, parent: yaml.Node | None, index: Any) -> yaml.Node | None:
+        event: Any = self.peek_event()  # type: ignore[no-untyped-call]
+        mark: Any = event.start_mark
+        if isinstance(event, yaml.AliasEvent):
+            self._aliases += 1
+            if self._aliases > MAX_ALIASES:
+                raise yaml.composer.ComposerError(
+                    None, None, f"more than {MAX_ALIASES:,} alias uses", mark)
+        self._depth += 1
+        try:
+            if self._depth > MAX_DEPTH:
+                raise yaml.composer.ComposerError(
+                    None, None, f"nested deeper than {MAX_DEPTH} levels", mark)
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def fetch_flow_collection_start(self, token_class: Any) -> None:
+        """The scanner reads ahead of the composer (a flow collection may be a key), so
+        flow nesting is bounded here too: 1,000 ``[`` would otherwise cost a second."""
+        if self.flow_level >= MAX_DEPTH:
+            raise yaml.scanner.ScannerError(None, None, f"nested deeper than {MAX_DEPTH} levels",
+                                            self.get_mark())
+        super().fetch_flow_collection_start(token_class)
+
+
+BoundedLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_WITH_EXPONENT,
+                                    list("-+0123456789."))
+
 def _scalar_value(node: yaml.Node) -> Any:
     if node.tag == _STR_TAG:
         return node.value
-    return yaml.SafeLoader("").construct_object(node, deep=True)
+    # A constructor of its own per value: it remembers what it built (a shared one would
+    # keep every document alive), and it is cheap, unlike a whole SafeLoader.
+    return yaml.constructor.SafeConstructor().construct_object(node, deep=True)
+
+
+def _check_expansion(root: yaml.Node, file: str) -> None:
+    """Refuse a document whose aliases expand it beyond :data:`MAX_NODES` values, or an
+    alias inside itself, before a single value is built: sizes are counted per distinct
+    node, so a billion laughs costs as little as its text."""
+    sizes: dict[int, int] = {}
+    open_nodes: set[int] = set()
+
+    def children(node: yaml.Node) -> list[yaml.Node]:
+        if isinstance(node, yaml.MappingNode):
+            return [n for pair in node.value for n in pair]
+        if isinstance(node, yaml.SequenceNode):
+            return list(node.value)
+        return []
+
+    def size(node: yaml.Node) -> int:
+        key = id(node)
+        if key in sizes:
+            return sizes[key]
+        if key in open_nodes:
+            mark = node.start_mark
+            raise ConfigError("invalid YAML: an alias inside the value it names", file,
+                              mark.line + 1, mark.column + 1)
+        open_nodes.add(key)
+        total = 1 + sum(size(child) for child in children(node))
+        open_nodes.discard(key)
+        sizes[key] = total
+        return total
+
+    node = root
+    if size(node) <= MAX_NODES:
+        return
+    while True:  # name the innermost value that alone expands too far
+        bigger = [c for c in children(node) if sizes[id(c)] > MAX_NODES]
+        if not bigger:
+            break
+        node = bigger[0]
+    mark = node.start_mark
+    raise ConfigError(f"invalid YAML: the document expands to more than {MAX_NODES:,} values "
+                      "(aliases are counted at every use)", file, mark.line + 1,
+                      mark.column + 1)
+
+
+def read_bounded(path: Path, limit: int = MAX_FILE_BYTES, what: str = "file") -> bytes:
+    """The bytes of a regular file of at most ``limit`` bytes, else one ``ConfigError``;
+    never reads more than ``limit + 1`` bytes, so devices and pipes cannot stall it."""
+    try:
+        if not stat.S_ISREG(path.stat().st_mode):  # before opening: a FIFO blocks open()
+            raise ConfigError(f"not a regular file; a {what} must be one", str(path))
+        with path.open("rb") as fh:
+            data = fh.read(limit + 1)
+    except FileNotFoundError:
+        raise ConfigError("file not found", str(path)) from None
+    except OSError as exc:
+        raise ConfigError(f"cannot read file: {exc.strerror or exc}", str(path)) from None
+    if len(data) > limit:
+        raise ConfigError(f"larger than {limit:,} bytes; a {what} is smaller", str(path))
+    return data
 
 
 class ConfigNode:
@@ -68,20 +191,24 @@ class ConfigNode:
     @classmethod
     def load(cls, path: str | Path) -> ConfigNode:
         p = Path(path)
+        data = read_bounded(p, what="configuration file")
         try:
-            text = p.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise ConfigError("file not found", str(p)) from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"cannot read file: {exc}", str(p)) from None
+            text = data.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ConfigError(f"cannot read file: not UTF-8 text (byte {exc.start})",
+                              str(p)) from None
         return cls.parse(text, str(p))
 
     @classmethod
     def parse(cls, text: str, file: str = "<config>") -> ConfigNode:
+        if len(text) > MAX_FILE_BYTES:
+            raise ConfigError(f"larger than {MAX_FILE_BYTES:,} characters; a configuration "
+                              "is smaller", file)
         try:
-            root = yaml.compose(text, Loader=yaml.SafeLoader)
+            root = yaml.compose(text, Loader=BoundedLoader)
             if root is None:
                 return cls(_SCALAR, None, file, 1, 1, "")
+            _check_expansion(root, file)
             return cls._from_yaml(root, file, "")
         except yaml.MarkedYAMLError as exc:
             mark = exc.problem_mark or exc.context_mark
@@ -218,7 +345,7 @@ class ConfigNode:
     def str_list(self) -> tuple[str, ...]:
         """A list of strings; a single string is accepted as a one-element list."""
         if self._kind == _SCALAR and isinstance(self._value, str):
-            return (self._value,)
+            return (self.str(),)
         return tuple(item.str() for item in self.list())
 
     # ---- scalars ------------------------------------------------------------------------------
@@ -233,6 +360,10 @@ class ConfigNode:
         v = self.raw
         if not isinstance(v, str) or not v:
             raise self.error(f"expected a non-empty string, got {self._describe()}")
+        hidden = hidden_character(v, TEXT_WHITESPACE)
+        if hidden is not None:
+            raise self.error(f"contains an invisible or text-reordering character ({hidden}); "
+                             "names must look like what they are")
         if choices is not None:
             choices = list(choices)
             if v not in choices:

@@ -53,10 +53,12 @@ from blackbox.diagnose.robot_model import (
     is_rate_type,
     is_relation_type,
     load_robot_model,
+    shows_silent,
 )
 from blackbox.diagnose.sat import ConsistencyChecker, Theory
 from blackbox.events import GraphSnapshot
 from blackbox.model import Code, Diagnosis, Observation, Resource
+from blackbox.observe.base import Subject
 
 DEFAULT_PRIORS = {"node": 0.05, "hardware": 0.05, "topic": 0.01, "interface": 0.01}
 """Prior fault probability per component kind: with equal cardinality, a dead node is blamed
@@ -272,10 +274,11 @@ class DiagnosisEngine:
 
     def _carries_nothing(self, mentions: Mapping[str, Sequence[ObservationSpec]]) -> None:
         """A topic seen silent (a failed ``timeout`` covering all its publishers, or every
-        publisher failing ``activated``) carries no values, so it passes no wrong values on:
-        its value mode holds. Only a failure that was reported counts (its own assumption
-        literal, set only when the observation failed; NOT_AVAILABLE says nothing), and a
-        stale input reaches output values through ``value_from_rate`` alone."""
+        publisher failing ``activated``: the types registered ``failure_means_silent``)
+        carries no values, so it passes no wrong values on: its value mode holds. Only a
+        failure that was reported counts (its own assumption literal, set only when the
+        observation failed; NOT_AVAILABLE says nothing), and a stale input reaches output
+        values through ``value_from_rate`` alone."""
         th = self.theory
 
         def seen_failed(spec: ObservationSpec) -> int:
@@ -285,11 +288,11 @@ class DiagnosisEngine:
             return lit
 
         activated = {s.resource.node: s for s in self.model.observations
-                     if s.type == "activated" and s.resource.node}
+                     if shows_silent(s.type) is Subject.NODE and s.resource.node}
         for t in self.model.topics:
             right = th.var(("right", t))
             for s in mentions.get(t, ()):
-                if s.type == "timeout":
+                if shows_silent(s.type) is Subject.TOPIC:
                     th.add([right, -seen_failed(s)])
             pubs = self.structure.publishers(t)
             if pubs and all(p in activated for p in pubs):
@@ -303,14 +306,14 @@ class DiagnosisEngine:
         watch: list[Watch] = []
         row = self._row
         activated = {s.resource.node: row[s.key()] for s in self.model.observations
-                     if s.type == "activated" and s.resource.node}
+                     if shows_silent(s.type) is Subject.NODE and s.resource.node}
         for edge in self._depends:
             if self.propagation.rate_of(edge.node) != "learn":
                 continue
             at_rate = [row[s.key()] for s in mentions.get(edge.output, ())
                        if is_rate_type(s.type)]
             timeouts = [row[s.key()] for s in mentions.get(edge.input, ())
-                        if s.type == "timeout"]
+                        if shows_silent(s.type) is Subject.TOPIC]
             pubs = self.structure.publishers(edge.input)
             alive = ([activated[p] for p in pubs] if pubs and all(p in activated for p in pubs)
                      else [])

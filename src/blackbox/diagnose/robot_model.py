@@ -67,6 +67,15 @@ def exonerates(observer: str) -> bool:
     return kind is None or (kind.exonerates and not kind.relation)
 
 
+def shows_silent(observer: str) -> Subject | None:
+    """What a failed observation of this type shows to send nothing: its node, its topic,
+    or nothing (``None``) when its failure may have another cause (a rate that is too high,
+    wrong values). The observer type says so when it registers (:class:`ObserverKind`
+    ``failure_means_silent``); an unregistered type shows nothing."""
+    kind = observer_kind(observer)
+    return kind.subject if kind is not None and kind.failure_means_silent else None
+
+
 def _subject(observer: str) -> Subject | None:
     kind = observer_kind(observer)
     return kind.subject if kind is not None else None

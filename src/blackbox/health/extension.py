@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 from cyclonedds.idl import IdlEnum, IdlStruct
 from cyclonedds.idl.annotations import key
-from cyclonedds.idl.types import int32, sequence
+from cyclonedds.idl.types import int32, int64, sequence, uint8, uint64
 
 from blackbox.health.types import T_DateTimeType, T_IdentifierType
 
@@ -101,9 +101,34 @@ class C_Event_Extension(IdlStruct, typename="P_BlackBox_Ext.C_Event_Extension"):
     A_entity_sourceID: T_IdentifierType = field(default_factory=T_IdentifierType)
 
 
+@dataclass
+class C_Sample_Signature(IdlStruct, typename="P_BlackBox_Ext.C_Sample_Signature"):
+    """The robot's Ed25519 signature of one sample it published (``blackbox.transport.
+    provenance``), keyed like the sample: by its topic and ``A_sourceID``.
+
+    ``A_digest`` is SHA-256 of the sample's CDR encoding; ``A_boot`` and ``A_counter`` (1, 2,
+    ... per boot) and ``A_signedNs`` (the robot's clock) order the signatures, so a station
+    refuses an older signed state replayed over a newer one. ``A_publicKey`` (32 raw bytes)
+    says which key signed, so a station can offer it for enrolment (trust on first use).
+    """
+
+    A_sourceID: T_IdentifierType
+    key("A_sourceID")
+    A_topic: str = ""
+    key("A_topic")
+    A_robotId: str = ""
+    A_boot: str = ""
+    A_counter: uint64 = 0
+    A_signedNs: int64 = 0
+    A_digest: sequence[uint8] = field(default_factory=list)
+    A_publicKey: sequence[uint8] = field(default_factory=list)
+    A_signature: sequence[uint8] = field(default_factory=list)
+
+
 EXTENSION_TOPICS: dict[str, type] = {
     "BlackBox_Entity_Description": C_Entity_Description,
     "BlackBox_Characteristic_Extension": C_Characteristic_Extension,
     "BlackBox_Event_Extension": C_Event_Extension,
+    "BlackBox_Sample_Signature": C_Sample_Signature,
 }
 """Topic name -> type of the extension topics."""

@@ -320,6 +320,9 @@ class C_Log_Reply(IdlStruct, typename="P_BlackBox_Remote.C_Log_Reply"):
     A_last: bool = True
     A_status: str = "ok"
     A_entries: sequence[str] = field(default_factory=list)
+    A_robotSignature: sequence[uint8] = field(default_factory=list)
+    """The robot's Ed25519 signature of this chunk with this field empty
+    (``blackbox.transport.provenance``); empty: unsigned."""
 
 
 @dataclass
@@ -336,6 +339,8 @@ class C_IBIT_Result(IdlStruct, typename="P_BlackBox_Remote.C_IBIT_Result"):
     A_observations: uint32 = 0
     A_failed: uint32 = 0
     A_report: sequence[str] = field(default_factory=list)
+    A_robotSignature: sequence[uint8] = field(default_factory=list)
+    """The robot's Ed25519 signature of this result with this field empty; empty: unsigned."""
 
 
 @dataclass

@@ -197,6 +197,13 @@ class ObserverKind:
     ``aliases`` are other spellings of the type in diagnosis model files (tug_diagnosis
     ``movement``). ``tug`` translates a tug_observers ``setup`` group of this type into
     native entries; ``tug_names`` are the group types it answers to (default: ``name``).
+
+    ``failure_means_silent``: a failed observation of this type says its subject sends
+    nothing at all (a topic that timed out, a node that is not alive), so the diagnosis
+    clears that topic, or the topics of that node, of passing on wrong values.
+    ``logged_values``: how many numbers one observation records in the health log (its
+    quantities and extras such as ``rate_hz``), which sizes the log (``blackbox log
+    capacity``).
     """
 
     name: str
@@ -215,6 +222,8 @@ class ObserverKind:
     relation: bool = False
     """A relation between the values of its topics (``relation``): failed, the values of
     one of its topics are wrong; held, each of its topics' values is cleared by it alone."""
+    failure_means_silent: bool = False
+    logged_values: int = 2
 
     def unit(self, quantity: str) -> str:
         return next((q.unit for q in self.quantities if q.name == quantity), "")

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from typing import IO
 
 from blackbox.model import BlackBoxEvent, Code, Diagnosis, Observation, Resource
+from blackbox.safetext import terminal_text
 from blackbox.sinks import SinkBase
 
 _COLOURS = {"OK": "\x1b[32m", "FAULT": "\x1b[31m", "N/A": "\x1b[33m"}
@@ -95,7 +96,7 @@ class LiveStatusView(SinkBase):
     # ---- drawing -------------------------------------------------------------------------------
 
     def _line(self, text: str) -> None:
-        self.stream.write(text + "\n")
+        self.stream.write(terminal_text(text) + "\n")  # names come from the robot's graph
         self.stream.flush()
 
     def _maybe_draw(self, force: bool = False) -> None:
@@ -105,7 +106,7 @@ class LiveStatusView(SinkBase):
             self._draw()
 
     def render(self) -> str:
-        """The table as text (without terminal control codes)."""
+        """The table as text (without terminal control codes, also none from the robot)."""
         lines = [f"{self.title}  {format_time(self._now).strip()}  "
                  f"{sum(1 for o in self._latest.values() if o.code < 0)} faulty of "
                  f"{len(self._latest)} observed"]
@@ -123,7 +124,7 @@ class LiveStatusView(SinkBase):
             lines.append("")
             lines.extend(f"event {format_time(e.time).strip()} {e.kind}: {e.message[:90]}"
                          for e in self._events)
-        return "\n".join(lines)
+        return "\n".join(terminal_text(line) for line in lines)
 
     def _draw(self) -> None:
         text = self.render()

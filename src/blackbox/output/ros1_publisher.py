@@ -25,21 +25,19 @@ import logging
 import os
 import socket
 import socketserver
-import struct
 import threading
 import xmlrpc.server
 from dataclasses import dataclass, field
 from typing import Any
 
 from blackbox.sources.ros1.master import RosApi, RosApiError
-from blackbox.sources.ros1.tcpros import HeaderError, encode_header, read_header
+from blackbox.sources.ros1.wire import HeaderError, encode_header, frame, read_header
 
 log = logging.getLogger("blackbox.output.ros1")
 
 __all__ = ["Ros1TopicPublisher"]
 
 _MAX_HEADER = 64 * 1024
-_LEN = struct.Struct("<I")
 
 
 @dataclass(slots=True)
@@ -161,9 +159,9 @@ class Ros1TopicPublisher:
                 data, self._pending = self._pending, None
                 connections = list(self._connections.values())
             assert data is not None
-            frame = _LEN.pack(len(data)) + data
+            framed = frame(data)
             for conn in connections:
-                self._send(conn, frame)
+                self._send(conn, framed)
 
     def _send(self, conn: _Connection, frame: bytes, locked: bool = False) -> bool:
         try:
@@ -230,7 +228,7 @@ class Ros1TopicPublisher:
             conn.lock.acquire()
         try:
             if latched is not None:
-                self._send(conn, _LEN.pack(len(latched)) + latched, locked=True)
+                self._send(conn, frame(latched), locked=True)
         finally:
             conn.lock.release()
 

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from blackbox.record.store import LogEntry, dumps
+from blackbox.safetext import csv_cell
 
 FORMATS = ("jsonl", "csv", "mcap")
 
@@ -47,13 +48,16 @@ def write_jsonl(entries: Iterable[LogEntry], out: IO[str]) -> int:
 
 
 def write_csv(entries: Iterable[LogEntry], out: IO[str]) -> int:
-    """One row per entry; the payload is a JSON object in the last column."""
+    """One row per entry; the payload is a JSON object in the last column. Text cells a
+    spreadsheet would run as a formula are neutralised (:func:`blackbox.safetext.csv_cell`):
+    entity names come from the robot."""
     writer = csv.writer(out)
     writer.writerow(CSV_COLUMNS)
     n = 0
     for e in entries:
-        writer.writerow([e.id, repr(e.time), e.kind, e.entity or "", e.characteristic or "",
-                         "" if e.code is None else e.code, dumps(e.payload)])
+        writer.writerow([e.id, repr(e.time), *map(csv_cell, (e.kind, e.entity or "",
+                                                              e.characteristic or "")),
+                         "" if e.code is None else e.code, csv_cell(dumps(e.payload))])
         n += 1
     return n
 

@@ -7,9 +7,10 @@ health log of this project: such a file is left exactly as it is unless the oper
 ``--force``, and even then it is renamed aside, never overwritten. Only a health log of
 this project that turns out corrupt is moved aside automatically (:func:`set_aside`).
 
-A health log is recognised from the first 100 bytes of the file (the SQLite header): the
-``application_id`` this project writes (:data:`APPLICATION_ID`), or, for logs written
-before it was set, a schema version this project knows plus its three tables.
+A health log is recognised by reading the file through SQLite (read-only, its WAL
+included): the ``application_id`` this project writes (:data:`APPLICATION_ID`), or, for
+logs written before it was set, a schema version this project knows plus its three
+tables. Only a file SQLite cannot read is judged by its first 100 bytes (the header).
 
 Identifiers that become file names (the robot id in a snapshot's name) go through
 :func:`safe_name`, so ``robot.id: ../../x`` cannot leave the snapshot directory.
@@ -47,7 +48,14 @@ def safe_name(text: str, fallback: str = "robot", limit: int = 64) -> str:
 
 
 def classify(path: Path) -> Kind:
-    """What is at ``path``: nothing, an empty file, a health log of ours, or anything else."""
+    """What is at ``path``: nothing, an empty file, a health log of ours, or anything else.
+
+    Read through SQLite (read-only, WAL included): a log whose header and tables are still
+    only in its WAL (a log made before the header was durable from creation, cut short by
+    a crash) is a health log all the same. The header bytes decide only when SQLite cannot
+    read the file: non-SQLite content is foreign, a damaged database with this project's
+    application id in its header is a health log of ours (that the writer moves aside).
+    """
     try:
         with path.open("rb") as fh:
             head = fh.read(100)
@@ -56,28 +64,77 @@ def classify(path: Path) -> Kind:
     except OSError:
         return "foreign"
     if not head:
+        # An empty main file beside a WAL with content: SQLite would discard that WAL
+        # on opening, so it is not ours to take (it cannot come from this recorder).
+        return "foreign" if _size(Path(f"{path}-wal")) > 0 else "empty"
+    if _rolls_back_to_nothing(path) and _identity(path) is None:
+        # Killed while being created (pages of the first transaction, even page 1, may
+        # be missing): the next open rolls it back to the empty file it was.
         return "empty"
     if len(head) < 100 or not head.startswith(SQLITE_MAGIC):
         return "foreign"
-    user_version = int.from_bytes(head[60:64], "big")
-    application_id = int.from_bytes(head[68:72], "big")
+    identity = _identity(path)
+    if identity is None:  # SQLite cannot read it: the header alone tells
+        user_version = int.from_bytes(head[60:64], "big")
+        application_id = int.from_bytes(head[68:72], "big")
+        if application_id == APPLICATION_ID:
+            return "health_log"
+        # A pre-application-id log of ours that is corrupt: the schema version matched.
+        return "health_log" if application_id == 0 and 1 <= user_version <= SCHEMA_VERSION \
+            else "foreign"
+    application_id, user_version, tables = identity
     if application_id == APPLICATION_ID:
         return "health_log"
     if application_id != 0 or not 1 <= user_version <= SCHEMA_VERSION:
         return "foreign"
-    return "health_log" if _has_log_tables(path) else "foreign"
+    return "health_log" if {"meta", "channels", "entries"} <= tables else "foreign"
 
 
-def _has_log_tables(path: Path) -> bool:
+def _size(path: Path) -> int:
     try:
-        db = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
+        return path.stat().st_size
+    except OSError:
+        return 0
+
+
+JOURNAL_MAGIC = bytes.fromhex("d9d505f920a163d7")
+
+
+def _rolls_back_to_nothing(path: Path) -> bool:
+    """A hot rollback journal beside ``path`` whose database was empty when its
+    transaction began (journal header: initial size 0 pages): what was committed is an
+    empty file. A read-only connection may not roll it back, so this reads the journal."""
+    try:
+        with Path(f"{path}-journal").open("rb") as fh:
+            head = fh.read(28)
+    except OSError:
+        return False
+    return len(head) == 28 and head.startswith(JOURNAL_MAGIC) and \
+        int.from_bytes(head[16:20], "big") == 0
+
+
+def _identity(path: Path) -> tuple[int, int, set[str]] | None:
+    """``application_id``, ``user_version`` and table names as SQLite reads them, WAL
+    included; ``None`` when it cannot (not a database, damaged, a hot journal it may not
+    roll back read-only)."""
+    # Without a WAL there is nothing to read but the main file: ``immutable`` reads it
+    # without creating the -wal and -shm files a WAL reader needs (no litter beside a
+    # file that may not be ours).
+    uri = f"{path.resolve().as_uri()}?mode=ro"
+    if _size(Path(f"{path}-wal")) == 0:
+        uri += "&immutable=1"
+    try:
+        db = sqlite3.connect(uri, uri=True, timeout=5.0)
         try:
-            names = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+            application_id = int(db.execute("PRAGMA application_id").fetchone()[0])
+            user_version = int(db.execute("PRAGMA user_version").fetchone()[0])
+            tables = {str(r[0]) for r in
+                      db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
         finally:
             db.close()
-    except sqlite3.DatabaseError:
-        return True  # a pre-application-id log of ours that is corrupt: header matched
-    return {"meta", "channels", "entries"} <= names
+    except sqlite3.Error:
+        return None
+    return application_id, user_version, tables
 
 
 def _filesystem_of(path: Path) -> str | None:

@@ -166,12 +166,17 @@ def enforce_directory(directory: Path, budget_bytes: int, ours: Sequence[str]) -
 
 @dataclass(frozen=True, slots=True)
 class ObservedCharacteristic:
-    """One observer of a configuration, as far as the log's size is concerned."""
+    """One observer of a configuration, as far as the log's size is concerned.
+
+    ``values``: numbers per observation (:class:`~blackbox.observe.base.ObserverKind`
+    ``logged_values``); ``on_node``: ``entity`` names a node, not a topic.
+    """
 
     entity: str
     characteristic: str
     every: float = 1.0
     values: int = 2
+    on_node: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -190,7 +195,7 @@ class CapacityEstimate:
 
 def thesis_robot() -> list[ObservedCharacteristic]:
     """The thesis experiment: 3 nodes, 10 observers evaluated at 1 Hz (Appendix B)."""
-    out = [ObservedCharacteristic(n, "activated", values=0)
+    out = [ObservedCharacteristic(n, "activated", values=0, on_node=True)
            for n in ("/audio_capture", "/usb_cam", "/Signal_generator")]
     for topic in ("/audio", "/usb_cam/image_raw", "/signal"):
         out.append(ObservedCharacteristic(topic, "hz"))
@@ -206,8 +211,9 @@ def hundred_topic_robot() -> list[ObservedCharacteristic]:
         out.append(ObservedCharacteristic(f"/robot/topic_{i:03d}", "hz"))
         out.append(ObservedCharacteristic(f"/robot/topic_{i:03d}", "timeout", values=1))
     for i in range(25):
-        out.append(ObservedCharacteristic(f"/robot/node_{i:02d}", "activated", values=0))
-        out.append(ObservedCharacteristic(f"/robot/node_{i:02d}", "resources", values=4))
+        node = f"/robot/node_{i:02d}"
+        out.append(ObservedCharacteristic(node, "activated", values=0, on_node=True))
+        out.append(ObservedCharacteristic(node, "resources", values=4, on_node=True))
     return out
 
 
@@ -236,8 +242,8 @@ def estimate_capacity(observers: list[ObservedCharacteristic], budget_bytes: int
     n_faults = max(0, round(faults_per_hour * simulated_hours))
     faults = [(span * (k + 0.5) / n_faults, observers[k % len(observers)]) for k in
               range(n_faults)] if observers else []
-    resources = {o: Resource(node=o.entity) if o.characteristic in ("activated", "resources")
-                 else Resource(topic=o.entity) for o in observers}
+    resources = {o: Resource(node=o.entity) if o.on_node else Resource(topic=o.entity)
+                 for o in observers}
     names = [f"value_{k}" for k in range(8)]
     ok = (State(1, "ok"),)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:

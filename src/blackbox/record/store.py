@@ -24,6 +24,7 @@ import heapq
 import itertools
 import json
 import math
+import os
 import sqlite3
 import time as _time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -34,6 +35,7 @@ from typing import Any, NamedTuple
 import lz4.frame  # type: ignore[import-untyped]
 import msgspec
 
+from blackbox.errors import BlackBoxError
 from blackbox.model import Code, Observation
 
 SCHEMA_VERSION = 4
@@ -54,7 +56,7 @@ KINDS: dict[str, int] = {
 KIND_NAMES: dict[int, str] = {v: k for k, v in KINDS.items()}
 
 
-class StorageError(Exception):
+class StorageError(BlackBoxError):
     """The store cannot be opened or written; the message says what and where."""
 
 
@@ -398,7 +400,8 @@ class Store:
             tables = db.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]
             if tables:
                 raise StoreCorrupt(f"{self.path}: a database, but not a health log")
-            db.execute("PRAGMA auto_vacuum = INCREMENTAL")
+            self._create()
+            version = SCHEMA_VERSION
         mode = db.execute("PRAGMA journal_mode = WAL").fetchone()[0]
         if mode.lower() != "wal":
             raise StorageError(f"{self.path}: cannot use write-ahead logging (got {mode})")
@@ -414,6 +417,40 @@ class Store:
             except BaseException:
                 db.execute("ROLLBACK")
                 raise
+
+    def _create(self) -> None:
+        """Create the whole schema in one transaction in rollback-journal mode.
+
+        In WAL mode a new log's header (application id, schema version) and tables would
+        sit in the WAL until the first checkpoint (about 4 MB of commits, minutes of a
+        real-time run), and a crash before it left a main file that does not say it is a
+        health log. Created with a rollback journal, the commit writes them into the main
+        file itself and syncs it before the journal goes; only then does the caller switch
+        to WAL (which rewrites two header bytes, also synced). A crash during creation
+        leaves an empty file or a hot journal that the next open rolls back to an empty
+        file, never a half-made log. Chosen over a checkpoint right after creation because
+        that leaves a window (commit in the WAL, checkpoint not yet done) and this does not.
+        """
+        db = self._db
+        if db.execute("PRAGMA journal_mode = DELETE").fetchone()[0].lower() != "delete":
+            raise StorageError(f"{self.path}: cannot create the log with a rollback journal")
+        db.execute("PRAGMA synchronous = FULL")
+        # A deferred BEGIN, then auto_vacuum: so the setting goes into the same (first)
+        # commit. Outside a transaction it commits an empty page 1 of its own, a moment in
+        # which the file would be a database without the application id.
+        db.execute("BEGIN")
+        try:
+            db.execute("PRAGMA auto_vacuum = INCREMENTAL")
+            for migrate in MIGRATIONS:
+                migrate(db)
+            db.execute(f"PRAGMA application_id = {APPLICATION_ID}")
+            db.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+            db.execute("INSERT INTO meta VALUES ('created', ?)", (repr(_time.time()),))
+            db.execute("COMMIT")
+        except BaseException:
+            db.execute("ROLLBACK")
+            raise
+        _sync_directory(self.path.parent)
 
     @property
     def schema_version(self) -> int:
@@ -845,6 +882,20 @@ class Store:
             "coalesce((SELECT max(last_id) FROM frames WHERE kind = ?1), 0))",
             (KINDS[kind],)).fetchone()[0]
         return None if not row else self.get(int(row))
+
+
+def _sync_directory(directory: Path) -> None:
+    """Make a new file's name durable: a power cut must not lose the log's directory entry."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 FrameRow = tuple[int, str | None, str | None, float, int, bytes]

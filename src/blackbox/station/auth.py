@@ -10,10 +10,14 @@ built-in test, send their logs), so it is treated as a security boundary:
   on log-out, after :attr:`AuthPolicy.idle_timeout` without a request, and after
   :attr:`AuthPolicy.max_age` in any case;
 * every session carries a CSRF token that each state-changing request must echo;
-* failed log-ins are counted per user name and per client address; past
-  :attr:`AuthPolicy.free_failures` (per name; more per address) each further attempt must
-  wait twice as long as the last
-  (capped at :attr:`AuthPolicy.max_backoff`), and answers "try again in N s";
+* failed log-ins are counted per (user name, client address); past
+  :attr:`AuthPolicy.free_failures` each further attempt from that address for that name
+  must wait twice as long as the last (capped at :attr:`AuthPolicy.max_backoff`, forgotten
+  after :attr:`AuthPolicy.failure_window`), and answers "try again in N s". Someone
+  guessing from one address thus never locks the real user out at another, nor every user
+  of a shared console out at once;
+* passwords follow :mod:`blackbox.station.passwords`, and the last admin can be neither
+  demoted nor removed;
 * every state-changing action, refused ones included, is a row of the ``web_audit`` table.
 
 Tables live in the station's SQLite file next to the fleet data, under their own names
@@ -40,6 +44,9 @@ from typing import Any
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError, VerifyMismatchError
 
+from blackbox.errors import BlackBoxError
+from blackbox.station.passwords import password_problem
+
 
 class Role(IntEnum):
     """What a user may do; each role may do everything the roles below it may."""
@@ -61,11 +68,13 @@ class Role(IntEnum):
 
 
 USER_NAME = re.compile(r"^[A-Za-z0-9_.@-]{1,64}$")
-MIN_PASSWORD = 10
 
 
-class AuthError(Exception):
-    """A request the auth layer refuses; the message is safe to show to the user."""
+class StationAuthError(BlackBoxError):
+    """A log-in or account change the station refuses; the message is safe to show to the
+    user."""
+
+
 
 
 @dataclass(frozen=True, slots=True)
@@ -75,12 +84,9 @@ class AuthPolicy:
     max_age: float = 12 * 3600.0
     """Seconds after log-in after which a session ends whatever happens."""
     free_failures: int = 3
-    """Failed log-ins of one user name before back-off starts."""
-    free_failures_per_address: int = 20
-    """Failed log-ins from one address (any names) before back-off starts; higher, since a
-    control room's consoles may share an address."""
+    """Failed log-ins of one user name from one address before back-off starts."""
     base_backoff: float = 2.0
-    max_backoff: float = 15 * 60.0
+    max_backoff: float = 5 * 60.0
     failure_window: float = 3600.0
     """Failures older than this are forgotten."""
 
@@ -165,6 +171,7 @@ class Auth:
                  hasher: PasswordHasher | None = None) -> None:
         self.policy = policy or AuthPolicy()
         self.clock = clock
+        self.path = str(path)
         self.hasher = hasher or PasswordHasher()  # argon2id, the library's default type
         self._lock = threading.Lock()
         self._db = sqlite3.connect(str(path), check_same_thread=False, timeout=10.0,
@@ -186,9 +193,9 @@ class Auth:
     def add_user(self, name: str, password: str, role: Role, *, by: str = "cli",
                  address: str = "local") -> User:
         if not USER_NAME.match(name):
-            raise AuthError("a user name is 1-64 letters, digits or . _ @ -")
-        if len(password) < MIN_PASSWORD:
-            raise AuthError(f"a password has at least {MIN_PASSWORD} characters")
+            raise StationAuthError("a user name is 1-64 letters, digits or . _ @ -")
+        if (problem := password_problem(name, password)) is not None:
+            raise StationAuthError(problem)
         now = self.clock()
         hashed = self.hasher.hash(password)
         with self._lock:
@@ -196,37 +203,52 @@ class Auth:
                 self._db.execute("INSERT INTO web_users VALUES (?, ?, ?, ?)",
                                  (name, int(role), hashed, now))
             except sqlite3.IntegrityError:
-                raise AuthError(f"user {name!r} exists already") from None
+                raise StationAuthError(f"user {name!r} exists already") from None
         self.audit(by, "user.add", name, "ok", address, f"role={role.label}")
         return User(name, role, now)
 
+    def _refuse_last_admin(self, name: str, what: str) -> None:
+        """Raise when ``name`` is the only admin (call with the lock held): a station
+        without an admin can no longer be managed from its pages."""
+        row = self._db.execute("SELECT role FROM web_users WHERE name = ?", (name,)).fetchone()
+        if row is None or row[0] != int(Role.ADMIN):
+            return
+        admins = self._db.execute("SELECT COUNT(*) FROM web_users WHERE role = ?",
+                                  (int(Role.ADMIN),)).fetchone()[0]
+        if admins <= 1:
+            raise StationAuthError(f"{name!r} is the last admin and cannot be {what}; "
+                            "make another admin first")
+
     def set_role(self, name: str, role: Role, *, by: str, address: str) -> None:
         with self._lock:
+            if role != Role.ADMIN:
+                self._refuse_last_admin(name, "demoted")
             changed = self._db.execute("UPDATE web_users SET role = ? WHERE name = ?",
                                        (int(role), name)).rowcount
         if not changed:
-            raise AuthError(f"no user {name!r}")
+            raise StationAuthError(f"no user {name!r}")
         self.audit(by, "user.role", name, "ok", address, f"role={role.label}")
 
     def set_password(self, name: str, password: str, *, by: str, address: str) -> None:
-        if len(password) < MIN_PASSWORD:
-            raise AuthError(f"a password has at least {MIN_PASSWORD} characters")
+        if (problem := password_problem(name, password)) is not None:
+            raise StationAuthError(problem)
         hashed = self.hasher.hash(password)
         with self._lock:
             changed = self._db.execute("UPDATE web_users SET hash = ? WHERE name = ?",
                                        (hashed, name)).rowcount
             self._db.execute("DELETE FROM web_sessions WHERE user = ?", (name,))
         if not changed:
-            raise AuthError(f"no user {name!r}")
+            raise StationAuthError(f"no user {name!r}")
         self.audit(by, "user.password", name, "ok", address, "")
 
     def remove_user(self, name: str, *, by: str, address: str) -> None:
         with self._lock:
+            self._refuse_last_admin(name, "removed")
             self._db.execute("DELETE FROM web_sessions WHERE user = ?", (name,))
             removed = self._db.execute("DELETE FROM web_users WHERE name = ?",
                                        (name,)).rowcount
         if not removed:
-            raise AuthError(f"no user {name!r}")
+            raise StationAuthError(f"no user {name!r}")
         self.audit(by, "user.remove", name, "ok", address, "")
 
     def users(self) -> list[User]:
@@ -243,34 +265,38 @@ class Auth:
 
     # ---- log-in ------------------------------------------------------------------------
 
+    @staticmethod
+    def _failure_key(name: str, address: str) -> str:
+        return f"pair:{name.lower()}\n{address}"
+
     def retry_after(self, name: str, address: str) -> float:
-        """Seconds this user name or address must still wait before a log-in is heard."""
+        """Seconds this user name must still wait at this address before a log-in is heard."""
         now = self.clock()
-        wait = 0.0
         with self._lock:
-            for key, free in ((f"user:{name.lower()}", self.policy.free_failures),
-                              (f"addr:{address}", self.policy.free_failures_per_address)):
-                row = self._db.execute("SELECT count, last FROM web_login_failures WHERE key = ?",
-                                       (key,)).fetchone()
-                if row is None or now - row[1] > self.policy.failure_window:
-                    continue
-                excess = row[0] - free
-                if excess >= 0:
-                    backoff = min(self.policy.max_backoff,
-                                  self.policy.base_backoff * 2.0 ** min(excess, 30))
-                    wait = max(wait, row[1] + backoff - now)
-        return max(0.0, wait)
+            row = self._db.execute("SELECT count, last FROM web_login_failures WHERE key = ?",
+                                   (self._failure_key(name, address),)).fetchone()
+        if row is None or now - row[1] > self.policy.failure_window:
+            return 0.0
+        excess: int = row[0] - self.policy.free_failures
+        if excess < 0:
+            return 0.0
+        backoff = min(self.policy.max_backoff,
+                      self.policy.base_backoff * 2.0 ** min(excess, 30))
+        last: float = row[1]
+        return max(0.0, last + backoff - now)
 
     def _fail(self, name: str, address: str) -> None:
         now = self.clock()
+        key = self._failure_key(name, address)
         with self._lock:
-            for key in (f"user:{name.lower()}", f"addr:{address}"):
-                row = self._db.execute("SELECT count, last FROM web_login_failures WHERE key = ?",
-                                       (key,)).fetchone()
-                count = 1 if row is None or now - row[1] > self.policy.failure_window \
-                    else row[0] + 1
-                self._db.execute("INSERT OR REPLACE INTO web_login_failures VALUES (?, ?, ?)",
-                                 (key, count, now))
+            row = self._db.execute("SELECT count, last FROM web_login_failures WHERE key = ?",
+                                   (key,)).fetchone()
+            count = 1 if row is None or now - row[1] > self.policy.failure_window \
+                else row[0] + 1
+            self._db.execute("INSERT OR REPLACE INTO web_login_failures VALUES (?, ?, ?)",
+                             (key, count, now))
+            self._db.execute("DELETE FROM web_login_failures WHERE last < ?",
+                             (now - self.policy.failure_window,))
 
     def log_in(self, name: str, password: str, address: str) -> LoginResult:
         """Check a password; on success open a session and forget past failures."""
@@ -301,8 +327,8 @@ class Auth:
         with self._lock:
             self._db.execute("INSERT INTO web_sessions VALUES (?, ?, ?, ?, ?)",
                              (_digest(token), name, csrf, now, now))
-            self._db.execute("DELETE FROM web_login_failures WHERE key IN (?, ?)",
-                             (f"user:{name.lower()}", f"addr:{address}"))
+            self._db.execute("DELETE FROM web_login_failures WHERE key = ?",
+                             (self._failure_key(name, address),))
             self._db.execute("DELETE FROM web_sessions WHERE created < ?",
                              (now - self.policy.max_age,))
         self.audit(name, "login", name, "ok", address, "")

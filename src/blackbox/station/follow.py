@@ -20,6 +20,11 @@ neither path duplicates the other.
 
 Operations for the web (``request_logs``, ``run_ibit``) return at once with a record id and
 run on a worker thread; their progress and results are in the store.
+
+Robots the station enrolled (``robot_keys``, :mod:`blackbox.station.enrolment`) are
+authenticated end to end: every sample passes :class:`~blackbox.station.trust.SampleGate`
+(only what the robot signed is shown), log replies and IBIT results count only with the
+robot's signature, and two participants writing for one robot are flagged.
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader
 from cyclonedds.util import duration
 
+from blackbox.errors import BlackBoxError
 from blackbox.health.extension import (
     C_Characteristic_Extension,
     C_Entity_Description,
@@ -60,6 +66,7 @@ from blackbox.health.types import (
     seconds_of,
 )
 from blackbox.record.store import KINDS, LogEntry
+from blackbox.station.enrolment import RobotKeys
 from blackbox.station.sequence import EventSequences, Gap
 from blackbox.station.store import (
     STATUSES,
@@ -70,9 +77,11 @@ from blackbox.station.store import (
     explain,
     robot_resource,
 )
-from blackbox.transport.auth import RequestSigner
+from blackbox.station.trust import SampleGate, WriterWatch
+from blackbox.transport.auth import RequestSigner, public_key_text
 from blackbox.transport.logservice import LogAnswer, LogClient
 from blackbox.transport.participant import Bus, TransportSettings
+from blackbox.transport.provenance import SIGNATURE_TOPIC
 from blackbox.transport.qos import EVENT_TOPICS, qos_for
 
 log = logging.getLogger("blackbox.station")
@@ -97,7 +106,7 @@ _ORDER = {"BlackBox_Entity_Description": 0, "BlackBox_Event_Extension": 1,
           "C_Failure_Event": 2}
 
 
-class StationBusy(RuntimeError):
+class StationBusy(BlackBoxError, RuntimeError):
     """Too many log requests and built-in tests are waiting; try again later."""
 
 
@@ -210,6 +219,7 @@ class StationFollower:
                  log_timeout: float = 10.0, log_page: int = LOG_PAGE,
                  max_log_rows: int = MAX_LOG_ROWS, ibit_timeout: float = 15.0,
                  signer: RequestSigner | None = None,
+                 robot_keys: RobotKeys | None = None,
                  clock: Callable[[], float] = time.time) -> None:
         self.store = store
         self.settings = settings or TransportSettings()
@@ -224,6 +234,13 @@ class StationFollower:
         ``None``: the key named by ``$BLACKBOX_STATION_KEY``, if set, else unsigned."""
         self.clock = clock
         self.stats = FollowerStats()
+        self.robot_keys = robot_keys
+        """The robots this station trusts (``None``: none; every robot unauthenticated)."""
+        self.gate = SampleGate(robot_keys.by_resource if robot_keys is not None else dict,
+                               self._trust_problem, on_key_seen=self._key_seen)
+        self.writers = WriterWatch()
+        self._participants: dict[tuple[int, Any], str] = {}
+        self._signature_reader: DataReader[Any] | None = None
         self.bus: Bus | None = None
         self._readers: dict[str, Any] = {}
         self._waitset: WaitSet | None = None
@@ -248,9 +265,10 @@ class StationFollower:
         self._load_known()
         self.bus = Bus.open(self.settings)
         self._readers = {name: self._reader(name) for name in FOLLOWED}
+        self._signature_reader = self._reader(SIGNATURE_TOPIC)
         self._waitset = WaitSet(self.bus.participant)
         mask = SampleState.NotRead | ViewState.Any | InstanceState.Any
-        for reader in self._readers.values():
+        for reader in (*self._readers.values(), self._signature_reader):
             self._waitset.attach(ReadCondition(reader, mask))
         for lane in (self._requests, self._backfills):
             lane.client = LogClient(self.bus, self.station_id, signer=self.signer)
@@ -331,6 +349,7 @@ class StationFollower:
         assert self._waitset is not None, "open() first"
         self._waitset.wait(duration(seconds=timeout))
         now = self.clock()
+        self._take_signatures()
         taken: list[tuple[str, Any]] = []
         for name, reader in self._readers.items():
             try:
@@ -338,15 +357,18 @@ class StationFollower:
             except Exception as exc:
                 self._reject(name, f"cannot read: {exc}")
                 continue
-            taken.extend((name, s) for s in samples)
+            for sample in samples:
+                info = getattr(sample, "sample_info", None)
+                if info is not None and not info.valid_data:
+                    continue
+                if self._admit(name, reader, sample, now):
+                    taken.append((name, sample))
+        taken.extend(self.gate.released(now))
         # Names and event extensions first: the samples they describe may come in the
         # same batch.
         taken.sort(key=lambda item: _ORDER.get(item[0], 3))
         heard: set[int] = set()
         for name, sample in taken:
-            info = getattr(sample, "sample_info", None)
-            if info is not None and not info.valid_data:
-                continue
             self.stats.by_topic[name] = self.stats.by_topic.get(name, 0) + 1
             try:
                 rid = int(sample.A_sourceID.A_resourceId)
@@ -364,6 +386,96 @@ class StationFollower:
         self.store.flush()
         self._start_backfills()
         return len(taken)
+
+    # ---- authentication -------------------------------------------------------------------
+
+    def _take_signatures(self) -> None:
+        reader = self._signature_reader
+        if reader is None:
+            return
+        try:
+            signatures = reader.take(N=4096)
+        except Exception as exc:
+            self._reject(SIGNATURE_TOPIC, f"cannot read: {exc}")
+            return
+        for sig in signatures:
+            info = getattr(sig, "sample_info", None)
+            if info is not None and not info.valid_data:
+                continue
+            try:
+                self.gate.signature(sig)
+            except Exception as exc:
+                self._reject(SIGNATURE_TOPIC, f"signature not understood: {exc}")
+
+    def _admit(self, name: str, reader: DataReader[Any], sample: Any, now: float) -> bool:
+        """Whether ``sample`` may be handled now: the writer check, then the gate."""
+        try:
+            rid = int(sample.A_sourceID.A_resourceId)
+            info = getattr(sample, "sample_info", None)
+            if info is not None:
+                participant = self._participant_of(reader, info.publication_handle)
+                if participant:
+                    other = self.writers.saw(rid, participant, now,
+                                             lambda p: self._alive(reader, p))
+                    if other is not None:
+                        self._two_writers(rid, participant, other)
+            return self.gate.offer(name, sample, now)
+        except Exception as exc:
+            self._reject(name, f"sample not understood: {type(exc).__name__}: {exc}")
+            return False
+
+    def _participant_of(self, reader: DataReader[Any], handle: Any) -> str:
+        key = (id(reader), handle)
+        found = self._participants.get(key)
+        if found is None:
+            data = reader.get_matched_publication_data(handle)
+            found = str(data.participant_key) if data is not None else ""
+            if len(self._participants) > 10_000:
+                self._participants.clear()
+            self._participants[key] = found
+        return found
+
+    def _alive(self, reader: DataReader[Any], participant: str) -> bool:
+        for handle in reader.get_matched_publications():
+            if self._participant_of(reader, handle) == participant:
+                return True
+        return False
+
+    def _two_writers(self, rid: int, participant: str, other: str) -> None:
+        self.gate.stats.second_writers += 1
+        robot = self._robots.get(rid)
+        enrolled = self.gate.enrolled(rid)
+        name = enrolled[0] if enrolled else robot.name if robot is not None else f"#{rid}"
+        self.store.report_problem(
+            f"two writers {name}",
+            f"{name}: two DDS participants write under this robot's id at once "
+            f"({other[:8]}... and {participant[:8]}...)"
+            + ("; only what the robot signed is shown" if enrolled else
+               "; the robot is not enrolled, so its health cannot be told from a forgery"))
+
+    def _trust_problem(self, robot_id: str, kind: str, message: str) -> None:
+        self.store.report_problem(f"{kind} data {robot_id}", message)
+
+    def _key_seen(self, robot_id: str, key: Any) -> None:
+        if self.robot_keys is None:
+            return
+        self.robot_keys.note_seen(robot_id, key)
+        keys = {k.public_key for k in self.robot_keys.seen() if k.robot_id == robot_id}
+        if len(keys) > 1:
+            self.gate.stats.second_writers += 1
+            self.store.report_problem(
+                f"two writers {robot_id}",
+                f"{robot_id}: signatures with {len(keys)} different keys claim this robot; "
+                "enrol the right one from the robot's key file (robots enrol --key)")
+        self.store.report_problem(
+            f"not enrolled {robot_id}",
+            f"{robot_id} signs its health with key {public_key_text(key)} but is not "
+            f"enrolled: its data is shown unauthenticated. Check the key on the robot, "
+            f"then: blackbox station robots enrol {robot_id} --seen")
+
+    def _robot_key(self, robot_id: str) -> Any:
+        enrolled = self.gate.enrolled(robot_resource_id(robot_id))
+        return enrolled[1] if enrolled is not None and enrolled[0] == robot_id else None
 
     def _reject(self, topic: str, message: str) -> None:
         self.stats.rejected += 1
@@ -909,9 +1021,16 @@ class StationFollower:
         if client is None:
             return LogAnswer("error: station not connected", [], 0, False)
         with lane.lock:
-            return client.request(robot_id, entity=entity, characteristic=characteristic,
-                                  since=since, until=until, kinds=kinds,
-                                  max_entries=max_entries, timeout=self.log_timeout)
+            answer = client.request(robot_id, entity=entity, characteristic=characteristic,
+                                    since=since, until=until, kinds=kinds,
+                                    max_entries=max_entries, timeout=self.log_timeout,
+                                    robot_key=self._robot_key(robot_id))
+        if answer.forged:
+            self.gate.stats.forged += answer.forged
+            self.store.report_problem(f"forged data {robot_id}",
+                                      f"{robot_id}: {answer.forged} log reply chunks without "
+                                      "the robot's signature were dropped")
+        return answer
 
     def _drop_foreign_replies(self) -> None:
         """Log replies keep all history: between our own requests, replies to other
@@ -1049,8 +1168,14 @@ class StationFollower:
         result = None
         if bus is not None:
             try:
+                def forged(_: Any) -> None:
+                    self.gate.stats.forged += 1
+                    self.store.report_problem(f"forged data {robot_id}",
+                                              f"{robot_id}: a built-in test result without "
+                                              "the robot's signature was ignored")
                 result = request_ibit(bus, robot_id, entity=entity, timeout=self.ibit_timeout,
-                                      signer=self.signer)
+                                      signer=self.signer, robot_key=self._robot_key(robot_id),
+                                      on_forged=forged)
             except Exception as exc:
                 self.store.report_problem("ibit", f"{robot_id}: {exc}")
         now = self.clock()
@@ -1108,8 +1233,14 @@ class StationFollower:
                             "text": e.text, "origin": e.origin}
                            for e in reversed(page.events)],
             }
+        trust = self.gate.stats
         return {"robots": out, "received": self.stats.received,
                 "rejected": self.stats.rejected,
+                "trust": {"verified": trust.verified, "forged": trust.forged,
+                          "unsigned": trust.unsigned, "replayed": trust.replayed,
+                          "superseded": trust.superseded,
+                          "unauthenticated": trust.unauthenticated,
+                          "second_writers": trust.second_writers},
                 "problems": [f"{p.source}: {p.message}" for p in self.store.problems()]}
 
 

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
+from blackbox.errors import BlackBoxError
 from blackbox.health.ids import robot_resource_id
 from blackbox.record.store import LogEntry
 
@@ -80,11 +81,11 @@ RobotRef = int | str
 """A robot: its robot id (``"thesis-robot"``), or its UCMS resource id (``123`` or ``"#123"``)."""
 
 
-class StationStoreError(Exception):
+class StationStoreError(BlackBoxError):
     """The station database cannot be opened or used; the message says what and where."""
 
 
-class UnknownRobot(LookupError):
+class UnknownRobot(BlackBoxError, LookupError):
     """No robot with this reference has been heard of."""
 
 
@@ -1285,6 +1286,18 @@ class StationStore:
         events = tuple(_event(r) for r in rows[:limit])
         nxt = f"{events[-1].time!r}:{events[-1].id}" if len(rows) > limit and events else None
         return EventPage(events, nxt)
+
+    def events_after(self, after_id: int, limit: int = 500) -> list[Event]:
+        """Events stored after event ``after_id``, oldest first (at most ``limit``): how a
+        consumer that follows the timeline (the alert engine) reads what is new."""
+        with self._read() as db:
+            rows = db.execute(_EVENT_SELECT + " WHERE e.id > ? ORDER BY e.id LIMIT ?",
+                              (after_id, max(1, min(limit, MAX_PAGE)))).fetchall()
+        return [_event(r) for r in rows]
+
+    def last_event_id(self) -> int:
+        with self._read() as db:
+            return int(db.execute("SELECT coalesce(max(id), 0) FROM events").fetchone()[0])
 
     def count_events(self, robot: RobotRef | None = None,
                      kinds: Iterable[str] | None = None,

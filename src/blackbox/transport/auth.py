@@ -32,6 +32,7 @@ from __future__ import annotations
 import base64
 import json
 import os
+import re
 import secrets
 import time
 from collections.abc import Callable, Iterable, Mapping
@@ -44,6 +45,7 @@ from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 
 from blackbox.config.node import ConfigNode
+from blackbox.errors import BlackBoxError
 from blackbox.health.types import C_Request_Signature
 
 ACTIONS = ("logs", "ibit")
@@ -52,11 +54,12 @@ MAX_VALIDITY = 120.0
 """Seconds a signed request may be valid for; the verifier remembers nonces that long."""
 DEFAULT_VALIDITY = 30.0
 MAX_NONCES = 100_000
+_NONCE = re.compile(r"[0-9a-f]{32}")
 KEY_ENV = "BLACKBOX_STATION_KEY"
 """Environment variable naming a station's private key file, used when no key is given."""
 
 
-class AuthError(Exception):
+class RequestAuthError(BlackBoxError):
     """A key file or an access list cannot be used; the message says why."""
 
 
@@ -113,7 +116,7 @@ def parse_public_key(text: str) -> Ed25519PublicKey:
         raw = base64.b64decode(token, validate=True)
         return Ed25519PublicKey.from_public_bytes(raw)
     except (ValueError, TypeError):
-        raise AuthError("not an Ed25519 public key (expected base64 of 32 bytes)") from None
+        raise RequestAuthError("not an Ed25519 public key (expected base64 of 32 bytes)") from None
 
 
 def generate_key_pair(private_path: Path, name: str) -> Path:
@@ -124,7 +127,7 @@ def generate_key_pair(private_path: Path, name: str) -> Path:
     public_path = private_path.with_name(private_path.name + ".pub")
     for path in (private_path, public_path):
         if path.exists():
-            raise AuthError(f"{path} exists; it is not overwritten")
+            raise RequestAuthError(f"{path} exists; it is not overwritten")
     key = Ed25519PrivateKey.generate()
     pem = key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
                             serialization.NoEncryption())
@@ -134,7 +137,7 @@ def generate_key_pair(private_path: Path, name: str) -> Path:
             fh.write(pem)
         public_path.write_text(f"ed25519 {public_key_text(key.public_key())} {name}\n")
     except OSError as exc:
-        raise AuthError(f"cannot write the key: {exc}") from None
+        raise RequestAuthError(f"cannot write the key: {exc}") from None
     return public_path
 
 
@@ -161,13 +164,13 @@ def load_private_key(path: Path) -> Ed25519PrivateKey:
     try:
         data = Path(path).read_bytes()
     except OSError as exc:
-        raise AuthError(f"{path}: cannot read the station key: {exc.strerror}") from None
+        raise RequestAuthError(f"{path}: cannot read the key: {exc.strerror}") from None
     try:
         key = serialization.load_pem_private_key(data, password=None)
     except (ValueError, TypeError) as exc:
-        raise AuthError(f"{path}: not a station key ({exc})") from None
+        raise RequestAuthError(f"{path}: not a private key ({exc})") from None
     if not isinstance(key, Ed25519PrivateKey):
-        raise AuthError(f"{path}: not an Ed25519 key")
+        raise RequestAuthError(f"{path}: not an Ed25519 key")
     return key
 
 
@@ -181,9 +184,9 @@ class RequestSigner:
                  validity: float = DEFAULT_VALIDITY,
                  clock: Callable[[], float] = time.time) -> None:
         if not station:
-            raise AuthError("a signing station needs a name")
+            raise RequestAuthError("a signing station needs a name")
         if not 0 < validity <= MAX_VALIDITY:
-            raise AuthError(f"validity must be 0..{MAX_VALIDITY:g} s")
+            raise RequestAuthError(f"validity must be 0..{MAX_VALIDITY:g} s")
         self.key = key
         self.station = station
         self.validity = validity
@@ -275,7 +278,7 @@ def _station_key(item: ConfigNode, base_dir: Path) -> Ed25519PublicKey:
         raise item.error("a station needs 'public_key' or 'public_key_file'")
     try:
         return parse_public_key(value)
-    except AuthError as exc:
+    except RequestAuthError as exc:
         raise where.error(str(exc)) from None
 
 
@@ -294,15 +297,25 @@ class RequestVerifier:
 
     Thread-safe enough for its one caller (the DDS service thread); remembers the nonces of
     requests it allowed until they expire, at most :data:`MAX_NONCES` of them.
+
+    ``nonce_file``: where the allowed nonces are also written (one ``expires_ns nonce`` line
+    each, synced to disk before the request is answered) and read back at the next start,
+    so a request captured before a restart of the robot is refused after it too. Without
+    it they live in memory only. If the file cannot be written the request is refused:
+    answering it could allow a replay later.
     """
 
     def __init__(self, robot_id: str, policy: AccessPolicy, *,
-                 clock: Callable[[], float] = time.time) -> None:
+                 clock: Callable[[], float] = time.time,
+                 nonce_file: Path | None = None) -> None:
         self.robot_id = robot_id
         self.policy = policy
         self.clock = clock
         self._nonces: dict[str, float] = {}
         self.refused = 0
+        self.nonce_file = Path(nonce_file) if nonce_file is not None else None
+        if self.nonce_file is not None:
+            self._load_nonces(self.nonce_file)
 
     def verify(self, action: str, request: Mapping[str, Any],
                credential: Credential | None) -> Verdict:
@@ -324,7 +337,7 @@ class RequestVerifier:
         now = self.clock()
         if not now < credential.expires <= now + MAX_VALIDITY:
             return Verdict(False, station.name, "expired or implausible expiry time")
-        if len(credential.nonce) != 32 or credential.nonce in self._nonces:
+        if not _NONCE.fullmatch(credential.nonce) or credential.nonce in self._nonces:
             return Verdict(False, station.name, "replayed or malformed nonce")
         try:
             message = canonical(action, self.robot_id, request, station.name,
@@ -336,7 +349,51 @@ class RequestVerifier:
             return Verdict(False, station.name, f"station {station.name} may not {action}")
         if not self._remember(credential.nonce, credential.expires, now):
             return Verdict(False, station.name, "too many requests; try again later")
+        if not self._persist(credential.nonce, credential.expires_ns):
+            return Verdict(False, station.name, "cannot record the nonce on the robot")
         return Verdict(True, station.name, "ok")
+
+    def _load_nonces(self, path: Path) -> None:
+        """The unexpired nonces of earlier starts; the file is rewritten with only those
+        (atomically), so it never grows beyond what :data:`MAX_VALIDITY` keeps alive."""
+        now = self.clock()
+        try:
+            lines = path.read_text(encoding="ascii", errors="replace").splitlines()
+        except FileNotFoundError:
+            lines = []
+        except OSError as exc:
+            raise RequestAuthError(f"{path}: cannot read the replay record: "
+                                   f"{exc.strerror}") from None
+        for line in lines:
+            parts = line.split()
+            if len(parts) != 2 or not parts[0].isdigit() or not _NONCE.fullmatch(parts[1]):
+                continue  # a torn last line of a crash: its request was never answered
+            expires = int(parts[0]) / 1e9
+            if expires > now:
+                self._nonces[parts[1]] = expires
+        tmp = path.with_name(path.name + ".tmp")
+        try:
+            with open(tmp, "w", encoding="ascii") as fh:
+                fh.writelines(f"{int(t * 1e9)} {n}\n" for n, t in self._nonces.items())
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except OSError as exc:
+            raise RequestAuthError(f"{path}: cannot write the replay record: "
+                                   f"{exc.strerror}") from None
+
+    def _persist(self, nonce: str, expires_ns: int) -> bool:
+        if self.nonce_file is None:
+            return True
+        try:
+            with open(self.nonce_file, "a", encoding="ascii") as fh:
+                fh.write(f"{int(expires_ns)} {nonce}\n")
+                fh.flush()
+                os.fsync(fh.fileno())
+        except OSError:
+            self._nonces.pop(nonce, None)
+            return False
+        return True
 
     def _remember(self, nonce: str, expires: float, now: float) -> bool:
         nonces = self._nonces

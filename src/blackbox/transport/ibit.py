@@ -11,6 +11,9 @@ configuration allows (:mod:`blackbox.transport.auth`): they send the same comman
 as ``C_IBIT_Request`` on ``BlackBox_IBIT_Request``. The plain UCMS command carries no
 signature and is answered only where the configuration grants ``ibit`` to unsigned
 requests; otherwise the answer's report says ``refused: <reason>`` and nothing runs.
+
+A robot with a key signs its results (:mod:`blackbox.transport.provenance`); a station
+given the robot's key ignores results it did not sign.
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ import secrets
 import time
 from collections.abc import Callable
 from typing import Any
+
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
 from blackbox.health.ids import SourceIds, stable_int
 from blackbox.health.types import (
@@ -38,6 +43,9 @@ from blackbox.transport.auth import (
     to_wire,
 )
 from blackbox.transport.participant import Bus, matched_both_ways
+from blackbox.transport.provenance import SampleSigner, reply_signed_by
+
+RESULT_TOPIC = "BlackBox_IBIT_Result"
 
 
 def ibit_fields(command: C_Monitored_Entity_run_IBIT | C_IBIT_Request) -> dict[str, Any]:
@@ -56,8 +64,10 @@ class IbitService:
 
     def __init__(self, bus: Bus, robot_id: str,
                  run: Callable[[C_Monitored_Entity_run_IBIT], C_IBIT_Result],
-                 verifier: RequestVerifier | None = None) -> None:
+                 verifier: RequestVerifier | None = None,
+                 signer: SampleSigner | None = None) -> None:
         self.resource_id = SourceIds(robot_id).resource_id
+        self.signer = signer
         self.robot_id = robot_id
         self.run = run
         self.verifier = verifier or RequestVerifier(robot_id, AccessPolicy())
@@ -79,16 +89,21 @@ class IbitService:
             verdict = self.verifier.verify("ibit", ibit_fields(command), signed)
             if not verdict.allowed:
                 self.refused += 1
-                self.writer.write(self._refusal(command, verdict.reason))
+                self._answer(self._refusal(command, verdict.reason))
                 continue
             plain = command if isinstance(command, C_Monitored_Entity_run_IBIT) else \
                 C_Monitored_Entity_run_IBIT(
                     A_recipientID=command.A_recipientID, A_sourceID=command.A_sourceID,
                     A_referenceNum=command.A_referenceNum,
                     A_timeOfDataGeneration=command.A_timeOfDataGeneration)
-            self.writer.write(self.run(plain))
+            self._answer(self.run(plain))
             count += 1
         return count
+
+    def _answer(self, result: C_IBIT_Result) -> None:
+        if self.signer is not None:
+            self.signer.seal(RESULT_TOPIC, result)
+        self.writer.write(result)
 
     def _refusal(self, command: C_Monitored_Entity_run_IBIT | C_IBIT_Request,
                  reason: str) -> C_IBIT_Result:
@@ -101,12 +116,16 @@ class IbitService:
 
 
 def request_ibit(bus: Bus, robot_id: str, *, entity: str = "", timeout: float = 10.0,
-                 signer: RequestSigner | None = None) -> C_IBIT_Result | None:
+                 signer: RequestSigner | None = None,
+                 robot_key: Ed25519PublicKey | None = None,
+                 on_forged: Callable[[C_IBIT_Result], None] | None = None,
+                 ) -> C_IBIT_Result | None:
     """Ask robot ``robot_id`` for a built-in test of ``entity`` ("" = the whole robot).
 
     Signed with ``signer`` (default: the key named by ``$BLACKBOX_STATION_KEY``, if set);
     without a key the plain UCMS command is sent. A refusal is an answer whose report
-    starts with ``refused:``.
+    starts with ``refused:``. With ``robot_key`` only a result the robot signed counts;
+    others go to ``on_forged`` and the wait goes on.
     """
     signer = signer if signer is not None else RequestSigner.from_environment()
     ids = SourceIds(robot_id)
@@ -134,6 +153,10 @@ def request_ibit(bus: Bus, robot_id: str, *, entity: str = "", timeout: float = 
         for result in reader.take(N=16):
             if (isinstance(result, C_IBIT_Result) and result.A_referenceNum == reference
                     and result.A_recipientID == recipient):
-                return result
+                if robot_key is None or reply_signed_by(robot_key, robot_id, RESULT_TOPIC,
+                                                        result):
+                    return result
+                if on_forged is not None:
+                    on_forged(result)
         time.sleep(0.02)
     return None

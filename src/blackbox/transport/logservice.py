@@ -12,6 +12,10 @@ Only stations the robot's configuration allows are answered: the request is sign
 (:mod:`blackbox.transport.auth`) over :func:`request_fields`, and anything else gets the
 single chunk ``refused: <reason>``. Every field is checked against bounds first
 (:func:`check_request`): a request outside them is an error, never "no limit".
+
+A robot with a key signs every chunk (:mod:`blackbox.transport.provenance`); a client
+given the robot's public key takes only chunks with a valid signature, so a forged reply
+racing the robot's is counted (``LogAnswer.forged``) and dropped, never used.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
 from cyclonedds.util import duration
 
@@ -44,6 +49,9 @@ from blackbox.transport.auth import (
     to_wire,
 )
 from blackbox.transport.participant import Bus, matched_both_ways
+from blackbox.transport.provenance import SampleSigner, reply_signed_by
+
+REPLY_TOPIC = "BlackBox_Log_Reply"
 
 DEFAULT_CHUNK = 200
 MAX_ENTRIES = 1_000_000
@@ -113,8 +121,10 @@ class LogService:
     """Answers log requests addressed to one robot."""
 
     def __init__(self, bus: Bus, robot_id: str, open_source: Callable[[], LogSource],
-                 chunk_size: int = DEFAULT_CHUNK, verifier: RequestVerifier | None = None) -> None:
+                 chunk_size: int = DEFAULT_CHUNK, verifier: RequestVerifier | None = None,
+                 signer: SampleSigner | None = None) -> None:
         self.robot = T_IdentifierType(robot_resource_id(robot_id), 0)
+        self.signer = signer
         self.verifier = verifier or RequestVerifier(robot_id, AccessPolicy())
         self._open_source = open_source
         self.chunk_size = max(1, chunk_size)
@@ -132,6 +142,8 @@ class LogService:
             if request.A_recipientID.A_resourceId != self.robot.A_resourceId:
                 continue
             for reply in self.replies(request):
+                if self.signer is not None:
+                    self.signer.seal(REPLY_TOPIC, reply)
                 self.writer.write(reply)
             count += 1
         self.answered += count
@@ -183,6 +195,8 @@ class LogAnswer:
     entries: list[dict[str, Any]]
     chunks: int
     complete: bool
+    forged: int = 0
+    """Replies to this request that did not carry the robot's signature (dropped)."""
 
 
 class LogClient:
@@ -215,7 +229,10 @@ class LogClient:
     def request(self, robot_id: str, *, entity: str | None = None,
                 characteristic: str | None = None, since: float | None = None,
                 until: float | None = None, kinds: Iterable[str] = (),
-                max_entries: int = 0, timeout: float = 10.0) -> LogAnswer:
+                max_entries: int = 0, timeout: float = 10.0,
+                robot_key: Ed25519PublicKey | None = None) -> LogAnswer:
+        """Ask ``robot_id`` and collect its answer. With ``robot_key`` (the key a station
+        enrolled for the robot) only chunks the robot signed are taken."""
         if not 0 <= max_entries <= MAX_ENTRIES:
             raise ValueError(f"max_entries must be 0 (all) or 1..{MAX_ENTRIES:,}")
         number = next(self._numbers) & 0x7FFF_FFFF
@@ -235,10 +252,15 @@ class LogClient:
         self.writer.write(request)
         chunks: dict[int, C_Log_Reply] = {}
         last: int | None = None
+        forged = 0
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             for reply in self.reader.take(N=64):
                 if not isinstance(reply, C_Log_Reply) or reply.A_requestID != request_id:
+                    continue
+                if robot_key is not None and not reply_signed_by(robot_key, robot_id,
+                                                                 REPLY_TOPIC, reply):
+                    forged += 1
                     continue
                 chunks[reply.A_chunkIndex] = reply
                 if reply.A_last:
@@ -260,4 +282,4 @@ class LogClient:
                     continue
                 if isinstance(item, dict):
                     entries.append(item)
-        return LogAnswer(status, entries, len(chunks), complete)
+        return LogAnswer(status, entries, len(chunks), complete, forged)

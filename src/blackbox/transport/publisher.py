@@ -42,16 +42,29 @@ from blackbox.health.types import (
 )
 from blackbox.model import BlackBoxEvent, Diagnosis, Observation
 from blackbox.sinks import SinkBase
-from blackbox.transport.auth import AccessPolicy, RequestVerifier
+from blackbox.transport.auth import AccessPolicy, RequestVerifier, load_private_key
+from blackbox.transport.cdr_encoder import sample_writer
 from blackbox.transport.ibit import IbitService
 from blackbox.transport.logservice import DEFAULT_CHUNK, LogService, LogSource, open_store
 from blackbox.transport.participant import ALL_TOPICS, TOPIC_OF_TYPE, Bus, TransportSettings
+from blackbox.transport.provenance import SIGNATURE_TOPIC, SampleSigner
 from blackbox.transport.qos import EVENT_TOPICS
 
 EVENT_INSTANCES_KEPT = 256
 OFF = T_Monitored_Entity_StateType.L_Monitored_Entity_StateType_OFF
 PUBLISHED_TOPICS = [name for name in (*UCMS_TOPICS, *EXTENSION_TOPICS)
                     if name != "C_Monitored_Entity_run_IBIT"]
+
+
+def replay_file_for(signing_key_file: str | Path | None,
+                    log_store_path: str | Path | None) -> Path | None:
+    """Where the accepted request nonces are kept across restarts: beside the robot's key,
+    else beside the recorder's log, else nowhere (memory only)."""
+    for base in (signing_key_file, log_store_path):
+        if base is not None:
+            path = Path(base)
+            return path.with_name(path.name + ".nonces")
+    return None
 
 
 class DdsHealthSink(SinkBase):
@@ -63,6 +76,10 @@ class DdsHealthSink(SinkBase):
     ``log_store_path`` (or ``log_source``) enables remote log requests; ``on_ibit``
     (typically ``pipeline.evaluate_all``) enables run_IBIT. Both are answered only as
     ``access`` allows (default: nobody; see :mod:`blackbox.transport.auth`).
+    ``signing_key_file`` (``blackbox keygen``): the robot's own key; every sample and
+    reply is then signed (:mod:`blackbox.transport.provenance`) so that stations that
+    enrolled the key can tell it from a forgery. ``replay_file``: where accepted request
+    nonces survive a restart (default: :func:`replay_file_for`).
     """
 
     def __init__(
@@ -84,11 +101,17 @@ class DdsHealthSink(SinkBase):
         access: AccessPolicy | None = None,
         clock: Callable[[], float] = time.time,
         ledger: EventLedger | None = None,
+        signing_key_file: str | Path | None = None,
+        replay_file: str | Path | None = None,
     ) -> None:
         if not robot_id:
             raise ValueError("robot id must not be empty")
         self.robot_id = robot_id
         self.clock = clock
+        self.signer: SampleSigner | None = None
+        if signing_key_file is not None:
+            self.signer = SampleSigner(load_private_key(Path(signing_key_file)), robot_id,
+                                       clock=clock)
         self.on_ibit = on_ibit
         self.settings = TransportSettings(domain_id, partition, cyclone_config)
         self.mapper = HealthMapper(robot_id, descriptions=descriptions, owners=owners,
@@ -101,6 +124,10 @@ class DdsHealthSink(SinkBase):
             if (name.startswith("C_") and name != "C_Monitored_Entity_run_IBIT")
             or name in ("BlackBox_Entity_Description", "BlackBox_Characteristic_Extension",
                         "BlackBox_Event_Extension")}
+        self._signatures = self.bus.writer(SIGNATURE_TOPIC) if self.signer else None
+        # samples are encoded by precompiled encoders, not the per-sample IDL machinery
+        self._write_sample: dict[type, Callable[[Any], None]] = {
+            t: sample_writer(w) for t, w in self._writers.items()}
         self._events: deque[tuple[DataWriter[Any], Any]] = deque()
         self._lock = threading.RLock()
         self.written = 0
@@ -112,15 +139,17 @@ class DdsHealthSink(SinkBase):
 
         self._stop = threading.Event()
         self._services: list[Any] = []
-        self.verifier = RequestVerifier(robot_id, access or AccessPolicy())
+        replay = Path(replay_file) if replay_file is not None else \
+            replay_file_for(signing_key_file, log_store_path)
+        self.verifier = RequestVerifier(robot_id, access or AccessPolicy(), nonce_file=replay)
         if log_source is not None or log_store_path is not None:
             opener = (lambda: log_source) if log_source is not None else \
                 (lambda: open_store(str(log_store_path)))
             self._services.append(LogService(self.bus, robot_id, opener, log_chunk_size,
-                                             self.verifier))
+                                             self.verifier, signer=self.signer))
         if on_ibit is not None:
             self._services.append(IbitService(self.bus, robot_id, self._run_ibit,
-                                              self.verifier))
+                                              self.verifier, signer=self.signer))
         self._thread: threading.Thread | None = None
         if self._services:
             self._thread = threading.Thread(target=self._serve, name="blackbox-dds-service",
@@ -178,16 +207,25 @@ class DdsHealthSink(SinkBase):
             writer = self._writers.get(type(sample))
             if writer is None:
                 continue
+            topic = TOPIC_OF_TYPE[type(sample)]
+            signature = None
             try:
-                writer.write(sample)
+                if self.signer is not None and self._signatures is not None:
+                    # the signature first: a station holds a sample until its signature
+                    # arrives, so this order keeps that wait short
+                    signature = self.signer.sign(topic, sample)
+                    self._signatures.write(signature)
+                self._write_sample[type(sample)](sample)
                 self.written += 1
             except DDSException as exc:
                 self.write_errors += 1
                 self.last_error = str(exc)
                 continue
-            if TOPIC_OF_TYPE[type(sample)] in EVENT_TOPICS:
+            if topic in EVENT_TOPICS:
                 self._events.append((writer, sample))
-                if len(self._events) > EVENT_INSTANCES_KEPT:
+                if signature is not None and self._signatures is not None:
+                    self._events.append((self._signatures, signature))
+                while len(self._events) > EVENT_INSTANCES_KEPT:
                     old_writer, old = self._events.popleft()
                     with contextlib.suppress(DDSException):
                         old_writer.unregister_instance(old)
@@ -244,7 +282,7 @@ def transport_options(section: ConfigNode | None,
         return {}
     section.check_keys(["domain_id", "partition", "cyclone_config", "owners",
                         "failure_actions", "status", "logging_interval", "log_store",
-                        "log_chunk_size", "access"])
+                        "log_chunk_size", "access", "key_file"])
     if (node := section.get("access")) is not None:
         out_access = AccessPolicy.from_config(node, base_dir)
     else:
@@ -287,4 +325,10 @@ def transport_options(section: ConfigNode | None,
         out["log_chunk_size"] = node.int(min=1, max=10_000)
     if out_access is not None:
         out["access"] = out_access
+    if (node := section.get("key_file")) is not None:
+        path = Path(node.str())
+        path = path if path.is_absolute() else base_dir / path
+        if not path.is_file():
+            raise node.error(f"cannot read the robot's key {path}")
+        out["signing_key_file"] = path
     return out

@@ -43,6 +43,18 @@ def _durable(depth: int) -> Qos:
 STATE = _durable(1)
 """Specifications, status topics and their extensions: latest sample per instance, durable."""
 
+SIGNATURE = Qos(
+    Policy.Durability.TransientLocal,
+    Policy.History.KeepLast(EVENT_DEPTH),
+    Policy.Reliability.Reliable(_BLOCKING),
+    Policy.DurabilityService(cleanup_delay=0, history=Policy.History.KeepLast(1),
+                             max_samples=-1, max_instances=-1, max_samples_per_instance=-1),
+)
+"""Sample signatures: a connected station must get the signature of every sample it may
+get (a state changing faster than the link keeps only its latest sample, but each of them
+needs its own signature), so the writer keeps up to 64 per instance for retransmission;
+a late joiner gets the latest per instance, the one of the durable state it receives."""
+
 EVENT = Qos(
     Policy.Durability.Volatile,
     Policy.History.KeepLast(EVENT_DEPTH),
@@ -66,6 +78,8 @@ COMMAND_TOPICS = frozenset({"C_Monitored_Entity_run_IBIT", "BlackBox_Log_Request
 
 
 def qos_for(topic: str) -> Qos:
+    if topic == "BlackBox_Sample_Signature":
+        return SIGNATURE
     if topic in EVENT_TOPICS:
         return EVENT
     if topic in COMMAND_TOPICS:

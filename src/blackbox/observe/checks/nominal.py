@@ -76,4 +76,6 @@ def build_nominal_value(node: ConfigNode) -> Check:
     return NominalValueCheck(value, deviation)
 
 
-CHECKS.add(NOMINAL_VALUE, build_nominal_value)
+CHECKS.add(NOMINAL_VALUE, build_nominal_value, example={
+    "type": NOMINAL_VALUE, "value": {"type": "gauss", "mean": 1.0, "std_deviation": 0.5},
+    "deviation": {"type": "less_than", "less_than": 0.2}})

@@ -97,4 +97,5 @@ class StudentTCheck:
                 f"{self.significance_level:.12g} ({std})")
 
 
-CHECKS.add(StudentTCheck.type_name, StudentTCheck.from_config)
+CHECKS.add(StudentTCheck.type_name, StudentTCheck.from_config,
+           example={"type": "student_t", "true_mean": 1.0, "significance_level": 0.05})

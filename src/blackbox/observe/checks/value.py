@@ -165,6 +165,16 @@ class NotInBetweenCheck(_Interval):
         return f"{subject} < {_g(self.lower_bound)} or {subject} > {_g(self.upper_bound)}"
 
 
+_EXAMPLE_NUMBERS: dict[str, dict[str, float]] = {
+    "gauss": {"mean": 1.0, "std_deviation": 0.5},
+    "exact": {"exact": 1.0},
+    "not": {"exact_not": 0.0},
+    "greater_than": {"greater_than": 0.5},
+    "less_than": {"less_than": 1.5},
+    "in_between": {"lower_bound": 0.5, "upper_bound": 1.5},
+    "not_in_between": {"lower_bound": 2.0, "upper_bound": 3.0},
+}
 for _check in (GaussCheck, ExactCheck, NotCheck, GreaterThanCheck, LessThanCheck, InBetweenCheck,
                NotInBetweenCheck):
-    VALUE_CHECKS.add(_check.type_name, _check.from_config)
+    VALUE_CHECKS.add(_check.type_name, _check.from_config,
+                     example={"type": _check.type_name, **_EXAMPLE_NUMBERS[_check.type_name]})

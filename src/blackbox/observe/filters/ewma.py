@@ -72,4 +72,5 @@ class EwmaFilter(WindowFilter):
         return f"ewma (decay_rate {self.decay_rate:g}, {self._describe_window()})"
 
 
-FILTERS.add(EwmaFilter.type_name, EwmaFilter.from_config)
+FILTERS.add(EwmaFilter.type_name, EwmaFilter.from_config,
+            example={"type": "ewma", "decay_rate": 0.3, "window_size": 5})

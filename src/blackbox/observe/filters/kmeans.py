@@ -51,4 +51,5 @@ class KMeansFilter(SortedWindowFilter):
         return f"kmeans (central {self.k_size} of {self._describe_window()})"
 
 
-FILTERS.add(KMeansFilter.type_name, KMeansFilter.from_config)
+FILTERS.add(KMeansFilter.type_name, KMeansFilter.from_config,
+            example={"type": "kmeans", "window_size": 9, "k_size": 3})

@@ -26,4 +26,5 @@ class MeanFilter(WindowFilter):
         return self._window.mean()
 
 
-FILTERS.add(MeanFilter.type_name, MeanFilter.from_config)
+FILTERS.add(MeanFilter.type_name, MeanFilter.from_config,
+            example={"type": "mean", "window_size": 5})

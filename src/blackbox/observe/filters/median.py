@@ -36,4 +36,5 @@ class MedianFilter(SortedWindowFilter):
         return median
 
 
-FILTERS.add(MedianFilter.type_name, MedianFilter.from_config)
+FILTERS.add(MedianFilter.type_name, MedianFilter.from_config,
+            example={"type": "median", "window_size": 5, "deviation": "min_max"})

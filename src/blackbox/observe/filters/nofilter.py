@@ -26,4 +26,4 @@ class NoFilter(WindowFilter):
         return self._window.last
 
 
-FILTERS.add(NoFilter.type_name, NoFilter.from_config)
+FILTERS.add(NoFilter.type_name, NoFilter.from_config, example={"type": "nofilter"})

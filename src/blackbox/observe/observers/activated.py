@@ -130,4 +130,6 @@ def activated_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
 
 OBSERVERS.add("activated", ObserverKind(
     "activated", activated_from_config, Subject.NODE, (Quantity("code"),),
-    thresholds=(FixedThreshold("code", "min", 0.0),), tug=activated_from_tug))
+    thresholds=(FixedThreshold("code", "min", 0.0),), tug=activated_from_tug,
+    failure_means_silent=True, logged_values=0),
+    example={"type": "activated", "node": "/camera", "start_up_time": 1.0})

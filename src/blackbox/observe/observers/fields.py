@@ -266,4 +266,11 @@ def fields_from_config(node: ConfigNode) -> FieldsObserver:
 
 
 OBSERVERS.add("fields", ObserverKind("fields", fields_from_config, Subject.TOPIC, (),
-                                     judges=Mode.RIGHT, exonerates=False))
+                                     judges=Mode.RIGHT, exonerates=False), example={
+    "type": "fields", "topic": "/scan",
+    "fields": [{"name": "ranges_mean", "field": "ranges", "summary": "mean",
+                "filter": {"type": "mean", "window_size": 3}},
+               {"name": "ranges_valid", "field": "ranges", "summary": "in_range",
+                "range": [0.1, 10.0]}],
+    "states": [{"number": 1, "name": "ok",
+                "ranges_mean": {"value": {"type": "less_than", "less_than": 10.0}}}]})

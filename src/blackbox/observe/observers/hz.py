@@ -143,4 +143,7 @@ def hz_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
 
 
 OBSERVERS.add("hz", ObserverKind(
-    "hz", hz_from_config, Subject.TOPIC, (Quantity("period", "s"),), tug=hz_from_tug))
+    "hz", hz_from_config, Subject.TOPIC, (Quantity("period", "s"),), tug=hz_from_tug),
+    example={"type": "hz", "topic": "/scan", "filter": {"type": "mean", "window_size": 5},
+             "states": [{"number": 1, "name": "ok", "period": {"value": {
+                 "type": "gauss", "mean": 0.1, "std_deviation": 0.02}}}]})

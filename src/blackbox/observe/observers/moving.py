@@ -206,4 +206,9 @@ def moving_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
 
 OBSERVERS.add("moving", ObserverKind(
     "moving", moving_from_config, Subject.TOPIC, AXIS_QUANTITIES, judges=Mode.RIGHT,
-    tug=moving_from_tug, tug_names=("moving", "moveing")))
+    tug=moving_from_tug, tug_names=("moving", "moveing"), logged_values=6),
+    example={"type": "moving", "source": {"type": "odometry", "topic": "/odom"},
+             "x_filter": {"type": "mean", "window_size": 3},
+             "states": [{"number": 1, "name": "still",
+                         "x": {"value": {"type": "in_between", "lower_bound": -0.1,
+                                         "upper_bound": 0.1}}}]})

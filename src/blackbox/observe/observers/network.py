@@ -75,4 +75,8 @@ def network_from_config(node: ConfigNode) -> NetworkObserver:
 
 OBSERVERS.add("network", ObserverKind(
     "network", network_from_config, Subject.INTERFACE,
-    (Quantity("rx", "B/s"), Quantity("tx", "B/s"))))
+    (Quantity("rx", "B/s"), Quantity("tx", "B/s")), logged_values=4),
+    example={"type": "network", "interface": "eth0",
+             "rx_filter": {"type": "mean", "window_size": 2},
+             "states": [{"number": 1, "name": "ok",
+                         "rx": {"value": {"type": "less_than", "less_than": 1e9}}}]})

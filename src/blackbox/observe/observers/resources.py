@@ -100,4 +100,8 @@ def resources_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
 
 OBSERVERS.add("resources", ObserverKind(
     "resources", resources_from_config, Subject.NODE,
-    (Quantity("cpu", "%"), Quantity("memory", "B")), tug=resources_from_tug))
+    (Quantity("cpu", "%"), Quantity("memory", "B")), tug=resources_from_tug, logged_values=4),
+    example={"type": "resources", "node": "/camera",
+             "cpu_filter": {"type": "mean", "window_size": 3},
+             "states": [{"number": 1, "name": "ok",
+                         "cpu": {"value": {"type": "less_than", "less_than": 90.0}}}]})

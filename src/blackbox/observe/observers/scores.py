@@ -105,4 +105,9 @@ def scores_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
 
 OBSERVERS.add("scores", ObserverKind(
     "scores", scores_from_config, Subject.TOPIC, (Quantity("score"),), judges=Mode.RIGHT,
-    tug=scores_from_tug))
+    tug=scores_from_tug),
+    example={"type": "scores", "topic": "/signal", "field": "data",
+             "filter": {"type": "median", "window_size": 5},
+             "states": [{"number": 1, "name": "level",
+                         "score": {"value": {"type": "in_between", "lower_bound": 0.0,
+                                             "upper_bound": 2.0}}}]})

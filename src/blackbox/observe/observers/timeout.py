@@ -172,4 +172,6 @@ def timeout_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
 
 OBSERVERS.add("timeout", ObserverKind(
     "timeout", timeout_from_config, Subject.TOPIC, (Quantity("code"),),
-    thresholds=(FixedThreshold("code", "min", 0.0),), tug=timeout_from_tug))
+    thresholds=(FixedThreshold("code", "min", 0.0),), tug=timeout_from_tug,
+    failure_means_silent=True, logged_values=1),
+    example={"type": "timeout", "topic": "/scan", "timeout": 0.5, "max_timeouts_in_a_row": 3})

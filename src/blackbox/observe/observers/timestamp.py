@@ -107,4 +107,8 @@ def timestamp_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
 
 OBSERVERS.add("timestamp", ObserverKind(
     "timestamp", timestamp_from_config, Subject.TOPIC, (Quantity("age", "s"),),
-    tug=timestamp_from_tug))
+    tug=timestamp_from_tug),
+    example={"type": "timestamp", "topic": "/camera/image",
+             "filter": {"type": "mean", "window_size": 3},
+             "states": [{"number": 1, "name": "fresh",
+                         "age": {"value": {"type": "less_than", "less_than": 0.2}}}]})

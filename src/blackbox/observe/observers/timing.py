@@ -138,4 +138,8 @@ def timing_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
 
 OBSERVERS.add("timing", ObserverKind(
     "timing", timing_from_config, Subject.TOPIC_PAIR, (Quantity("delay", "s"),),
-    tug=timing_from_tug))
+    tug=timing_from_tug),
+    example={"type": "timing", "topic_a": "/scan", "topic_b": "/map",
+             "filter": {"type": "mean", "window_size": 3},
+             "states": [{"number": 1, "name": "ok",
+                         "delay": {"value": {"type": "less_than", "less_than": 0.1}}}]})

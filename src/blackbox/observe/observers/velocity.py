@@ -197,4 +197,10 @@ def velocity_from_tug(group: ConfigNode, out: tug.TugTranslation) -> None:
 
 OBSERVERS.add("velocity", ObserverKind(
     "velocity", velocity_from_config, Subject.TOPIC_PAIR, AXIS_QUANTITIES, judges=Mode.RIGHT,
-    aliases=("movement",), tug=velocity_from_tug))
+    aliases=("movement",), tug=velocity_from_tug, logged_values=6),
+    example={"type": "velocity", "source_a": {"type": "twist", "topic": "/cmd_vel"},
+             "source_b": {"type": "imu", "topic": "/imu"}, "use_roll": False, "use_pitch": False,
+             "x_filter": {"type": "median", "window_size": 5},
+             "states": [{"number": 1, "name": "agree",
+                         "x": {"value": {"type": "in_between", "lower_bound": -0.5,
+                                         "upper_bound": 0.5}}}]})

@@ -18,13 +18,14 @@ from typing import Any
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from blackbox.errors import BlackBoxError
 from blackbox.events import TopicSchema
 from blackbox.sources.bag.records import RecordedTopic
 
 Decoder = Callable[[bytes | memoryview], Any]
 
 
-class UnknownType(Exception):
+class UnknownBagType(BlackBoxError):
     """The topic's type cannot be decoded; the message says why."""
 
 
@@ -40,19 +41,19 @@ def _builtin(store: Stores) -> Typestore:
 
 
 def decoder_for(topic: RecordedTopic) -> Decoder:
-    """A function decoding one message of ``topic``; raises :class:`UnknownType`."""
+    """A function decoding one message of ``topic``; raises :class:`UnknownBagType`."""
     if topic.encoding == "json":
         return _json
     if topic.encoding not in ("ros1", "cdr"):
-        raise UnknownType(f"message encoding {topic.encoding!r} is not ros1, cdr or json")
+        raise UnknownBagType(f"message encoding {topic.encoding!r} is not ros1, cdr or json")
     if not topic.type:
-        raise UnknownType("no type recorded")
+        raise UnknownBagType("no type recorded")
     name = store_name(topic.type)
     store = _store_with_definition(topic, name) if topic.definition.strip() else None
     if store is None:
         store = _builtin(Stores.ROS1_NOETIC if topic.encoding == "ros1" else Stores.LATEST)
         if name not in store.types:
-            raise UnknownType(f"type {topic.type} has no definition in the file and is not "
+            raise UnknownBagType(f"type {topic.type} has no definition in the file and is not "
                               "in rosbags' built-in type store")
     if topic.encoding == "ros1":
         deserialize_ros1 = store.deserialize_ros1
@@ -70,9 +71,9 @@ def _store_with_definition(topic: RecordedTopic, name: str) -> Typestore:
             types = get_types_from_msg(topic.definition, name)
         store.register(types)
     except Exception as exc:  # rosbags raises several parser exception types
-        raise UnknownType(f"definition of {topic.type} does not parse: {exc}") from None
+        raise UnknownBagType(f"definition of {topic.type} does not parse: {exc}") from None
     if name not in store.types:
-        raise UnknownType(f"definition does not define {topic.type}")
+        raise UnknownBagType(f"definition does not define {topic.type}")
     return store
 
 

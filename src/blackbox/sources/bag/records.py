@@ -11,6 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from blackbox.errors import BlackBoxError
+
 
 @dataclass(frozen=True, slots=True, eq=False)
 class RecordedTopic:
@@ -43,7 +45,7 @@ class RecordedMessage(NamedTuple):
     data: bytes | memoryview
 
 
-class BagCorrupt(Exception):
+class BagCorrupt(BlackBoxError):
     """A record the reader cannot read: ``offset`` is the byte where it starts (``None``
     for storage without meaningful offsets, such as SQLite)."""
 

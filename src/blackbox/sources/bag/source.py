@@ -33,7 +33,7 @@ from blackbox.events import (
     TopicSchema,
 )
 from blackbox.model import BlackBoxEvent
-from blackbox.sources.bag.decode import Decoder, UnknownType, decoder_for, schema_of
+from blackbox.sources.bag.decode import Decoder, UnknownBagType, decoder_for, schema_of
 from blackbox.sources.bag.mcapfile import McapScanner
 from blackbox.sources.bag.records import BagCorrupt, Item, RecordedMessage, RecordedTopic
 from blackbox.sources.bag.ros1bag import MAGIC as ROS1_MAGIC
@@ -248,7 +248,7 @@ class BagSource:
         if recorded not in self._decoders:
             try:
                 self._decoders[recorded] = decoder_for(recorded)
-            except UnknownType as exc:
+            except UnknownBagType as exc:
                 self._decoders[recorded] = None
                 if first:
                     message = (f"{name}: cannot decode {recorded.type or 'its messages'}: "

@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 from typing import Any
 from urllib.parse import urlsplit
 
+from blackbox.errors import BlackBoxError
+
 CALLER_ID = "/blackbox"
 """The caller id the black box gives in XML-RPC calls; it is never registered."""
 
@@ -24,7 +26,7 @@ Report = Callable[[str, str, str], None]
 """``report(kind, component, message)``: a robot-side fault the black box noticed."""
 
 
-class RosApiError(Exception):
+class RosApiError(BlackBoxError):
     """An XML-RPC call failed: unreachable, timed out, malformed or answered with an error."""
 
 

@@ -1,15 +1,16 @@
 """Timing-only TCPROS connections read in child processes, for rates one core cannot take.
 
-One Python thread reads every connection of a :class:`~blackbox.sources.ros1.tcpros.TcprosReader`
-and shares the interpreter lock with the pipeline. With ``readers=N`` (a source option) the
-black box starts N reader processes; after the handshake (done in the black box, as ever)
-each timing-only connection is handed to the process reading the fewest, as a file
-descriptor over a Unix socket (``SCM_RIGHTS``). A child runs its own ``TcprosReader`` in
-compact mode and sends back, at most every ``hand_over`` seconds, one packet of fixed-size
-records, one per receive: stream id, message count, bytes and the kernel's receive time.
-The parent turns each record into an :class:`~blackbox.events.ArrivalBatch`, so the
-pipeline sees exactly what an in-process reader would have produced. Topics whose values
-are observed stay in the parent's reader (their bytes are decoded there).
+One Python thread reads every connection of a
+:class:`~blackbox.sources.ros1.stream_reader.TcprosReader` and shares the interpreter lock
+with the pipeline. With ``readers=N`` (a source option) the black box starts N reader
+processes; after the handshake (done in the black box, as ever) each timing-only connection
+is handed to the process reading the fewest, as a file descriptor over a Unix socket
+(``SCM_RIGHTS``). A child runs its own ``TcprosReader`` in compact mode and sends back, at
+most every ``hand_over`` seconds, one packet of fixed-size records, one per receive: stream
+id, message count, bytes and the kernel's receive time. The parent turns each record into an
+:class:`~blackbox.events.ArrivalBatch`, so the pipeline sees exactly what an in-process
+reader would have produced. Topics whose values are observed stay in the parent's reader
+(their bytes are decoded there).
 
 A child that dies (killed, crashed) is reported (``ros1_reader_died``) and started again;
 its connections are reported closed and reconnected with the usual back-off, so nothing
@@ -34,7 +35,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from blackbox.events import ArrivalBatch
-from blackbox.sources.ros1.tcpros import Arrivals, MessageDecoder, StreamKey, TcprosReader
+from blackbox.sources.ros1.decoder import MessageDecoder
+from blackbox.sources.ros1.stream_reader import Arrivals, StreamKey, TcprosReader
 
 log = logging.getLogger("blackbox.sources.ros1")
 

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any, cast
 from urllib.parse import urlsplit
 
+from blackbox.errors import BlackBoxError
 from blackbox.sources.ros1.master import CALLER_ID, RosApiError, describe_error, ros_value
 
 _MAX_REPLY = 256 * 1024
@@ -49,7 +50,7 @@ class NodeReply:
     multicall: bool = True
 
 
-class _BatchFault(Exception):
+class _BatchFault(BlackBoxError):
     """``system.multicall`` as a whole was answered with a fault."""
 
 

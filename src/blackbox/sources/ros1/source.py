@@ -50,12 +50,8 @@ from blackbox.sources.ros1.callerid import DEFAULT_PREFIX, unique_caller_id, val
 from blackbox.sources.ros1.graph import GraphPoller
 from blackbox.sources.ros1.readers import ReaderProcesses
 from blackbox.sources.ros1.resources import ResourceSampler
-from blackbox.sources.ros1.tcpros import (
-    DEFAULT_MAX_MESSAGE_BYTES,
-    Arrivals,
-    StreamKey,
-    TcprosSubscriber,
-)
+from blackbox.sources.ros1.stream_reader import Arrivals, StreamKey
+from blackbox.sources.ros1.subscriber import DEFAULT_MAX_MESSAGE_BYTES, TcprosSubscriber
 
 log = logging.getLogger("blackbox.sources.ros1")
 
@@ -267,6 +263,8 @@ class Ros1Source:
         if back:
             assert gap is not None and gap.end is not None
             until = gap.end
+        if self._subscriber is not None:  # the native reader holds arrivals until asked
+            self._subscriber.reader.flush()
         queue = self._queue
         events = self._held
         self._held = []

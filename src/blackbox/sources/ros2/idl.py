@@ -16,7 +16,9 @@ from cyclonedds.idl import types as _idl_types
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-__all__ = ["IdlTypes", "UnknownType", "dds_type_name", "ros_type_name"]
+from blackbox.errors import BlackBoxError
+
+__all__ = ["IdlTypes", "UnknownRos2Type", "dds_type_name", "ros_type_name"]
 
 t: Any = _idl_types  # generic IDL type constructors (untyped for mypy)
 
@@ -29,7 +31,7 @@ _BASE: dict[str, Any] = {
 _NODE_BASE, _NODE_NAME, _NODE_ARRAY, _NODE_SEQUENCE = 1, 2, 3, 4
 
 
-class UnknownType(LookupError):
+class UnknownRos2Type(BlackBoxError, LookupError):
     """The type store has no definition of a message type (or of one of its fields)."""
 
 
@@ -58,7 +60,7 @@ class IdlTypes:
         return ros_name in self.store.fielddefs
 
     def struct(self, ros_name: str) -> type[IdlStruct]:
-        """The reader type of ``ros_name`` (``pkg/msg/Type``); ``UnknownType`` if unknown."""
+        """The reader type of ``ros_name`` (``pkg/msg/Type``); ``UnknownRos2Type`` if unknown."""
         made = self._made.get(ros_name)
         if made is None:
             made = self._made[ros_name] = self._make(ros_name)
@@ -68,13 +70,13 @@ class IdlTypes:
         try:
             _, fields = self.store.fielddefs[ros_name]
         except KeyError:
-            raise UnknownType(ros_name) from None
+            raise UnknownRos2Type(ros_name) from None
         annotations = {f"{name}": self._field(desc) for name, desc in fields}
         class_name = ros_name.replace("/", "_")
         try:
             return make_idl_struct(class_name, dds_type_name(ros_name), annotations)
         except Exception as exc:  # a definition Cyclone's IDL layer cannot express
-            raise UnknownType(f"{ros_name}: {exc}") from exc
+            raise UnknownRos2Type(f"{ros_name}: {exc}") from exc
 
     def _field(self, desc: tuple[Any, Any]) -> Any:
         node, detail = desc
@@ -83,7 +85,7 @@ class IdlTypes:
             if name == "string":
                 return t.bounded_str[bound] if bound else str
             if name == "wstring":
-                raise UnknownType("wstring fields are not supported")
+                raise UnknownRos2Type("wstring fields are not supported")
             return _BASE[name]
         if node == _NODE_NAME:
             return self.struct(detail)
@@ -93,4 +95,4 @@ class IdlTypes:
         if node == _NODE_SEQUENCE:
             sub, bound = detail
             return t.sequence[self._field(sub), bound] if bound else t.sequence[self._field(sub)]
-        raise UnknownType(f"field kind {node!r}")
+        raise UnknownRos2Type(f"field kind {node!r}")

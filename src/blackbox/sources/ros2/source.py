@@ -65,7 +65,7 @@ from blackbox.sources.clockwatch import ClockWatch
 from blackbox.sources.handout import overflow_event, split_due, wait_until
 from blackbox.sources.ros1.resources import ResourceSampler
 from blackbox.sources.ros2.graph import Endpoint, Ros2Graph
-from blackbox.sources.ros2.idl import IdlTypes, UnknownType, ros_type_name
+from blackbox.sources.ros2.idl import IdlTypes, UnknownRos2Type, ros_type_name
 from blackbox.sources.ros2.qos import EndpointQos
 from blackbox.transport.participant import LOOPBACK_CONFIG
 
@@ -464,7 +464,7 @@ class Ros2Source:
         decodable = True
         try:
             struct: type[IdlStruct] = self._types.struct(ros_type)
-        except UnknownType as exc:
+        except UnknownRos2Type as exc:
             decodable = False
             struct = _opaque(writer.dds_type)
             self._report("unknown_type", topic,

@@ -25,22 +25,32 @@ from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Annotated, Any, Protocol
 from urllib.parse import quote, urlencode
 
-from fastapi import FastAPI, HTTPException, Request
+from fastapi import FastAPI, HTTPException, Query, Request
+from fastapi import Path as UrlPath
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, RedirectResponse, Response, StreamingResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 from starlette.middleware.base import BaseHTTPMiddleware
 
-from blackbox.station.auth import Auth, AuthError, Role, Session
+from blackbox.errors import BlackBoxError
+from blackbox.station.alerts.service import AlertService
+from blackbox.station.auth import Auth, Role, Session, StationAuthError
+from blackbox.station.passwords import MAX_PASSWORD
 from blackbox.station.store import (
     EVENT_KINDS,
     StationStore,
     StationStoreError,
     UnknownRobot,
 )
+from blackbox.station.tokens import ApiTokens
+from blackbox.station.web.alerts_pages import PageTools, mount_alert_pages
+from blackbox.station.web.api_v1 import create_api
+from blackbox.station.web.limits import RequestLimits
+from blackbox.station.web.metrics import metrics_router
 from blackbox.timestamps import parse_timestamp
 
 HERE = Path(__file__).resolve().parent
@@ -49,6 +59,12 @@ LOGIN_COOKIE = "bb_login"
 CSP = ("default-src 'self'; script-src 'self'; style-src 'self'; "
        "img-src 'self' data:; connect-src 'self'; frame-ancestors 'none'; "
        "form-action 'self'; base-uri 'none'")
+HSTS = "max-age=31536000"
+"""Sent only on responses served over TLS (a browser ignores it over plain HTTP)."""
+MAX_ID = 2**63 - 1
+"""The largest number a URL may carry as an id: SQLite's integers are 64-bit."""
+Id = Annotated[int, Query(ge=0, le=MAX_ID)]
+Number = Annotated[int, UrlPath(ge=0, le=MAX_ID)]
 
 
 @dataclass(frozen=True, slots=True)
@@ -71,7 +87,7 @@ class Operations(Protocol):
     def run_ibit(self, robot: str | int, entity: str = "", requested_by: str = "") -> int: ...
 
 
-class NotLoggedIn(Exception):
+class NotLoggedIn(BlackBoxError):
     """Raised by :func:`require` for a request without a live session."""
 
 
@@ -154,8 +170,10 @@ def robot_ref(robot_id: str, resource_id: int) -> str:
 
 def create_app(auth: Auth, store: StationStore, operations: Operations,
                settings: WebSettings | None = None,
-               stop: threading.Event | None = None) -> FastAPI:
-    """The web application. ``stop`` ends the live streams (set it before stopping uvicorn)."""
+               stop: threading.Event | None = None, alerts: AlertService | None = None,
+               metrics_token: str | None = None) -> FastAPI:
+    """The web application. ``stop`` ends the live streams (set it before stopping uvicorn).
+    ``alerts``: the alerting service (rules page, ``/api/v1``, ``/metrics``)."""
     settings = settings or WebSettings()
     stop = stop or threading.Event()
     app = FastAPI(title="Robot Black Box station", docs_url=None, redoc_url=None,
@@ -181,8 +199,11 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
             response.headers["X-Frame-Options"] = "DENY"
             if not request.url.path.startswith("/static"):
                 response.headers["Cache-Control"] = "no-store"
+            if request.url.scheme == "https":
+                response.headers["Strict-Transport-Security"] = HSTS
             return response
 
+    app.add_middleware(RequestLimits)  # inside Headers: its 413/415 get the headers too
     app.add_middleware(Headers)
 
     def address(request: Request) -> str:
@@ -270,6 +291,16 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
     async def bad_value(request: Request, exc: ValueError) -> Response:
         return await http_error(request, HTTPException(400, str(exc)))
 
+    @app.exception_handler(OverflowError)
+    async def out_of_range(request: Request, exc: OverflowError) -> Response:
+        return await http_error(request, HTTPException(400, "a number is out of range"))
+
+    @app.exception_handler(RequestValidationError)
+    async def bad_parameter(request: Request, exc: RequestValidationError) -> Response:
+        problems = "; ".join(f"{'.'.join(str(p) for p in e.get('loc', ())[1:])}: "
+                             f"{e.get('msg', 'invalid')}" for e in exc.errors()[:3])
+        return await http_error(request, HTTPException(400, problems[:300] or "bad request"))
+
     # ---- log-in / log-out ------------------------------------------------------------------
 
     def login_page(request: Request, message: str = "", status: int = 200,
@@ -302,7 +333,8 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
                        "missing or wrong CSRF token")
             return login_page(request, "The log-in form expired; please try again.", 403)
         name = form.get("username", "")[:64]
-        result = await asyncio.to_thread(auth.log_in, name, form.get("password", "")[:1024],
+        result = await asyncio.to_thread(auth.log_in, name,
+                                         form.get("password", "")[:MAX_PASSWORD + 1],
                                          address(request))
         next_url = safe_next(form.get("next"))
         if result.retry_after > 0:
@@ -340,13 +372,36 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         summary = store.robot(r)
         entities = store.entities(r)
         ibits = store.ibit_runs(r, limit=1)
+        keys = getattr(operations, "robot_keys", None)  # trust on first use (enrolment.py)
+        seen = [k.public_key for k in keys.seen() if k.robot_id == summary.robot_id] \
+            if keys is not None and keys.trusted(summary.robot_id) is None else []
         return page(request, "robot.html", session, robot=summary, ref=r, entities=entities,
                     diagnosis=store.diagnosis(r), nav="fleet",
                     events=store.events(r, limit=20).events,
-                    last_ibit=ibits[0] if ibits else None)
+                    last_ibit=ibits[0] if ibits else None, seen_keys=seen)
+
+    @app.post("/robot/enrol")
+    async def robot_enrol(request: Request) -> Response:
+        """Trust on first use, confirmed by an administrator: enrol the one key seen."""
+        from blackbox.station.enrolment import EnrolmentError
+
+        session, form, target = await change(request, "robot.enrol", Role.ADMIN)
+        keys = getattr(operations, "robot_keys", None)
+        robot_id = form.get("robot", "")[:200]
+        try:
+            if keys is None:
+                raise EnrolmentError("this station keeps no robot keys")
+            enrolled = keys.confirm_seen(robot_id)
+        except EnrolmentError as exc:
+            auth.audit(session.user.name, "robot.enrol", target, "refused", address(request),
+                       str(exc))
+            raise HTTPException(400, str(exc)) from None
+        auth.audit(session.user.name, "robot.enrol", target, "ok", address(request),
+                   f"key {enrolled.public_key}")
+        return RedirectResponse(f"/robot?r={quote(robot_id, safe='')}", status_code=303)
 
     @app.get("/entity")
-    async def entity(request: Request, r: str, id: int) -> Response:
+    async def entity(request: Request, r: str, id: Id) -> Response:
         session = require(request)
         summary = store.robot(r)
         node = store.entity(r, id)
@@ -384,6 +439,8 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         session, form, target = await change(request, "alarm.ack", Role.OPERATOR)
         try:
             event_id = int(form.get("event", ""))
+            if not 0 <= event_id <= MAX_ID:
+                raise LookupError(f"no event {event_id}")
             store.acknowledge(event_id, session.user.name, form.get("note", "")[:500])
         except (ValueError, LookupError) as exc:
             auth.audit(session.user.name, "alarm.ack", target, "refused", address(request),
@@ -416,7 +473,7 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         return RedirectResponse(f"/logs/{number}", status_code=303)
 
     @app.get("/logs/{number}")
-    async def log_request(request: Request, number: int) -> Response:
+    async def log_request(request: Request, number: Number) -> Response:
         session = require(request)
         info = store.log_request(number)
         if info is None:
@@ -425,7 +482,7 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
                     preview=store.log_entries(number, 0, 20))
 
     @app.get("/logs/{number}/download")
-    async def download(request: Request, number: int, format: str = "jsonl") -> Response:
+    async def download(request: Request, number: Number, format: str = "jsonl") -> Response:
         require(request)
         info = store.log_request(number)
         if info is None:
@@ -458,7 +515,7 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         return RedirectResponse(f"/ibit/{number}", status_code=303)
 
     @app.get("/ibit/{number}")
-    async def ibit_run(request: Request, number: int) -> Response:
+    async def ibit_run(request: Request, number: Number) -> Response:
         session = require(request)
         run = store.ibit_run(number)
         if run is None:
@@ -490,15 +547,21 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
                                         by=by, address=where)
             elif op == "remove":
                 if name == by:
-                    raise AuthError("you cannot remove yourself")
+                    raise StationAuthError("you cannot remove yourself")
                 auth.remove_user(name, by=by, address=where)
             else:
-                raise AuthError(f"unknown operation {op[:20]!r}")
-        except (AuthError, ValueError) as exc:
+                raise StationAuthError(f"unknown operation {op[:20]!r}")
+        except (StationAuthError, ValueError) as exc:
             auth.audit(by, f"user.{op[:20]}", target, "refused", where, str(exc))
             return page(request, "users.html", session, users=auth.users(), status=400,
                         audit=auth.audit_log(limit=100), nav="users", message=str(exc))
         return RedirectResponse("/users", status_code=303)
+
+    # ---- alerting, /api/v1, /metrics (their own modules) ------------------------------------
+    tokens = ApiTokens(auth.path, auth)
+    mount_alert_pages(app, PageTools(page, require, change, address), alerts, tokens)
+    app.mount("/api/v1", create_api(auth, tokens, store, operations, alerts))
+    app.include_router(metrics_router(store, alerts, metrics_token))
 
     # ---- live updates ---------------------------------------------------------------------
 
@@ -545,8 +608,15 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
 
     @app.get("/api/stream")
     async def stream(request: Request, view: str = "fleet", r: str = "",
-                     id: int = 0) -> Response:
+                     id: Id = 0) -> Response:
         session = require(request)
+        token = request.cookies.get(SESSION_COOKIE)
+
+        def still_allowed() -> bool:
+            """The session is still open with the role it had (not logged out, expired,
+            removed, re-passworded or re-roled): checked at every wake of the stream."""
+            now = auth.session(token, touch=False)
+            return now is not None and now.user.role == session.user.role
         snapshots: dict[str, Callable[[], dict[str, Any]]] = {
             "fleet": fleet_state, "robot": lambda: robot_state(r),
             "entity": lambda: entity_state(r, id), "ibit": lambda: ibit_state(id),
@@ -554,6 +624,7 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         if view not in snapshots:
             raise HTTPException(400, "unknown view")
         snapshot = snapshots[view]
+        snapshot()  # an unknown robot or a bad id is an error answer, not a broken stream
 
         async def events() -> AsyncIterator[str]:
             wake = changes.register()
@@ -569,7 +640,7 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
             last_beat = last_look = time.monotonic()
             yield "retry: 1000\n\n"
             while not stop.is_set():
-                if session.expires <= time.time() or await request.is_disconnected():
+                if not still_allowed() or await request.is_disconnected():
                     break
                 current = store.sequence
                 if current != seq or time.monotonic() - last_look > 2.0:  # staleness ages
@@ -577,7 +648,7 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
                     last_look = time.monotonic()
                     try:
                         text = json.dumps(snapshot())
-                    except LookupError:
+                    except (LookupError, OverflowError):
                         text = "{}"
                     if text != last_sent:
                         last_sent = text
