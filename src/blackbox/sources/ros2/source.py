@@ -20,6 +20,11 @@ topic is known, with the reader type generated from the ``rosbags`` type store
 (:mod:`blackbox.sources.ros2.idl`) and a QoS every publisher of the topic can serve:
 reliable only if all of them are reliable, always volatile, never a deadline or a
 liveliness request. Messages decode lazily with ``rosbags`` from the raw CDR.
+
+A topic is unmeasured (a :class:`~blackbox.events.MeasurementGap`) from the start until its
+first message arrives, at most ``first_message_limit`` s: discovery, matching and the node
+names take seconds, and the messages held back meanwhile are not the robot's silence (as
+the ROS 1 source's gap while it connects).
 """
 
 from __future__ import annotations
@@ -134,6 +139,9 @@ class Ros2Settings:
     no_participant_grace: float = 3.0
     node_info_grace: float = 5.0
     discovery_settle: float = 1.0
+    first_message_limit: float = 10.0
+    """Seconds a topic stays unmeasured after the start at most, waiting for its first
+    message: past that, its silence is the robot's (a publisher dead at start times out)."""
     queue_limit: int = 200_000
     reader_depth: int = 100
     cyclone_config: str | None = None
@@ -205,6 +213,8 @@ class Ros2Source:
         self._clock = ClockWatch()
         self._thread: threading.Thread | None = None
         self._interest = Interest()
+        self._waiting: dict[str, MeasurementGap] = {}
+        """Topic -> its open start gap, closed by its first message (under ``_lock``)."""
         self._readers: dict[str, _TopicReader] = {}
         self._writer_of_handle: dict[int, str] = {}
         self._procs: dict[str, _Process] = {}
@@ -249,6 +259,12 @@ class Ros2Source:
         if self._thread is not None:
             raise RuntimeError("Ros2Source started twice")
         self._interest = interest
+        now = time.time()
+        for topic in sorted(interest.topics):
+            self._waiting[topic] = gap = MeasurementGap(
+                now, now, None, f"waiting for the first message of {topic} since the start "
+                "(DDS discovery and node names)", topic=topic)
+            self._queue.append(gap)
         self._thread = threading.Thread(target=self._run, name="ros2-dds", daemon=True)
         self._thread.start()
         self._ready.wait(10.0)
@@ -295,6 +311,19 @@ class Ros2Source:
                 self._queue.append(event)
             else:
                 self._dropped += 1
+
+    def _expire_waiting(self, now: float) -> None:
+        """Close the start gaps of topics silent for ``first_message_limit`` s: from then
+        on their silence is judged."""
+        limit = self.settings.first_message_limit
+        with self._lock:
+            for topic, gap in list(self._waiting.items()):
+                if now - gap.start >= limit:
+                    del self._waiting[topic]
+                    self._queue.append(MeasurementGap(
+                        max(now, self._handed_out), gap.start, now,
+                        f"{gap.reason}; no message within {limit:g} s, judging its silence",
+                        topic=topic))
 
     def _report(self, kind: str, component: str, message: str, *key: str,
                 level: int = logging.WARNING) -> None:
@@ -346,6 +375,7 @@ class Ros2Source:
                     except Exception as exc:  # the DDS thread must outlive any surprise
                         log.exception("graph round failed")
                         self._report("graph_error", self.name, f"graph round failed: {exc!r}")
+                self._expire_waiting(now)
                 wait = max(0.0, next_graph - time.time())
                 if self._readers:
                     self._waitset.wait(int(wait * _NS))
@@ -404,6 +434,11 @@ class Ros2Source:
         with self._lock:
             for a in arrivals:  # never before what poll already handed out
                 a.time = max(a.time, self._handed_out)
+            gap = self._waiting.pop(tr.topic, None) if arrivals else None
+            if gap is not None:  # measured from its first message on
+                first = min(a.time for a in arrivals)
+                self._queue.append(MeasurementGap(first, gap.start, first, gap.reason,
+                                                  topic=tr.topic))
             room = self.settings.queue_limit - len(self._queue)
             self._queue.extend(arrivals[:max(0, room)])
             self._dropped += max(0, len(arrivals) - max(0, room))
