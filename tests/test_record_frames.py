@@ -18,6 +18,7 @@ from typing import Any
 
 import pytest
 
+from blackbox.health.identity import EventId
 from blackbox.model import Code, Observation, Resource, State
 from blackbox.record import Store
 from blackbox.record.policy import LoggingPolicy, PolicyTracker, observation_payload
@@ -234,6 +235,8 @@ def test_sigkill_of_a_writer_mid_batch_keeps_every_acknowledged_observation(
             bad = (seq // 10) % 2
             assert e.entity == f"/t{seq % 10}" and e.characteristic == "hz"
             assert e.kind == ("exceedance" if bad else "observation")
+            if bad:  # each fault's onset is an event of its own, with its identity
+                assert EventId.parse(e.payload.pop("event_id")) is not None
             assert e.payload == {"values": {"seq": seq, "half": seq / 2},
                                  "states": [2 if bad else 1],
                                  "state_names": ["too_slow" if bad else "ok"],

@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 
 from blackbox.cli import main
+from blackbox.health.identity import EventLedger
 from blackbox.model import Code, Observation, Resource
 from blackbox.record import Recorder, Store
 from blackbox.record.salvage import salvage
@@ -30,9 +31,11 @@ T0 = 1_700_000_000.0
 def write_log(path: Path) -> dict[int, LogEntry]:
     """A log of about 9,000 entries: changes of 30 topics committed a few at a time (rows),
     then bursts committed together (frames, the last ones of several pages each)."""
+    # A ledger of its own (as beside a health publisher that published nothing): the rows
+    # carry no event identities, so the page layout the cuts below rely on is the same.
     rec = Recorder(RecorderSettings(path, commit_interval=0.05, snapshot=None,
                                     queue_limit=1_000_000), robot_id="salvage-bot",
-                   clock=lambda: T0)
+                   clock=lambda: T0, ledger=EventLedger())
     resources = [Resource(topic=f"/t{k}") for k in range(30)]
     t = T0
     for step in range(300):
