@@ -38,6 +38,7 @@ from starlette.middleware.base import BaseHTTPMiddleware
 
 from blackbox.errors import BlackBoxError
 from blackbox.station.auth import Auth, Role, Session, StationAuthError
+from blackbox.station.headline import diagnosis_headlines, event_headline, since_words
 from blackbox.station.passwords import MAX_PASSWORD
 from blackbox.station.store import (
     EVENT_KINDS,
@@ -60,6 +61,10 @@ MAX_ID = 2**63 - 1
 """The largest number a URL may carry as an id: SQLite's integers are 64-bit."""
 Id = Annotated[int, Query(ge=0, le=MAX_ID)]
 Number = Annotated[int, UrlPath(ge=0, le=MAX_ID)]
+LOG_PAGE, LOG_PAGES = 30, 33
+"""Log requests per page of /logs, and how many pages back (the store reads 1,000 at most)."""
+EVENT_PAGE = 50
+"""Events per page of /events: a page an operator scans without scrolling for long."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -180,6 +185,9 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
     env.filters["q"] = lambda v: quote(str(v), safe="")
     env.globals["health_class"] = lambda h: "h-" + str(h).lower().replace("_", "-")
     env.globals["ref"] = robot_ref
+    env.globals["event_headline"] = lambda ev: event_headline(ev.kind, ev.entity, ev.text,
+                                                              ev.details, ev.time)
+    env.globals["since_words"] = lambda t: since_words(t, time.time())
     app.mount("/static", StaticFiles(directory=str(HERE / "static")), name="static")
 
     class Headers(BaseHTTPMiddleware):
@@ -359,6 +367,17 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         session = require(request)
         return page(request, "fleet.html", session, robots=store.fleet(), nav="fleet")
 
+    def headlines_of(r: str) -> list[Any]:
+        """The robot page's headlines: the diagnosis, with each component's latest failure."""
+        summary, diagnosis = store.robot(r), store.diagnosis(r)
+        failures = {name: (ev.text, ev.details, ev.time) for name in diagnosis.components
+                    for ev in store.events(r, entity=name, kinds=["failure"], limit=1).events}
+        degraded = [e.name for e in store.entities(r)
+                    if e.kind != "robot" and e.status == "DEGRADED"]
+        return diagnosis_headlines(summary.name, diagnosis.components, diagnosis.since,
+                                   failures, degraded, stale=summary.stale,
+                                   online=summary.online)
+
     @app.get("/robot")
     async def robot(request: Request, r: str) -> Response:
         session = require(request)
@@ -369,7 +388,7 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         seen = [k.public_key for k in keys.seen() if k.robot_id == summary.robot_id] \
             if keys is not None and keys.trusted(summary.robot_id) is None else []
         return page(request, "robot.html", session, robot=summary, ref=r, entities=entities,
-                    diagnosis=store.diagnosis(r), nav="fleet",
+                    diagnosis=store.diagnosis(r), headlines=headlines_of(r), nav="fleet",
                     events=store.events(r, limit=20).events,
                     last_ibit=ibits[0] if ibits else None, seen_keys=seen)
 
@@ -418,14 +437,15 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         session = require(request)
         found = store.events(robot or None, entity=entity or None,
                              kinds=[kind] if kind else None, since=parse_time(since),
-                             until=parse_time(until), cursor=cursor or None, limit=200)
+                             until=parse_time(until), cursor=cursor or None, limit=EVENT_PAGE)
         filters = {"robot": robot, "entity": entity, "kind": kind, "since": since,
                    "until": until}
         more = urlencode({**filters, "cursor": found.next_cursor}) if found.next_cursor \
             else ""
         return page(request, "events.html", session, events=found.events, kinds=EVENT_KINDS,
                     robots=[robot_ref(s.robot_id, s.resource_id) for s in store.fleet()],
-                    nav="events", filters=filters, more=more)
+                    nav="events", filters=filters, more=more,
+                    newest=urlencode(filters) if cursor else "")
 
     @app.post("/ack")
     async def acknowledge(request: Request) -> Response:
@@ -443,9 +463,16 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         return RedirectResponse(safe_next(form.get("back")), status_code=303)
 
     @app.get("/logs")
-    async def logs(request: Request, robot: str = "", entity: str = "") -> Response:
+    async def logs(request: Request, robot: str = "", entity: str = "",
+                   page_number: Annotated[int, Query(alias="page", ge=0,
+                                                     le=LOG_PAGES - 1)] = 0) -> Response:
         session = require(request)
-        return page(request, "logs.html", session, requests=store.log_requests(limit=30),
+        newest = store.log_requests(limit=(page_number + 1) * LOG_PAGE + 1)
+        shown = newest[page_number * LOG_PAGE:(page_number + 1) * LOG_PAGE]
+        older = urlencode({"page": page_number + 1}) \
+            if len(newest) > (page_number + 1) * LOG_PAGE and page_number + 1 < LOG_PAGES \
+            else ""
+        return page(request, "logs.html", session, requests=shown, older=older,
                     robots=[robot_ref(s.robot_id, s.resource_id) for s in store.fleet()],
                     robot=robot, entity=entity, nav="logs")
 
@@ -565,14 +592,18 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
     def robot_state(r: str) -> dict[str, Any]:
         summary = store.robot(r)
         diagnosis = store.diagnosis(r)
+        now = time.time()
         return {"status": summary.status, "stale": summary.stale,
                 "last_heard": fmt_ago(summary.last_heard),
                 "diagnosis": ", ".join(diagnosis.components),
                 "explanation": diagnosis.explanation,
                 "entities": {str(e.instance_id): e.status for e in store.entities(r)},
+                "headlines": [h.to_dict(now) for h in headlines_of(r)],
                 "events": [{"id": ev.id, "time": fmt_time(ev.time), "robot": ev.robot_id,
                             "entity": ev.entity, "kind": ev.kind, "origin": ev.origin,
-                            "text": ev.text, "acknowledged_by": ev.acknowledged_by}
+                            "text": ev.text, "acknowledged_by": ev.acknowledged_by,
+                            "headline": event_headline(ev.kind, ev.entity, ev.text,
+                                                       ev.details, ev.time).to_dict(now)}
                            for ev in store.events(r, limit=20).events]}
 
     def entity_state(r: str, iid: int) -> dict[str, Any]:
