@@ -101,7 +101,7 @@ def fill(store: StationStore) -> None:
                     text="/usb_cam diagnosed faulty (best of 2 candidate explanations): "
                          + CAUSE)
     assert store.flush(force=True)
-    for i in range(35):
+    for _ in range(35):
         store.create_log_request(rid, ROBOT, entity="/a/very/long/entity/name/" * 4,
                                  characteristic=None, since=now - 600, until=now, kinds=(),
                                  requested_by="otto")
@@ -125,7 +125,8 @@ OVERFLOW = """() => {
     const box = el.getBoundingClientRect();
     let right = box.right;  // what shows: clipped by every ancestor that hides overflow
     for (let up = el.parentElement; up; up = up.parentElement) {
-      if (getComputedStyle(up).overflowX !== 'visible') right = Math.min(right, up.getBoundingClientRect().right);
+      if (getComputedStyle(up).overflowX !== 'visible')
+        right = Math.min(right, up.getBoundingClientRect().right);
     }
     if (box.width > 0 && right > width + 1) wide.push(el.tagName + '.' + el.className +
       ' right=' + Math.round(right) + ' ' + (el.textContent || '').slice(0, 40));
@@ -208,12 +209,11 @@ def test_badge_tree_and_fleet_row_show_one_status_also_after_a_live_update(
 @pytest.mark.parametrize(("width", "height"), VIEWPORTS)
 def test_tables_keep_their_columns_and_no_page_is_wider_than_the_viewport(
         served: tuple[str, StationStore], width: int, height: int) -> None:
-    url, store = served
+    url, _ = served
     with playwright_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=str(CHROMIUM))
         page = open_page(browser, url, width, height)
-        for path in ("/", f"/robot?r={ROBOT}", "/events", "/logs", "/entity?r=" + ROBOT +
-                     "&id=2"):
+        for path in ("/", f"/robot?r={ROBOT}", "/events", "/logs", f"/entity?r={ROBOT}&id=2"):
             page.goto(path)
             assert_fits(page, f"{path} at {width} px")
         page.goto("/events")
