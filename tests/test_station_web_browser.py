@@ -13,6 +13,7 @@ import csv
 import json
 import os
 import signal
+import sqlite3
 import subprocess
 import sys
 import time
@@ -212,7 +213,23 @@ def test_a_killed_node_turns_red_without_reload_and_green_after_recovery(
     deadline = (fleet.started + FAULT_START - time.time() + 25) * 1000
     usb_cam.and_(page.locator(".h-operational")).wait_for(timeout=20_000)
     usb_cam.and_(page.locator(".h-not-operational")).wait_for(timeout=deadline)
-    assert page.locator("#diagnosis-components").inner_text() == "/usb_cam"
+    headline = page.locator("#headlines .hl-text", has_text="/usb_cam is not running")
+    headline.wait_for()  # the headline first, live: what, since when, how sure
+    assert " — since " in headline.inner_text()
+    assert page.locator("#diagnosis-components").text_content() == "/usb_cam"
+
+    def one_status() -> bool:
+        """Badge, the tree's robot row and the robot's own UCMS report say the same."""
+        badge = page.locator("#robot-status").inner_text()
+        tree = page.locator("li.entity.kind-robot [data-field=status]").inner_text()
+        db = sqlite3.connect(f"file:{fleet.tmp / 'station.db'}?mode=ro", uri=True)
+        try:
+            reported = db.execute("SELECT status FROM entities WHERE kind = 'robot'"
+                                  ).fetchone()
+        finally:
+            db.close()
+        return badge == tree == (reported[0] if reported else "")
+    assert wait_for(one_status, 10), "badge, tree and UCMS report disagree for 10 s"
     failure = page.locator("table.events tr.ev-failure").first  # the timeline is live too
     failure.wait_for()
     assert "/usb_cam" in failure.inner_text()

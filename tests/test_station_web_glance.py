@@ -206,6 +206,30 @@ def test_badge_tree_and_fleet_row_show_one_status_also_after_a_live_update(
         browser.close()
 
 
+def test_the_timeline_draws_one_lane_per_entity_and_a_span_opens_its_events(
+        served: tuple[str, StationStore]) -> None:
+    url, _ = served
+    with playwright_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM))
+        page = open_page(browser, url, 1280, 860)
+        page.goto(f"/robot?r={ROBOT}&zoom=5m")
+        lanes = page.locator("#timeline svg g.lane")
+        names = [lanes.nth(i).get_attribute("data-entity") for i in range(lanes.count())]
+        assert names == [ROBOT, "/usb_cam", "/odom", "/usb_cam/image_raw"], names  # tree order
+        for lane, red in ((ROBOT, True), ("/usb_cam", True), ("/odom", False)):
+            spans = page.locator(f"#timeline g.lane[data-entity='{lane}'] rect.span")
+            fills = [spans.nth(i).get_attribute("fill") for i in range(spans.count())]
+            assert fills[-1] == ("#cf222e" if red else "#2da44e"), (lane, fills)
+        cam = page.locator("#timeline g.lane[data-entity='/usb_cam'] rect.span")
+        widths = [float(cam.nth(i).get_attribute("width") or 0) for i in range(cam.count())]
+        assert 0.10 < widths[-1] / sum(widths) < 0.17, widths  # 40 s of the last 5 min
+        cam.last.click()  # the red span: the events of that entity and moment
+        page.wait_for_load_state()
+        assert "/events?" in page.url and "entity=%2Fusb_cam" in page.url, page.url
+        assert page.locator("table.events tbody tr.ev-failure").count() == 1
+        browser.close()
+
+
 @pytest.mark.parametrize(("width", "height"), VIEWPORTS)
 def test_tables_keep_their_columns_and_no_page_is_wider_than_the_viewport(
         served: tuple[str, StationStore], width: int, height: int) -> None:

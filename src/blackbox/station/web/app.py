@@ -34,6 +34,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, RedirectResponse, Response, StreamingResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
+from markupsafe import Markup
 from starlette.middleware.base import BaseHTTPMiddleware
 
 from blackbox.errors import BlackBoxError
@@ -46,6 +47,7 @@ from blackbox.station.store import (
     StationStoreError,
     UnknownRobot,
 )
+from blackbox.station.timeline import ZOOMS, Happening, build, svg
 from blackbox.station.web.limits import RequestLimits
 from blackbox.timestamps import parse_timestamp
 
@@ -378,8 +380,27 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
                                    failures, degraded, stale=summary.stale,
                                    online=summary.online)
 
+    def timeline_of(r: str, zoom: str) -> str:
+        """The robot's health timeline over the last ``zoom`` (see station/timeline.py)."""
+        end = time.time()
+        start = end - ZOOMS[zoom]
+        names = [e.name for e in store.entities(r) if e.kind != "robot"]
+        kinds = ["failure", "rectification", "exceedance"]
+        found = store.events(r, kinds=kinds, since=start, until=end, limit=1000).events
+        before = {}
+        for name in names:
+            last = store.events(r, entity=name, kinds=["failure", "rectification"],
+                                until=start, limit=1).events
+            if last:
+                before[name] = "NOT_OPERATIONAL" if last[0].kind == "failure" else \
+                    "OPERATIONAL"
+        lanes = build(store.robot(r).name, names,
+                      [Happening(e.time, e.kind, e.entity, e.acknowledged_at) for e in found],
+                      start, end, before)
+        return svg(lanes, start, end, robot_ref=r)
+
     @app.get("/robot")
-    async def robot(request: Request, r: str) -> Response:
+    async def robot(request: Request, r: str, zoom: str = "1h") -> Response:
         session = require(request)
         summary = store.robot(r)
         entities = store.entities(r)
@@ -389,6 +410,8 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
             if keys is not None and keys.trusted(summary.robot_id) is None else []
         return page(request, "robot.html", session, robot=summary, ref=r, entities=entities,
                     diagnosis=store.diagnosis(r), headlines=headlines_of(r), nav="fleet",
+                    zoom=zoom if zoom in ZOOMS else "1h", zooms=list(ZOOMS),
+                    timeline=Markup(timeline_of(r, zoom if zoom in ZOOMS else "1h")),
                     events=store.events(r, limit=20).events,
                     last_ibit=ibits[0] if ibits else None, seen_keys=seen)
 
