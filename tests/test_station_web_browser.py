@@ -213,9 +213,11 @@ def test_a_killed_node_turns_red_without_reload_and_green_after_recovery(
     deadline = (fleet.started + FAULT_START - time.time() + 25) * 1000
     usb_cam.and_(page.locator(".h-operational")).wait_for(timeout=20_000)
     usb_cam.and_(page.locator(".h-not-operational")).wait_for(timeout=deadline)
-    headline = page.locator("#headlines .hl-text", has_text="/usb_cam is not running")
+    headline = page.locator("#headlines .hl-text", has_text="/usb_cam is not")
     headline.wait_for()  # the headline first, live: what, since when, how sure
-    assert " — since " in headline.inner_text()
+    words = headline.inner_text()
+    assert (" — since " in words and "explanation" in words) or "unique" in words, words
+    print("headline:", words)
     assert page.locator("#diagnosis-components").text_content() == "/usb_cam"
 
     def one_status() -> bool:

@@ -57,6 +57,7 @@ def served(tmp_path: Path) -> Iterator[tuple[str, StationStore]]:
     store = StationStore.open(path, stale_after=3600.0)  # the robot stays heard throughout
     auth = quick_auth(path)
     auth.add_user("otto", PASSWORD, Role.OPERATOR)
+    auth.add_user("ada", PASSWORD, Role.ADMIN)
     fill(store)
     stop = threading.Event()
     server = uvicorn.Server(uvicorn.Config(create_app(auth, store, Unreachable(), stop=stop),
@@ -105,13 +106,14 @@ def fill(store: StationStore) -> None:
         store.create_log_request(rid, ROBOT, entity="/a/very/long/entity/name/" * 4,
                                  characteristic=None, since=now - 600, until=now, kinds=(),
                                  requested_by="otto")
+    store.create_ibit_run(rid, ROBOT, "/usb_cam", "otto")
 
 
-def open_page(browser: Any, url: str, width: int, height: int) -> Any:
+def open_page(browser: Any, url: str, width: int, height: int, user: str = "otto") -> Any:
     page = browser.new_page(base_url=url, viewport={"width": width, "height": height})
     page.set_default_timeout(15_000)
     page.goto("/login")
-    page.fill("input[name=username]", "otto")
+    page.fill("input[name=username]", user)
     page.fill("input[name=password]", PASSWORD)
     page.click("button[type=submit]")
     page.wait_for_load_state()
@@ -267,3 +269,36 @@ def test_tables_keep_their_columns_and_no_page_is_wider_than_the_viewport(
         page.wait_for_load_state()
         assert page.locator("table.logs tbody tr").count() == 5
         browser.close()
+
+
+AXE = "/static/vendor/axe-core/axe.min.js"
+AXE_RUN = """async () => {
+  const found = await axe.run(document, {resultTypes: ['violations']});
+  return found.violations.filter(v => v.impact === 'serious' || v.impact === 'critical')
+    .map(v => v.id + ': ' + v.help + ' @ ' + v.nodes.slice(0, 3).map(n => n.target.join(' '))
+    .join(' | '));
+}"""
+PAGES = ["/", f"/robot?r={ROBOT}", f"/entity?r={ROBOT}&id=2", "/events", "/logs", "/logs/1",
+         "/ibit/1", "/users", "/logs/999999"]
+
+
+@pytest.mark.parametrize(("width", "height"), VIEWPORTS)
+def test_axe_finds_no_serious_accessibility_violation_on_any_page(
+        served: tuple[str, StationStore], width: int, height: int) -> None:
+    url, _ = served
+    with playwright_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM))
+        page = browser.new_page(base_url=url, viewport={"width": width, "height": height})
+        page.set_default_timeout(15_000)
+        found: dict[str, list[str]] = {}
+        page.goto("/login")
+        page.add_script_tag(url=AXE)  # from this origin: the CSP allows it
+        found["/login"] = page.evaluate(AXE_RUN)
+        page = open_page(browser, url, width, height, "ada")
+        for path in PAGES:
+            page.goto(path)
+            page.add_script_tag(url=AXE)
+            found[path] = page.evaluate(AXE_RUN)
+        browser.close()
+    serious = {k: v for k, v in found.items() if v}
+    assert serious == {}, "\n".join(f"{k}: {v}" for k, v in serious.items())

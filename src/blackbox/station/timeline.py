@@ -128,7 +128,8 @@ def svg(lanes: Sequence[Lane], start: float, end: float, *, robot_ref: str = "",
     def x(t: float) -> float:
         return label_width + (t - start) / window * plot
 
-    out = [f'<svg xmlns="http://www.w3.org/2000/svg" class="timeline" role="img" '
+    role = 'role="group" aria-label="Health timeline"' if robot_ref else 'role="img"'
+    out = [f'<svg xmlns="http://www.w3.org/2000/svg" class="timeline" {role} '
            f'viewBox="0 0 {width} {height}" width="{width}" height="{height}" '
            f'font-family="system-ui, sans-serif" font-size="12">',
            f"<title>Health timeline {escape(_clock(start, window))} - "
