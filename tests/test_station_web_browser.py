@@ -216,8 +216,7 @@ def test_a_killed_node_turns_red_without_reload_and_green_after_recovery(
     headline = page.locator("#headlines .hl-text", has_text="/usb_cam is not")
     headline.wait_for()  # the headline first, live: what, since when, how sure
     words = headline.inner_text()
-    assert (" — since " in words and "explanation" in words) or "unique" in words, words
-    print("headline:", words)
+    assert " — since " in words and ("explanation" in words or "unique" in words), words
     assert page.locator("#diagnosis-components").text_content() == "/usb_cam"
 
     def one_status() -> bool:
