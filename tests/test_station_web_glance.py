@@ -13,8 +13,10 @@ store's write API with what the follower stores for a killed ``/usb_cam``:
 from __future__ import annotations
 
 import socket
+import struct
 import threading
 import time
+import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -229,6 +231,43 @@ def test_the_timeline_draws_one_lane_per_entity_and_a_span_opens_its_events(
         page.wait_for_load_state()
         assert "/events?" in page.url and "entity=%2Fusb_cam" in page.url, page.url
         assert page.locator("table.events tbody tr.ev-failure").count() == 1
+        browser.close()
+
+
+def test_the_entity_page_has_its_own_timeline_exported_as_svg_and_png(
+        served: tuple[str, StationStore], tmp_path: Path) -> None:
+    url, _ = served
+    with playwright_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM))
+        page = browser.new_page(base_url=url, accept_downloads=True,
+                                viewport={"width": 1280, "height": 860})
+        page.set_default_timeout(15_000)
+        page.goto("/login")
+        page.fill("input[name=username]", "otto")
+        page.fill("input[name=password]", PASSWORD)
+        page.click("button[type=submit]")
+        page.wait_for_load_state()
+        page.goto(f"/entity?r={ROBOT}&id=2&zoom=5m")
+        lanes = page.locator("#timeline svg g.lane")
+        assert [lanes.nth(i).get_attribute("data-entity") for i in range(lanes.count())] == \
+            [ROBOT, "/usb_cam"]
+        with page.expect_download() as svg_file:
+            page.click("#timeline-svg")
+        svg_path = tmp_path / "timeline.svg"
+        svg_file.value.save_as(svg_path)
+        root = ET.parse(svg_path).getroot()
+        lanes_in_file = root.findall("{http://www.w3.org/2000/svg}g")
+        assert [g.get("data-entity") for g in lanes_in_file] == [ROBOT, "/usb_cam"]
+        assert root.findall(".//{http://www.w3.org/2000/svg}a") == []  # stands alone
+        with page.expect_download() as png_file:
+            page.click("#timeline-png")
+        png_path = tmp_path / "timeline.png"
+        png_file.value.save_as(png_path)
+        data = png_path.read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n", data[:16]
+        width, height = struct.unpack(">II", data[16:24])
+        assert (width, height) == (2 * int(root.get("width") or 0),
+                                   2 * int(root.get("height") or 0))
         browser.close()
 
 

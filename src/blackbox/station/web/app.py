@@ -380,11 +380,13 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
                                    failures, degraded, stale=summary.stale,
                                    online=summary.online)
 
-    def timeline_of(r: str, zoom: str) -> str:
-        """The robot's health timeline over the last ``zoom`` (see station/timeline.py)."""
+    def timeline_of(r: str, zoom: str, only: str = "", links: bool = True) -> str:
+        """The robot's health timeline over the last ``zoom`` (see station/timeline.py):
+        every entity, or ``only`` that one (with the robot's lane)."""
         end = time.time()
-        start = end - ZOOMS[zoom]
-        names = [e.name for e in store.entities(r) if e.kind != "robot"]
+        start = end - ZOOMS[zoom if zoom in ZOOMS else "1h"]
+        names = [e.name for e in store.entities(r) if e.kind != "robot"
+                 and (not only or e.name == only)]
         kinds = ["failure", "rectification", "exceedance"]
         found = store.events(r, kinds=kinds, since=start, until=end, limit=1000).events
         before = {}
@@ -397,7 +399,17 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         lanes = build(store.robot(r).name, names,
                       [Happening(e.time, e.kind, e.entity, e.acknowledged_at) for e in found],
                       start, end, before)
-        return svg(lanes, start, end, robot_ref=r)
+        return svg(lanes, start, end, robot_ref=r if links else "")
+
+    @app.get("/robot/timeline.svg")
+    async def timeline_svg(request: Request, r: str, zoom: str = "1h",
+                           entity: str = "") -> Response:
+        """The timeline as a file for an incident report (no links: it stands alone)."""
+        require(request)
+        name = f"{r}-timeline-{zoom}.svg".replace("/", "_").replace("#", "")
+        return Response(timeline_of(r, zoom, entity, links=False), media_type="image/svg+xml",
+                        headers={"Content-Disposition":
+                                 f"attachment; filename*=UTF-8''{quote(name)}"})
 
     @app.get("/robot")
     async def robot(request: Request, r: str, zoom: str = "1h") -> Response:
@@ -436,7 +448,7 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         return RedirectResponse(f"/robot?r={quote(robot_id, safe='')}", status_code=303)
 
     @app.get("/entity")
-    async def entity(request: Request, r: str, id: Id) -> Response:
+    async def entity(request: Request, r: str, id: Id, zoom: str = "1h") -> Response:
         session = require(request)
         summary = store.robot(r)
         node = store.entity(r, id)
@@ -451,6 +463,8 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
                                                           "rectification", "state_change",
                                                           "ibit"], limit=50).events
         return page(request, "entity.html", session, robot=summary, ref=r, node=node,
+                    zoom=zoom if zoom in ZOOMS else "1h", zooms=list(ZOOMS),
+                    timeline=Markup(timeline_of(r, zoom, node.name)),
                     characteristics=chars, events=events, nav="fleet",
                     series_json=json.dumps(series), window=settings.chart_window)
 
