@@ -4,7 +4,12 @@ as an SVG whose spans have the status colours and link to the events of that mom
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
+import pytest
+
+from blackbox.cli import main
+from blackbox.record.store import Row, Store
 from blackbox.station.timeline import COLOURS, Happening, Span, build, svg
 
 T0 = 1_790_000_000.0
@@ -61,3 +66,46 @@ def test_names_are_escaped_and_a_standalone_picture_has_no_links() -> None:
     root = ET.fromstring(text)
     assert root.findall(".//s:a", NS) == []
     assert root.findall("s:g", NS)[1].get("data-entity") == evil
+
+
+def test_blackbox_log_export_timeline_draws_the_robots_own_record(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """An incident report without a station: the same picture from the robot's health log,
+    older rows (components and category) and newer ones (named events) alike."""
+    path = tmp_path / "log.db"
+    cam = ("/usb_cam/image_raw", "hz", '{"topic":"/usb_cam/image_raw"}')
+    with Store.open(path) as store:
+        store.append([
+            Row(T0, "observation", cam, 0, {"values": {"period": 0.0667}}),
+            Row(T0 + 30, "failure", None, None, {"components": ["/usb_cam"],
+                                                  "category": "detection"}),
+            Row(T0 + 40, "exceedance", cam, -2, {"values": {"period": 0.5}}),
+            Row(T0 + 45, "failure", None, None, {"events": [
+                {"kind": "rectification", "entity": "/usb_cam", "id": "b-2"}]}),
+            Row(T0 + 100, "observation", cam, 0, {"values": {"period": 0.0667}}),
+        ])
+    out = tmp_path / "incident.svg"
+    assert main(["log", "export", "--db", str(path), "--timeline", "-o", str(out)]) == 0
+    root = ET.parse(out).getroot()
+    groups = root.findall("s:g", NS)
+    assert [g.get("data-entity") for g in groups][1:] == ["/usb_cam", "/usb_cam/image_raw"]
+    cam_spans = [r for r in groups[1].findall("s:rect", NS) if "span" in (r.get("class") or "")]
+    assert [r.get("fill") for r in cam_spans] == [COLOURS["OPERATIONAL"],
+                                                   COLOURS["NOT_OPERATIONAL"],
+                                                   COLOURS["OPERATIONAL"]]
+    widths = [float(r.get("width") or 0) for r in cam_spans]
+    assert abs(widths[1] / sum(widths) - 0.15) < 0.01  # 15 s of the log's 100
+    ticks = groups[2].findall("s:rect[@class='mark m-exceedance']", NS)
+    assert len(ticks) == 1
+    assert "drew 3 lanes from 5 entries" in capsys.readouterr().err
+
+
+def test_timeline_export_refuses_other_formats_in_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "log.db"
+    with Store.open(path) as store:
+        store.append([Row(T0, "failure", None, None, {"components": ["/a"]})])
+    assert main(["log", "export", "--db", str(path), "--timeline", "-o",
+                 str(tmp_path / "x.png")]) == 2
+    err = capsys.readouterr().err
+    assert "--timeline writes SVG only" in err and "Traceback" not in err

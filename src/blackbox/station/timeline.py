@@ -14,12 +14,14 @@ page and an export draw the same picture.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from html import escape
 from itertools import pairwise
 from urllib.parse import urlencode
+
+from blackbox.record.store import LogEntry
 
 COLOURS = {"OPERATIONAL": "#2da44e", "DEGRADED": "#d4a72c", "NOT_OPERATIONAL": "#cf222e",
            "UNKNOWN": "#8c959f"}
@@ -177,3 +179,37 @@ def svg(lanes: Sequence[Lane], start: float, end: float, *, robot_ref: str = "",
 
 def _iso(t: float) -> str:
     return datetime.fromtimestamp(t, UTC).strftime("%Y-%m-%dT%H:%M:%S")
+
+
+def from_log(entries: Iterable[LogEntry]) -> tuple[list[str], list[Happening]]:
+    """The entities and happenings a robot's own health log records (``blackbox log export
+    --timeline``, for an incident report without a station): its ``failure`` rows name
+    failures and rectifications (``payload.events``, or the older ``components`` with a
+    ``category``), its ``exceedance`` rows the exceedances. Entities in order of first
+    appearance."""
+    names: dict[str, None] = {}
+    out: list[Happening] = []
+
+    def add(t: float, kind: str, entity: str) -> None:
+        if entity:
+            names.setdefault(entity, None)
+            out.append(Happening(t, kind, entity))
+
+    for entry in entries:
+        payload = entry.payload if isinstance(entry.payload, dict) else {}
+        t = float(entry.time)
+        if entry.kind == "exceedance":
+            add(t, "exceedance", str(entry.entity or ""))
+        elif entry.kind == "failure":
+            named = payload.get("events")
+            if isinstance(named, list):
+                for item in named:
+                    if isinstance(item, dict) and item.get("kind") in ("failure",
+                                                                       "rectification"):
+                        add(t, str(item["kind"]), str(item.get("entity") or ""))
+                continue
+            kind = "rectification" if payload.get("category") == "rectification" \
+                else "failure"
+            for component in payload.get("components") or []:
+                add(t, kind, str(component))
+    return list(names), out
