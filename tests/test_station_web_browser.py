@@ -236,6 +236,9 @@ def test_a_killed_node_turns_red_without_reload_and_green_after_recovery(
     assert "/usb_cam" in failure.inner_text()
     assert page.evaluate("window.__sameDocument") is True  # updated in place
     fleet.shot(page, "robot", full_page=True)
+    page.set_viewport_size({"width": 768, "height": 1024})  # a tablet in the control room
+    fleet.shot(page, "robot-768", full_page=True)
+    page.set_viewport_size({"width": 1280, "height": 860})
     fleet_page = new_page(browser, fleet, "otto")
     fleet_page.locator("body[data-live=open]").wait_for()
     row = fleet_page.locator("tr[data-robot='thesis-robot']")
@@ -304,4 +307,6 @@ def test_entity_ibit_and_events_pages(browser: object, fleet: Fleet) -> None:
     page.goto("/events?robot=thesis-robot&kind=failure")
     assert "/usb_cam" in page.locator("table.events").inner_text()
     fleet.shot(page, "events")
+    page.set_viewport_size({"width": 768, "height": 1024})
+    fleet.shot(page, "events-768")
     page.context.close()
