@@ -206,7 +206,7 @@ def test_posts_without_csrf_token_are_refused(browser: object, fleet: Fleet) -> 
 def test_a_killed_node_turns_red_without_reload_and_green_after_recovery(
         browser: object, fleet: Fleet) -> None:
     page = new_page(browser, fleet, "otto")
-    page.goto("/robot?r=thesis-robot")
+    page.goto("/robot?r=thesis-robot&zoom=5m")
     page.locator("body[data-live=open]").wait_for()
     page.evaluate("window.__sameDocument = true")
     usb_cam = page.locator("li.entity[data-name='/usb_cam']")
@@ -235,6 +235,8 @@ def test_a_killed_node_turns_red_without_reload_and_green_after_recovery(
     failure.wait_for()
     assert "/usb_cam" in failure.inner_text()
     assert page.evaluate("window.__sameDocument") is True  # updated in place
+    page.locator("#timeline g.lane[data-entity='/usb_cam'] rect.span[fill='#cf222e']"
+                 ).wait_for()  # the timeline is redrawn live, red from the failure on
     fleet.shot(page, "robot", full_page=True)
     page.set_viewport_size({"width": 768, "height": 1024})  # a tablet in the control room
     fleet.shot(page, "robot-768", full_page=True)

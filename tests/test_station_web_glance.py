@@ -212,7 +212,7 @@ def test_badge_tree_and_fleet_row_show_one_status_also_after_a_live_update(
 
 def test_the_timeline_draws_one_lane_per_entity_and_a_span_opens_its_events(
         served: tuple[str, StationStore]) -> None:
-    url, _ = served
+    url, store = served
     with playwright_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=str(CHROMIUM))
         page = open_page(browser, url, 1280, 860)
@@ -227,6 +227,12 @@ def test_the_timeline_draws_one_lane_per_entity_and_a_span_opens_its_events(
         cam = page.locator("#timeline g.lane[data-entity='/usb_cam'] rect.span")
         widths = [float(cam.nth(i).get_attribute("width") or 0) for i in range(cam.count())]
         assert 0.10 < widths[-1] / sum(widths) < 0.17, widths  # 40 s of the last 5 min
+        page.locator("body[data-live=open]").wait_for()  # live: a new failure is drawn
+        store.add_event(robot_resource_id(ROBOT), time.time() - 20, "failure", dedup="f2",
+                        entity="/odom", text="/odom diagnosed faulty")
+        assert store.flush(force=True)
+        page.locator("#timeline g.lane[data-entity='/odom'] rect.span[fill='#cf222e']"
+                     ).wait_for()
         cam.last.click()  # the red span: the events of that entity and moment
         page.wait_for_load_state()
         assert "/events?" in page.url and "entity=%2Fusb_cam" in page.url, page.url

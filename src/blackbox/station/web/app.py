@@ -99,6 +99,16 @@ def fmt_time(t: float | None) -> str:
     return datetime.fromtimestamp(t, UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
 
 
+def fmt_clock(t: float | None) -> str:
+    """A table's time: the clock for today (what a glance needs), the date too otherwise;
+    the full time is in the cell's title."""
+    if t is None:
+        return "never"
+    at = datetime.fromtimestamp(t, UTC)
+    today = at.date() == datetime.now(UTC).date()
+    return at.strftime("%H:%M:%S" if today else "%Y-%m-%d %H:%M")
+
+
 def fmt_ago(t: float | None) -> str:
     if t is None:
         return "never"
@@ -183,6 +193,7 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
     env.autoescape = True
     env.filters["when"] = fmt_time
     env.filters["ago"] = fmt_ago
+    env.filters["clock"] = fmt_clock
     env.filters["value"] = fmt_value
     env.filters["q"] = lambda v: quote(str(v), safe="")
     env.globals["health_class"] = lambda h: "h-" + str(h).lower().replace("_", "-")
@@ -402,10 +413,13 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         return svg(lanes, start, end, robot_ref=r if links else "")
 
     @app.get("/robot/timeline.svg")
-    async def timeline_svg(request: Request, r: str, zoom: str = "1h",
-                           entity: str = "") -> Response:
-        """The timeline as a file for an incident report (no links: it stands alone)."""
+    async def timeline_svg(request: Request, r: str, zoom: str = "1h", entity: str = "",
+                           links: bool = False) -> Response:
+        """The timeline as a file for an incident report (no links: it stands alone), or
+        with ``links`` the page's own picture, redrawn when the robot's state changes."""
         require(request)
+        if links:
+            return Response(timeline_of(r, zoom, entity), media_type="image/svg+xml")
         name = f"{r}-timeline-{zoom}.svg".replace("/", "_").replace("#", "")
         return Response(timeline_of(r, zoom, entity, links=False), media_type="image/svg+xml",
                         headers={"Content-Disposition":
@@ -636,7 +650,8 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
                 "explanation": diagnosis.explanation,
                 "entities": {str(e.instance_id): e.status for e in store.entities(r)},
                 "headlines": [h.to_dict(now) for h in headlines_of(r)],
-                "events": [{"id": ev.id, "time": fmt_time(ev.time), "robot": ev.robot_id,
+                "events": [{"id": ev.id, "time": fmt_time(ev.time),
+                            "clock": fmt_clock(ev.time), "robot": ev.robot_id,
                             "entity": ev.entity, "kind": ev.kind, "origin": ev.origin,
                             "text": ev.text, "acknowledged_by": ev.acknowledged_by,
                             "headline": event_headline(ev.kind, ev.entity, ev.text,

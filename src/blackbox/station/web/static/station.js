@@ -99,8 +99,9 @@
       tr.className = "ev-" + ev.kind;
       tr.dataset.event = String(ev.id);
       const kind = clipped("td", "", ev.kind + (ev.origin !== "live" ? " (" + ev.origin + ")" : ""));
-      [clipped("td", "", ev.time), clipped("td", "", ev.robot), clipped("td", "", ev.entity), kind, whatCell(ev)]
+      [clipped("td", "", ev.clock || ev.time), clipped("td", "", ev.robot), clipped("td", "", ev.entity), kind, whatCell(ev)]
         .forEach(function (td) { tr.appendChild(td); });
+      tr.firstChild.title = ev.time;
       if (open.has(String(ev.id))) tr.querySelector("details").open = true;  // keep what the operator opened
       const ack = clipped("td", "", ev.acknowledged_by || "");
       if (!ev.acknowledged_by && operator && (ev.kind === "failure" || ev.kind === "exceedance")) {
@@ -207,6 +208,7 @@
   source.addEventListener("state", function (e) {
     const state = JSON.parse(e.data);
     if (views[view] && Object.keys(state).length) views[view](root, state);
+    document.dispatchEvent(new CustomEvent("station:state"));  // e.g. the timeline redraws
     document.body.dataset.updated = String(Date.now());
   });
   source.addEventListener("end", function () { source.close(); });
