@@ -284,7 +284,8 @@ def test_tables_keep_their_columns_and_no_page_is_wider_than_the_viewport(
     with playwright_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=str(CHROMIUM))
         page = open_page(browser, url, width, height)
-        for path in ("/", f"/robot?r={ROBOT}", "/events", "/logs", f"/entity?r={ROBOT}&id=2"):
+        for path in ("/", f"/robot?r={ROBOT}", "/events", "/logs", f"/entity?r={ROBOT}&id=2",
+                     "/alerts", "/tokens"):
             page.goto(path)
             assert_fits(page, f"{path} at {width} px")
         page.goto("/events")
@@ -324,7 +325,7 @@ AXE_RUN = """async () => {
     .join(' | '));
 }"""
 PAGES = ["/", f"/robot?r={ROBOT}", f"/entity?r={ROBOT}&id=2", "/events", "/logs", "/logs/1",
-         "/ibit/1", "/users", "/logs/999999"]
+         "/ibit/1", "/users", "/alerts", "/tokens", "/logs/999999"]
 
 
 @pytest.mark.parametrize(("width", "height"), VIEWPORTS)
