@@ -51,8 +51,6 @@ APPLICATION = "blackbox-station"
 STATUSES = ("OPERATIONAL", "DEGRADED", "NOT_OPERATIONAL", "UNKNOWN")
 """UCMS health statuses, in the order of their enum values."""
 
-SEVERITY = {"OPERATIONAL": 0, "UNKNOWN": 1, "DEGRADED": 2, "NOT_OPERATIONAL": 3}
-"""How bad a status is, for the worst status of a robot."""
 
 EVENT_KINDS = ("failure", "rectification", "diagnosis", "exceedance", "state_change",
                "acknowledgement", "ibit", "log_request")
