@@ -94,12 +94,14 @@ def test_a_file_that_is_not_a_station_database_is_refused_and_left_alone(tmp_pat
         StationStore.open(tmp_path / "missing" / "station.db")
 
 
-def test_fleet_shows_the_worst_status_and_a_silent_robot_turns_unknown(
+def test_fleet_shows_the_ucms_status_and_a_silent_robot_turns_unknown(
         store: StationStore, clock: Clock) -> None:
     robot(store, "alpha", {"/cam": "NOT_OPERATIONAL", "/audio": "DEGRADED"})
     robot(store, "bravo", {"/cam": "OPERATIONAL"})
     fleet = {r.robot_id: r for r in store.fleet()}
-    assert fleet["alpha"].status == "NOT_OPERATIONAL"
+    assert fleet["alpha"].status == "DEGRADED"  # one entity down: the UCMS rule (status.py)
+    tree = {e.kind: e.status for e in store.entities("alpha")}
+    assert tree["robot"] == fleet["alpha"].status == store.robot("alpha").status
     assert fleet["alpha"].failing == 2
     assert fleet["bravo"].status == "OPERATIONAL"
     assert not fleet["bravo"].stale

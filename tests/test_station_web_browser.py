@@ -13,6 +13,7 @@ import csv
 import json
 import os
 import signal
+import sqlite3
 import subprocess
 import sys
 import time
@@ -205,19 +206,41 @@ def test_posts_without_csrf_token_are_refused(browser: object, fleet: Fleet) -> 
 def test_a_killed_node_turns_red_without_reload_and_green_after_recovery(
         browser: object, fleet: Fleet) -> None:
     page = new_page(browser, fleet, "otto")
-    page.goto("/robot?r=thesis-robot")
+    page.goto("/robot?r=thesis-robot&zoom=5m")
     page.locator("body[data-live=open]").wait_for()
     page.evaluate("window.__sameDocument = true")
     usb_cam = page.locator("li.entity[data-name='/usb_cam']")
     deadline = (fleet.started + FAULT_START - time.time() + 25) * 1000
     usb_cam.and_(page.locator(".h-operational")).wait_for(timeout=20_000)
     usb_cam.and_(page.locator(".h-not-operational")).wait_for(timeout=deadline)
-    assert page.locator("#diagnosis-components").inner_text() == "/usb_cam"
+    headline = page.locator("#headlines .hl-text", has_text="/usb_cam is not")
+    headline.wait_for()  # the headline first, live: what, since when, how sure
+    words = headline.inner_text()
+    assert " — since " in words and ("explanation" in words or "unique" in words), words
+    assert page.locator("#diagnosis-components").text_content() == "/usb_cam"
+
+    def one_status() -> bool:
+        """Badge, the tree's robot row and the robot's own UCMS report say the same."""
+        badge = page.locator("#robot-status").inner_text()
+        tree = page.locator("li.entity.kind-robot [data-field=status]").inner_text()
+        db = sqlite3.connect(f"file:{fleet.tmp / 'station.db'}?mode=ro", uri=True)
+        try:
+            reported = db.execute("SELECT status FROM entities WHERE kind = 'robot'"
+                                  ).fetchone()
+        finally:
+            db.close()
+        return badge == tree == (reported[0] if reported else "")
+    assert wait_for(one_status, 10), "badge, tree and UCMS report disagree for 10 s"
     failure = page.locator("table.events tr.ev-failure").first  # the timeline is live too
     failure.wait_for()
     assert "/usb_cam" in failure.inner_text()
     assert page.evaluate("window.__sameDocument") is True  # updated in place
+    page.locator("#timeline g.lane[data-entity='/usb_cam'] rect.span[fill='#cf222e']"
+                 ).wait_for()  # the timeline is redrawn live, red from the failure on
     fleet.shot(page, "robot", full_page=True)
+    page.set_viewport_size({"width": 768, "height": 1024})  # a tablet in the control room
+    fleet.shot(page, "robot-768", full_page=True)
+    page.set_viewport_size({"width": 1280, "height": 860})
     fleet_page = new_page(browser, fleet, "otto")
     fleet_page.locator("body[data-live=open]").wait_for()
     row = fleet_page.locator("tr[data-robot='thesis-robot']")
@@ -286,4 +309,6 @@ def test_entity_ibit_and_events_pages(browser: object, fleet: Fleet) -> None:
     page.goto("/events?robot=thesis-robot&kind=failure")
     assert "/usb_cam" in page.locator("table.events").inner_text()
     fleet.shot(page, "events")
+    page.set_viewport_size({"width": 768, "height": 1024})
+    fleet.shot(page, "events-768")
     page.context.close()

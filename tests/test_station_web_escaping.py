@@ -95,9 +95,12 @@ def test_robot_supplied_markup_is_shown_as_text_and_never_runs(
         assert store.flush(force=True)
         page.locator("li.entity.h-not-operational[data-entity='2']").wait_for()
         page.locator("table.events tr.ev-failure").first.wait_for()
-        assert page.locator("#diagnosis-components").inner_text() == EVIL
-        assert IMG_EVIL in page.locator("#diagnosis-explanation").inner_text()
-        assert f"{IMG_EVIL} died" in page.locator("table.events").inner_text()
+        assert page.locator("#headlines .hl-text b").first.inner_text() == \
+            f"{EVIL} is not working"
+        assert page.locator("#diagnosis-components").text_content() == EVIL  # one click away
+        assert IMG_EVIL in (page.locator("#diagnosis-explanation").text_content() or "")
+        assert f"{IMG_EVIL} died" in (page.locator("table.events").text_content() or "")
+        assert f"{EVIL} is not working" in page.locator("table.events").inner_text()
         assert page.locator("main script, main img").count() == 0
 
         page.click("li.entity[data-entity='2'] a.name")

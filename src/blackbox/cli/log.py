@@ -70,6 +70,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     with_filters(e)
     e.add_argument("--format", choices=FORMATS, help="default: from the output file's suffix")
     e.add_argument("-o", "--output", type=Path, help="output file (default: standard output)")
+    e.add_argument("--timeline", action="store_true",
+                   help="write the health timeline (one lane per entity) as SVG instead")
     with_salvage(e)
     e.set_defaults(func=_export)
 
@@ -209,6 +211,8 @@ def _query(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
+    if args.timeline:
+        return _export_timeline(args)
     fmt = args.format
     if fmt is None:
         suffix = args.output.suffix.lstrip(".") if args.output else "jsonl"
@@ -231,6 +235,43 @@ def _export(args: argparse.Namespace) -> int:
             return _fail(str(exc))
     if args.output:
         print(f"exported {n} entries to {args.output} ({fmt})", file=sys.stderr)
+    return 0
+
+
+def _export_timeline(args: argparse.Namespace) -> int:
+    """The station's health timeline drawn from the robot's own log, as an SVG file."""
+    from blackbox.station.timeline import build, from_log, svg
+
+    if args.format not in (None, "svg") or (args.output and args.output.suffix not in
+                                            ("", ".svg")):
+        return _fail("--timeline writes SVG only (open it in a browser to print or save "
+                     "as PNG)", EXIT_USAGE)
+    store = _source(args)
+    if isinstance(store, int):
+        return store
+    with _closing(store):
+        entries = _entries(args, store)
+        if entries is None:
+            return EXIT_USAGE
+        robot_id = store.robot_id if isinstance(store, Salvaged) else store.meta("robot_id")
+    if not entries:
+        return _fail("no entries to draw (check --since/--until)")
+    names, happenings = from_log(entries)
+    start = parse_time(args.since) or min(e.time for e in entries)
+    end = parse_time(args.until) or max(e.time for e in entries)
+    if end <= start:
+        end = start + 1.0
+    picture = svg(build(robot_id or "robot", names, happenings, start, end), start, end)
+    try:
+        if args.output:
+            args.output.write_text(picture + "\n", encoding="utf-8")
+        else:
+            sys.stdout.write(picture + "\n")
+    except OSError as exc:
+        return _fail(str(exc))
+    if args.output:
+        print(f"drew {len(names) + 1} lanes from {len(entries)} entries to {args.output}",
+              file=sys.stderr)
     return 0
 
 

@@ -43,6 +43,7 @@ from typing import IO, Any
 from blackbox.errors import BlackBoxError
 from blackbox.health.ids import robot_resource_id
 from blackbox.record.store import LogEntry
+from blackbox.station.status import robot_status
 
 SCHEMA_VERSION = 1
 APPLICATION = "blackbox-station"
@@ -50,8 +51,6 @@ APPLICATION = "blackbox-station"
 STATUSES = ("OPERATIONAL", "DEGRADED", "NOT_OPERATIONAL", "UNKNOWN")
 """UCMS health statuses, in the order of their enum values."""
 
-SEVERITY = {"OPERATIONAL": 0, "UNKNOWN": 1, "DEGRADED": 2, "NOT_OPERATIONAL": 3}
-"""How bad a status is, for the worst status of a robot."""
 
 EVENT_KINDS = ("failure", "rectification", "diagnosis", "exceedance", "state_change",
                "acknowledgement", "ibit", "log_request")
@@ -96,10 +95,10 @@ class UnknownRobot(BlackBoxError, LookupError):
 class RobotSummary:
     """One line of the fleet page.
 
-    ``status`` is what the operator should see: the worst status of the robot's entities,
-    or ``UNKNOWN`` when the robot is ``stale`` (silent for longer than ``stale_after``) or
-    ``offline`` (its black box said it stopped). ``reported_status`` is the robot entity's
-    own UCMS status as last received.
+    ``status`` is what the operator should see: the UCMS rule over the robot's entities
+    (:func:`blackbox.station.status.robot_status`), or ``UNKNOWN`` when the robot is
+    ``stale`` (silent for longer than ``stale_after``) or ``offline`` (its black box said
+    it stopped). ``reported_status`` is the robot entity's own UCMS status as last received.
     """
 
     resource_id: int
@@ -1123,9 +1122,8 @@ class StationStore:
             reported = next((s for k, s, _, _ in ents if k == "robot"), "UNKNOWN")
             robot_online = bool(online) and all(o for k, _, o, _ in ents if k == "robot")
             stale = last_heard is None or now - last_heard > self.stale_after
-            worst = max((s for _, s, _, _ in ents), key=lambda s: SEVERITY.get(s, 1),
-                        default="UNKNOWN")
-            status = "UNKNOWN" if stale or not robot_online else worst
+            status = robot_status((s for _, s, _, _ in ents), stale=stale,
+                                  online=robot_online)
             failing = sum(1 for k, s, _, _ in ents
                           if k != "robot" and s in ("DEGRADED", "NOT_OPERATIONAL"))
             out.append(RobotSummary(
@@ -1155,6 +1153,8 @@ class StationStore:
         out = []
         for iid, name, kind, status, online, bit, parent, failures, updated, chars in rows:
             shown = "UNKNOWN" if summary.stale or not summary.online or not online else status
+            if kind == "robot":
+                shown = summary.status  # one status everywhere (station/status.py)
             out.append(EntityNode(iid, name or f"#{iid}", kind or "unknown", shown, status,
                                   bool(online), bool(bit), parent or None, failures, updated,
                                   len(_loads(chars, []))))

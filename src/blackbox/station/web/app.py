@@ -34,11 +34,13 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, RedirectResponse, Response, StreamingResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
+from markupsafe import Markup
 from starlette.middleware.base import BaseHTTPMiddleware
 
 from blackbox.errors import BlackBoxError
 from blackbox.station.alerts.service import AlertService
 from blackbox.station.auth import Auth, Role, Session, StationAuthError
+from blackbox.station.headline import diagnosis_headlines, event_headline, since_words
 from blackbox.station.passwords import MAX_PASSWORD
 from blackbox.station.store import (
     EVENT_KINDS,
@@ -46,6 +48,7 @@ from blackbox.station.store import (
     StationStoreError,
     UnknownRobot,
 )
+from blackbox.station.timeline import ZOOMS, Happening, build, svg
 from blackbox.station.tokens import ApiTokens
 from blackbox.station.web.alerts_pages import PageTools, mount_alert_pages
 from blackbox.station.web.api_v1 import create_api
@@ -65,6 +68,10 @@ MAX_ID = 2**63 - 1
 """The largest number a URL may carry as an id: SQLite's integers are 64-bit."""
 Id = Annotated[int, Query(ge=0, le=MAX_ID)]
 Number = Annotated[int, UrlPath(ge=0, le=MAX_ID)]
+LOG_PAGE, LOG_PAGES = 30, 33
+"""Log requests per page of /logs, and how many pages back (the store reads 1,000 at most)."""
+EVENT_PAGE = 50
+"""Events per page of /events: a page an operator scans without scrolling for long."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -95,6 +102,16 @@ def fmt_time(t: float | None) -> str:
     if t is None:
         return "never"
     return datetime.fromtimestamp(t, UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+
+
+def fmt_clock(t: float | None) -> str:
+    """A table's time: the clock for today (what a glance needs), the date too otherwise;
+    the full time is in the cell's title."""
+    if t is None:
+        return "never"
+    at = datetime.fromtimestamp(t, UTC)
+    today = at.date() == datetime.now(UTC).date()
+    return at.strftime("%H:%M:%S" if today else "%Y-%m-%d %H:%M")
 
 
 def fmt_ago(t: float | None) -> str:
@@ -183,10 +200,14 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
     env.autoescape = True
     env.filters["when"] = fmt_time
     env.filters["ago"] = fmt_ago
+    env.filters["clock"] = fmt_clock
     env.filters["value"] = fmt_value
     env.filters["q"] = lambda v: quote(str(v), safe="")
     env.globals["health_class"] = lambda h: "h-" + str(h).lower().replace("_", "-")
     env.globals["ref"] = robot_ref
+    env.globals["event_headline"] = lambda ev: event_headline(ev.kind, ev.entity, ev.text,
+                                                              ev.details, ev.time)
+    env.globals["since_words"] = lambda t: since_words(t, time.time())
     app.mount("/static", StaticFiles(directory=str(HERE / "static")), name="static")
 
     class Headers(BaseHTTPMiddleware):
@@ -366,8 +387,53 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         session = require(request)
         return page(request, "fleet.html", session, robots=store.fleet(), nav="fleet")
 
+    def headlines_of(r: str) -> list[Any]:
+        """The robot page's headlines: the diagnosis, with each component's latest failure."""
+        summary, diagnosis = store.robot(r), store.diagnosis(r)
+        failures = {name: (ev.text, ev.details, ev.time) for name in diagnosis.components
+                    for ev in store.events(r, entity=name, kinds=["failure"], limit=1).events}
+        degraded = [e.name for e in store.entities(r)
+                    if e.kind != "robot" and e.status == "DEGRADED"]
+        return diagnosis_headlines(summary.name, diagnosis.components, diagnosis.since,
+                                   failures, degraded, stale=summary.stale,
+                                   online=summary.online)
+
+    def timeline_of(r: str, zoom: str, only: str = "", links: bool = True) -> str:
+        """The robot's health timeline over the last ``zoom`` (see station/timeline.py):
+        every entity, or ``only`` that one (with the robot's lane)."""
+        end = time.time()
+        start = end - ZOOMS[zoom if zoom in ZOOMS else "1h"]
+        names = [e.name for e in store.entities(r) if e.kind != "robot"
+                 and (not only or e.name == only)]
+        kinds = ["failure", "rectification", "exceedance"]
+        found = store.events(r, kinds=kinds, since=start, until=end, limit=1000).events
+        before = {}
+        for name in names:
+            last = store.events(r, entity=name, kinds=["failure", "rectification"],
+                                until=start, limit=1).events
+            if last:
+                before[name] = "NOT_OPERATIONAL" if last[0].kind == "failure" else \
+                    "OPERATIONAL"
+        lanes = build(store.robot(r).name, names,
+                      [Happening(e.time, e.kind, e.entity, e.acknowledged_at) for e in found],
+                      start, end, before)
+        return svg(lanes, start, end, robot_ref=r if links else "")
+
+    @app.get("/robot/timeline.svg")
+    async def timeline_svg(request: Request, r: str, zoom: str = "1h", entity: str = "",
+                           links: bool = False) -> Response:
+        """The timeline as a file for an incident report (no links: it stands alone), or
+        with ``links`` the page's own picture, redrawn when the robot's state changes."""
+        require(request)
+        if links:
+            return Response(timeline_of(r, zoom, entity), media_type="image/svg+xml")
+        name = f"{r}-timeline-{zoom}.svg".replace("/", "_").replace("#", "")
+        return Response(timeline_of(r, zoom, entity, links=False), media_type="image/svg+xml",
+                        headers={"Content-Disposition":
+                                 f"attachment; filename*=UTF-8''{quote(name)}"})
+
     @app.get("/robot")
-    async def robot(request: Request, r: str) -> Response:
+    async def robot(request: Request, r: str, zoom: str = "1h") -> Response:
         session = require(request)
         summary = store.robot(r)
         entities = store.entities(r)
@@ -376,7 +442,9 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         seen = [k.public_key for k in keys.seen() if k.robot_id == summary.robot_id] \
             if keys is not None and keys.trusted(summary.robot_id) is None else []
         return page(request, "robot.html", session, robot=summary, ref=r, entities=entities,
-                    diagnosis=store.diagnosis(r), nav="fleet",
+                    diagnosis=store.diagnosis(r), headlines=headlines_of(r), nav="fleet",
+                    zoom=zoom if zoom in ZOOMS else "1h", zooms=list(ZOOMS),
+                    timeline=Markup(timeline_of(r, zoom if zoom in ZOOMS else "1h")),
                     events=store.events(r, limit=20).events,
                     last_ibit=ibits[0] if ibits else None, seen_keys=seen)
 
@@ -401,7 +469,7 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         return RedirectResponse(f"/robot?r={quote(robot_id, safe='')}", status_code=303)
 
     @app.get("/entity")
-    async def entity(request: Request, r: str, id: Id) -> Response:
+    async def entity(request: Request, r: str, id: Id, zoom: str = "1h") -> Response:
         session = require(request)
         summary = store.robot(r)
         node = store.entity(r, id)
@@ -416,6 +484,8 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
                                                           "rectification", "state_change",
                                                           "ibit"], limit=50).events
         return page(request, "entity.html", session, robot=summary, ref=r, node=node,
+                    zoom=zoom if zoom in ZOOMS else "1h", zooms=list(ZOOMS),
+                    timeline=Markup(timeline_of(r, zoom, node.name)),
                     characteristics=chars, events=events, nav="fleet",
                     series_json=json.dumps(series), window=settings.chart_window)
 
@@ -425,14 +495,15 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         session = require(request)
         found = store.events(robot or None, entity=entity or None,
                              kinds=[kind] if kind else None, since=parse_time(since),
-                             until=parse_time(until), cursor=cursor or None, limit=200)
+                             until=parse_time(until), cursor=cursor or None, limit=EVENT_PAGE)
         filters = {"robot": robot, "entity": entity, "kind": kind, "since": since,
                    "until": until}
         more = urlencode({**filters, "cursor": found.next_cursor}) if found.next_cursor \
             else ""
         return page(request, "events.html", session, events=found.events, kinds=EVENT_KINDS,
                     robots=[robot_ref(s.robot_id, s.resource_id) for s in store.fleet()],
-                    nav="events", filters=filters, more=more)
+                    nav="events", filters=filters, more=more,
+                    newest=urlencode(filters) if cursor else "")
 
     @app.post("/ack")
     async def acknowledge(request: Request) -> Response:
@@ -450,9 +521,16 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         return RedirectResponse(safe_next(form.get("back")), status_code=303)
 
     @app.get("/logs")
-    async def logs(request: Request, robot: str = "", entity: str = "") -> Response:
+    async def logs(request: Request, robot: str = "", entity: str = "",
+                   page_number: Annotated[int, Query(alias="page", ge=0,
+                                                     le=LOG_PAGES - 1)] = 0) -> Response:
         session = require(request)
-        return page(request, "logs.html", session, requests=store.log_requests(limit=30),
+        newest = store.log_requests(limit=(page_number + 1) * LOG_PAGE + 1)
+        shown = newest[page_number * LOG_PAGE:(page_number + 1) * LOG_PAGE]
+        older = urlencode({"page": page_number + 1}) \
+            if len(newest) > (page_number + 1) * LOG_PAGE and page_number + 1 < LOG_PAGES \
+            else ""
+        return page(request, "logs.html", session, requests=shown, older=older,
                     robots=[robot_ref(s.robot_id, s.resource_id) for s in store.fleet()],
                     robot=robot, entity=entity, nav="logs")
 
@@ -578,14 +656,19 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
     def robot_state(r: str) -> dict[str, Any]:
         summary = store.robot(r)
         diagnosis = store.diagnosis(r)
+        now = time.time()
         return {"status": summary.status, "stale": summary.stale,
                 "last_heard": fmt_ago(summary.last_heard),
                 "diagnosis": ", ".join(diagnosis.components),
                 "explanation": diagnosis.explanation,
                 "entities": {str(e.instance_id): e.status for e in store.entities(r)},
-                "events": [{"id": ev.id, "time": fmt_time(ev.time), "robot": ev.robot_id,
+                "headlines": [h.to_dict(now) for h in headlines_of(r)],
+                "events": [{"id": ev.id, "time": fmt_time(ev.time),
+                            "clock": fmt_clock(ev.time), "robot": ev.robot_id,
                             "entity": ev.entity, "kind": ev.kind, "origin": ev.origin,
-                            "text": ev.text, "acknowledged_by": ev.acknowledged_by}
+                            "text": ev.text, "acknowledged_by": ev.acknowledged_by,
+                            "headline": event_headline(ev.kind, ev.entity, ev.text,
+                                                       ev.details, ev.time).to_dict(now)}
                            for ev in store.events(r, limit=20).events]}
 
     def entity_state(r: str, iid: int) -> dict[str, Any]:

@@ -28,23 +28,99 @@
     form.appendChild(button);
     return form;
   }
+  function el(tag, className, text) {
+    const node = document.createElement(tag);
+    if (className) node.className = className;
+    if (text != null) node.textContent = String(text);
+    return node;
+  }
+  function clipped(tag, className, text) {
+    const node = el(tag, "clip " + (className || ""), text); node.title = String(text || ""); return node;
+  }
+  function evidenceList(evidence) {
+    const dl = el("dl");
+    (evidence || []).forEach(function (e) {
+      dl.appendChild(el("dt", "", e.label));
+      (e.items || []).forEach(function (item) { dl.appendChild(el("dd", "", item)); });
+    });
+    return dl;
+  }
+  // The same markup as templates/_headline.html.
+  function headlineBlock(h) {
+    const div = el("div", "headline hl-" + h.severity);
+    const p = el("p", "hl-text");
+    p.appendChild(el("b", "", h.text));
+    if (h.when) { p.appendChild(document.createTextNode(" ")); p.appendChild(el("span", "hl-when", "— " + h.when)); }
+    if (h.certainty) { p.appendChild(document.createTextNode(" ")); p.appendChild(el("span", "hl-certainty", "(" + h.certainty + ")")); }
+    div.appendChild(p);
+    [["Operator:", h.operator_action], ["Maintenance:", h.maintenance_action]].forEach(function (a) {
+      if (!a[1]) return;
+      const line = el("p", "hl-action"); line.appendChild(el("b", "", a[0]));
+      line.appendChild(document.createTextNode(" " + a[1])); div.appendChild(line);
+    });
+    if (h.evidence && h.evidence.length) {
+      const details = el("details", "hl-evidence"); details.appendChild(el("summary", "", "Evidence"));
+      details.appendChild(evidenceList(h.evidence)); div.appendChild(details);
+    }
+    return div;
+  }
+  // The same markup as the "What" cell of templates/_events.html.
+  function whatCell(ev) {
+    const td = el("td", "what");
+    const h = ev.headline || { text: ev.text, evidence: [] };
+    const details = el("details", "full");
+    if (h.text !== ev.text || (h.evidence && h.evidence.length)) {
+      const line = clipped("div", "ev-headline hl-" + h.severity, h.text);
+      if (h.certainty) { line.appendChild(document.createTextNode(" ")); line.appendChild(el("span", "hl-certainty", "(" + h.certainty + ")")); }
+      td.appendChild(line);
+      if (h.operator_action) {
+        const action = clipped("div", "hl-action", ""); action.title = h.operator_action;
+        action.appendChild(el("b", "", "Operator:")); action.appendChild(document.createTextNode(" " + h.operator_action));
+        td.appendChild(action);
+      }
+      details.appendChild(el("summary", "", "Details"));
+      if (h.evidence && h.evidence.length) details.appendChild(evidenceList(h.evidence));
+    } else {
+      details.appendChild(clipped("summary", "", ev.text));
+    }
+    details.appendChild(el("p", "", ev.text));
+    td.appendChild(details);
+    return td;
+  }
   function renderEvents(table, events) {
     if (!table) return;
     const operator = ["operator", "admin"].indexOf(document.body.dataset.role) >= 0;
     const body = table.tBodies[0];
     if (!events.length) return;
+    const open = new Set(Array.from(body.querySelectorAll("tr[data-event] details[open]"))
+      .map(function (d) { return d.closest("tr").dataset.event; }));
     body.replaceChildren.apply(body, events.map(function (ev) {
       const tr = document.createElement("tr");
       tr.className = "ev-" + ev.kind;
-      const kind = cell(ev.kind + (ev.origin !== "live" ? " (" + ev.origin + ")" : ""));
-      [cell(ev.time), cell(ev.robot), cell(ev.entity), kind, cell(ev.text)]
+      tr.dataset.event = String(ev.id);
+      const kind = clipped("td", "", ev.kind + (ev.origin !== "live" ? " (" + ev.origin + ")" : ""));
+      [clipped("td", "", ev.clock || ev.time), clipped("td", "", ev.robot), clipped("td", "", ev.entity), kind, whatCell(ev)]
         .forEach(function (td) { tr.appendChild(td); });
-      const ack = cell(ev.acknowledged_by || "");
+      tr.firstChild.title = ev.time;
+      if (open.has(String(ev.id))) tr.querySelector("details").open = true;  // keep what the operator opened
+      const ack = clipped("td", "", ev.acknowledged_by || "");
       if (!ev.acknowledged_by && operator && (ev.kind === "failure" || ev.kind === "exceedance")) {
         ack.appendChild(ackForm(ev, table.dataset.back || "/events"));
       }
       tr.appendChild(ack);
       return tr;
+    }));
+  }
+  function renderHeadlines(box, headlines) {
+    if (!box || !headlines) return;
+    const open = Array.from(box.querySelectorAll(".headline")).map(function (d) {
+      const ev = d.querySelector("details"); return !!(ev && ev.open);
+    });
+    box.replaceChildren.apply(box, headlines.map(function (h, i) {
+      const block = headlineBlock(h);
+      const details = block.querySelector("details");
+      if (details && open[i]) details.open = true;
+      return block;
     }));
   }
 
@@ -76,6 +152,7 @@
       setText(comp, s.diagnosis || "none");
       comp.className = s.diagnosis ? "bad" : "good";
       setText(document.getElementById("diagnosis-explanation"), s.explanation);
+      renderHeadlines(document.getElementById("headlines"), s.headlines);
       if (s.events) renderEvents(root.ownerDocument.querySelector("table.events"), s.events);
       Object.keys(s.entities || {}).forEach(function (id) {
         const li = document.querySelector('li[data-entity="' + CSS.escape(id) + '"]');
@@ -131,6 +208,7 @@
   source.addEventListener("state", function (e) {
     const state = JSON.parse(e.data);
     if (views[view] && Object.keys(state).length) views[view](root, state);
+    document.dispatchEvent(new CustomEvent("station:state"));  // e.g. the timeline redraws
     document.body.dataset.updated = String(Date.now());
   });
   source.addEventListener("end", function () { source.close(); });
