@@ -314,6 +314,12 @@ def _value_entries(topic: TopicRecord, block: Block, periods: np.ndarray | None,
             _age_entry(topic, rec, block, max_window, listed)
             continue
         summaries = ("value",) if rec.info.kind == "scalar" else ("mean", "min", "max")
+        if rec.info.kind != "scalar" and any(t.startswith(f"{rec.info.path}[") for t in trends):
+            # elements that climb or are judged by relations: their summaries would leave
+            # any band learned in two minutes just the same (issue 22 item 7)
+            block.comments.append(f"{rec.info.path}: elements trend or are judged by "
+                                  "relations, no band for the array's summaries")
+            continue
         kinds = []
         for summary in summaries:
             series = rec.series.get(summary)

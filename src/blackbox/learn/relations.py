@@ -7,8 +7,9 @@ From the time-stamped samples of a healthy run (``blackbox.learn.timed``):
    (a straight line over time explains most of it: a discharging battery, a warming motor;
    it would leave any band it was learned in) or an angle that wraps (no linear relation
    holds across the wrap).
-2. **Grid.** All signals are resampled on one grid of ``STEP`` seconds (mean of each cell,
-   the last value held while fresh), so different rates line up.
+2. **Grid.** All signals are resampled on one grid of ``STEP`` seconds (the mean over each
+   cell of the lines joining the samples, ``window_means``), so different rates line up
+   without a phase that changes from run to run.
 3. **Relations.** For each target signal and each other topic, the lag (within
    ``MAX_LAG``) at which a signal of that topic correlates best with the target is found
    over the whole run; the target is then fitted from that signal through ``TAPS`` lagged
@@ -28,7 +29,8 @@ From the time-stamped samples of a healthy run (``blackbox.learn.timed``):
    them, standing still gets its own noise and is judged; otherwise the relation is
    unjudged while the robot stands still (no excitation, no verdict).
 6. **Liveness** per signal: the longest run of equal samples and the log of the mean
-   squared difference of consecutive samples per block (stuck values, noise bursts).
+   squared second difference of consecutive samples per block (stuck values, noise
+   bursts; a second difference cancels smooth motion, so turning is not a noise burst).
 """
 
 from __future__ import annotations
@@ -84,6 +86,10 @@ class Signal:
     """Slope per second when a straight line explains the signal (a trend), else None."""
     integer: bool
     grid: np.ndarray = field(default_factory=lambda: np.empty(0))
+    drift: float | None = None
+    """Slope per second of what the signal does on its own beside the other signals of its
+    topic, when it is significant and would leave the learned range within an hour (a
+    battery voltage discharging under a current that moves it more): no band."""
     note: str = ""
 
 
@@ -197,26 +203,104 @@ def _trend(t: np.ndarray, x: np.ndarray, noise: float) -> float | None:
     return None
 
 
+def increasing(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The samples later than every sample before them (what ``GridCell.add`` keeps)."""
+    if t.size == 0:
+        return t, x
+    before = np.concatenate(([-np.inf], np.maximum.accumulate(t)[:-1]))
+    keep = t > before
+    return t[keep], x[keep]
+
+
+def window_means(t: np.ndarray, x: np.ndarray, taus: np.ndarray, step: float,
+                 fresh: float) -> np.ndarray:
+    """At each ``tau``, the mean over ``[tau - step/2, tau + step/2]`` of the straight lines
+    joining the samples ``(t, x)`` (strictly increasing times); NaN where a line spans more
+    than ``fresh`` seconds or the samples do not reach. The same arithmetic as
+    :class:`blackbox.observe.signals.GridCell`, vectorised."""
+    if t.size < 2:
+        return np.full(taus.size, np.nan)
+    dt = np.diff(t)
+    c = np.concatenate(([0.0], np.cumsum(dt * (x[1:] + x[:-1]) * 0.5)))
+
+    def integral(u: np.ndarray) -> np.ndarray:
+        i = np.searchsorted(t, u, side="right") - 1
+        ok = (i >= 0) & (i < t.size - 1)
+        j = np.clip(i, 0, t.size - 2)
+        span = dt[j]
+        ok &= span <= fresh
+        ta, xa, ca = t[j], x[j], c[j]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            xu = xa + (u - ta) / span * (x[j + 1] - xa)
+        out = ca + (u - ta) * (xa + xu) * 0.5
+        got: np.ndarray = np.where(ok, out, np.nan)
+        return got
+
+    half = step / 2.0
+    means: np.ndarray = (integral(taus + half) - integral(taus - half)) / step
+    return means
+
+
+DRIFT_BLOCK = 20
+"""Grid steps per block when looking for a drift (one second)."""
+DRIFT_T = 5.0
+"""A drift's slope must be this many (autocorrelation-inflated) standard errors from 0."""
+
+
+def drift_of(sig: Signal, peers: Sequence[Signal]) -> float | None:
+    """The slope per second of ``sig`` over time beside ``peers`` (regressed together on
+    one-second block means), when significant and large enough to leave the signal's
+    learned range (0.5 % .. 99.5 %) within an hour; else ``None``."""
+    y = _blocks_of(sig.grid, DRIFT_BLOCK)
+    cols = [_blocks_of(p.grid, DRIFT_BLOCK) for p in peers]
+    t = np.arange(y.size, dtype=np.float64) * STEP * DRIFT_BLOCK
+    a = np.stack([np.ones(y.size), t, *cols], axis=1)
+    ok = np.isfinite(y) & np.isfinite(a).all(axis=1)
+    if ok.sum() < 30:
+        return None
+    a, y, t = a[ok], y[ok], t[ok]
+    sd = a.std(axis=0)
+    sd[0] = 1.0
+    sd[sd == 0] = 1.0
+    coef, *_ = np.linalg.lstsq(a / sd, y, rcond=None)
+    coef = coef / sd
+    res = y - a @ coef
+    if res.size < 3 or float(np.var(res)) == 0.0:
+        return None
+    rho = float(np.corrcoef(res[:-1], res[1:])[0, 1]) if np.std(res[:-1]) > 0 else 0.0
+    rho = min(max(rho, 0.0), 0.95)
+    inflate = math.sqrt((1 + rho) / (1 - rho))
+    xtx = np.linalg.pinv((a / sd).T @ (a / sd))
+    se = math.sqrt(float(np.var(res)) * float(xtx[1, 1])) / sd[1] * inflate
+    slope = float(coef[1])
+    values = sig.values
+    width = float(np.quantile(values, 0.995) - np.quantile(values, 0.005))
+    if se > 0 and abs(slope) / se >= DRIFT_T and abs(slope) * 3600.0 > width:
+        return slope
+    return None
+
+
+def _blocks_of(x: np.ndarray, block: int) -> np.ndarray:
+    n = x.size // block
+    if n == 0:
+        return np.empty(0)
+    b = x[:n * block].reshape(n, block)
+    with np.errstate(invalid="ignore"):
+        out: np.ndarray = b.mean(axis=1)
+    return out
+
+
 def grid_of(sig: Signal, g0: float, count: int) -> np.ndarray:
-    """The signal on the grid ``g0 + k * STEP``: mean of the cell ``(g - STEP, g]``, else the
-    last value while younger than its freshness, else NaN."""
-    fresh = freshness(sig)
-    idx = np.ceil((sig.times - g0) / STEP - 1e-9).astype(np.int64)
-    keep = (idx >= 0) & (idx < count)
-    idx, x, t = idx[keep], sig.values[keep], sig.times[keep]
-    sums = np.bincount(idx, x, minlength=count)
-    counts = np.bincount(idx, minlength=count)
-    last_t = np.full(count, -np.inf)
-    np.maximum.at(last_t, idx, t)
-    has = counts > 0
-    means = np.where(has, sums / np.maximum(counts, 1), np.nan)
-    where = np.where(has, np.arange(count), -1)
-    np.maximum.accumulate(where, out=where)
-    grid = np.where(where >= 0, means[np.maximum(where, 0)], np.nan)
-    age = g0 + np.arange(count) * STEP - np.where(where >= 0, last_t[np.maximum(where, 0)],
-                                                  -np.inf)
-    grid[age > fresh] = np.nan
-    return grid
+    """The signal on the grid ``g0 + k * STEP`` (``window_means``)."""
+    t, x = increasing(sig.times, sig.values)
+    return window_means(t, x, g0 + np.arange(count) * STEP, STEP, freshness(sig))
+
+
+def delay_of(signals: Sequence[Signal]) -> float:
+    """How late a relation judges a grid point: the sample after its cell must have arrived
+    (two periods of the slowest signal, whole grid steps)."""
+    slowest = max((s.period for s in signals if math.isfinite(s.period)), default=STEP)
+    return math.ceil((STEP / 2 + 2.0 * slowest) / STEP - 1e-9) * STEP
 
 
 def freshness(sig: Signal) -> float:
@@ -404,11 +488,21 @@ def learn_relations(rec: Recording) -> RelationsLearned:
             liveness.setdefault(s.ref.topic, []).append(live)
     related = [s for s in signals if s.trend is None and not s.wrap]
     relations: list[Relation] = []
-    if rec.duration > 0 and len({s.ref.topic for s in related}) >= 2:
+    if rec.duration > 0:
         g0 = math.ceil(rec.started / STEP) * STEP
         count = int((rec.ended - g0) / STEP) + 1
-        for s in related:
+        for s in signals:
             s.grid = grid_of(s, g0, count)
+        for s in signals:
+            if s.trend is None:
+                s.drift = drift_of(s, [p for p in signals if p.ref.topic == s.ref.topic
+                                       and p is not s and p.trend is None])
+                if s.drift is not None:
+                    trends.setdefault(s.ref.topic, []).append(
+                        f"{s.ref.field} trend: drifts {s.drift * 3600:+.4g} per hour beside "
+                        "the other signals of its topic (more than its learned range): no "
+                        "band, it would leave it; checked for being alive")
+    if rec.duration > 0 and len({s.ref.topic for s in related}) >= 2:
         relations = _search(related, notes)
     checks = len(relations) + sum(1 for ls in liveness.values() for live in ls
                                   if live.z is not None)
@@ -517,6 +611,7 @@ def learn_liveness(s: Signal) -> Liveness | None:
     d = np.diff(x)
     if s.wrap:
         d = _wrapped(d)
+    d = np.diff(d)  # second differences: smooth motion (a turn starting) is not noise
     n = d.size // block
     z: np.ndarray | None = None
     mean = std = 0.0
@@ -545,7 +640,8 @@ def _g(x: float, digits: int = 6) -> float:
 
 
 def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict[str, Any]:
-    fresh = max(freshness(s) for r in relations for s in (r.target, *(i for i, _ in r.inputs)))
+    signals = [s for r in relations for s in (r.target, *(i for i, _ in r.inputs))]
+    fresh = max(freshness(s) for s in signals)
     items = []
     names: set[str] = set()
     for r in relations:
@@ -572,7 +668,8 @@ def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict
             "span": [round_down(r.span[0]), round_up(r.span[1])],
         })
     return {"type": "relation", "topic": pair[0], "topic_b": pair[1], "step": STEP,
-            "block": BLOCK, "window": WINDOW, "fresh": round_up(fresh, 2), "relations": items}
+            "block": BLOCK, "window": WINDOW, "fresh": round_up(fresh, 2),
+            "delay": _g(delay_of(signals)), "relations": items}
 
 
 def relation_comments(relations: Sequence[Relation]) -> list[str]:

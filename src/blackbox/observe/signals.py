@@ -3,10 +3,15 @@
 Learned relations (``relation``) and per-signal liveness (``liveness``) read single numbers
 out of messages: a scalar field (``twist.twist.linear.x``) or one element of a numeric
 array (``velocity[1]``). Topics arrive at different rates and at irregular times, so a
-relation compares them on a common grid of ``step`` seconds: the grid value of a signal is
-the mean of its samples in the cell ``(g - step, g]``, or the last value when the cell is
-empty and the last sample is younger than ``fresh`` seconds; older, the signal is *stale*
-and the grid value is NaN (no verdict is made on it).
+relation compares them on a common grid of ``step`` seconds. The grid value of a signal at
+``tau`` is the mean, over the cell ``[tau - step/2, tau + step/2]``, of the straight lines
+joining its samples (:func:`window_mean`): a fast signal is averaged over the cell, a slow
+one interpolated, and neither is shifted in time by where its samples happen to fall (a
+cell mean or a held value would delay a signal by up to one period, differently in every
+run, and a relation with a large gain would see that as a residual). The cell is judged
+``delay`` seconds late, when the sample after it has arrived. A line between samples more
+than ``fresh`` seconds apart is a gap: the signal is *stale* and the grid value is NaN (no
+verdict is made on it).
 
 Everything is pure: time is passed in, nothing reads a clock.
 """
@@ -14,6 +19,7 @@ Everything is pure: time is passed in, nothing reads a clock.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from numbers import Real
@@ -95,39 +101,59 @@ class SignalReader:
 
 
 class GridCell:
-    """The grid value of one signal: mean of the samples of the current cell, else the held
-    value while it is fresh."""
+    """The grid value of one signal (module docstring): the last samples with the running
+    integral of the line through them, so a cell mean is two look-ups."""
 
-    __slots__ = ("_count", "_sum", "fresh", "held", "last_time")
+    __slots__ = ("delay", "fresh", "half", "samples", "step")
 
-    def __init__(self, fresh: float) -> None:
+    def __init__(self, fresh: float, step: float, delay: float) -> None:
         self.fresh = fresh
-        self._sum = 0.0
-        self._count = 0
-        self.held = math.nan
-        self.last_time = -math.inf
+        self.step = step
+        self.half = step / 2.0
+        self.delay = delay
+        self.samples: deque[tuple[float, float, float]] = deque()
+        """``(time, value, integral from the first sample)``, times strictly increasing."""
+
+    @property
+    def last_time(self) -> float:
+        return self.samples[-1][0] if self.samples else -math.inf
 
     def add(self, t: float, x: float) -> None:
-        self._sum += x
-        self._count += 1
-        self.last_time = t
+        """A sample; one not later than the last is dropped (the line needs increasing
+        times, and learning drops the same ones)."""
+        samples = self.samples
+        if not samples:
+            samples.append((t, x, 0.0))
+            return
+        t0, x0, c0 = samples[-1]
+        if t <= t0:
+            return
+        samples.append((t, x, c0 + (t - t0) * (x + x0) * 0.5))
+
+    def _integral(self, u: float) -> float:
+        """The integral of the line up to ``u``, NaN in a gap or beyond the samples."""
+        samples = self.samples
+        for i in range(len(samples) - 1):
+            ta, xa, ca = samples[i]
+            tb, xb, _ = samples[i + 1]
+            if ta <= u < tb:
+                if tb - ta > self.fresh:
+                    return math.nan
+                xu = xa + (u - ta) / (tb - ta) * (xb - xa)
+                return ca + (u - ta) * (xa + xu) * 0.5
+        return math.nan
 
     def close(self, g: float) -> float:
-        """The value at grid time ``g`` (ending the cell ``(g - step, g]``)."""
-        if self._count:
-            self.held = self._sum / self._count
-            self._sum = 0.0
-            self._count = 0
-            return self.held
-        if g - self.last_time > self.fresh:
-            return math.nan
-        return self.held
+        """The value at ``g - delay`` (the grid point the relation judges at tick ``g``)."""
+        tau = g - self.delay
+        lo, hi = tau - self.half, tau + self.half
+        samples = self.samples
+        while len(samples) > 2 and samples[1][0] <= lo:
+            samples.popleft()
+        return (self._integral(hi) - self._integral(lo)) / self.step
 
     def reset(self) -> None:
-        self._sum = 0.0
-        self._count = 0
-        self.held = math.nan
-        self.last_time = -math.inf
+        self.samples.clear()
 
 
 def wrapped_difference(a: float, b: float) -> float:

@@ -6,6 +6,8 @@ predict a *target* signal of one topic from *inputs* of the other, each input th
 few lagged taps (a linear FIR fit, so different rates and delays line up). This observer
 checks them on a common grid of ``step`` seconds:
 
+* every signal is put on the grid ``delay`` seconds late, when the sample after each cell
+  has arrived (``blackbox.observe.signals``: the mean of the lines joining its samples);
 * the residual ``target - prediction`` is averaged over blocks of ``block`` grid steps and
   standardised by the healthy block noise; a two-sided CUSUM (drift ``k``, alarm ``h``,
   ``h`` calibrated while learning for a stated false-alarm rate) accumulates it, so a slow
@@ -28,6 +30,7 @@ checks them on a common grid of ``step`` seconds:
       block: 10
       window: 5.0
       fresh: 0.3
+      delay: 0.15
       relations:
         - name: imu_data_angular_velocity_z
           target: {topic: /imu/data, field: angular_velocity.z}
@@ -186,7 +189,7 @@ class RelationObserver(ObserverBase):
 
     def __init__(self, topic: str, topic_b: str, relations: Sequence[RelationSpec], *,
                  step: float, block: int, window: float, fresh: float,
-                 every: float = 1.0) -> None:
+                 delay: float | None = None, every: float = 1.0) -> None:
         if not relations:
             raise ValueError("a relation observer needs at least one relation")
         if topic == topic_b:
@@ -203,7 +206,8 @@ class RelationObserver(ObserverBase):
         self._refs = tuple(refs)
         self._readers = {ref: SignalReader(ref) for ref in self._refs}
         self._by_topic: dict[str, list[tuple[SignalReader, GridCell]]] = {}
-        self._cells = {ref: GridCell(fresh) for ref in self._refs}
+        self.delay = fresh if delay is None else delay
+        self._cells = {ref: GridCell(fresh, step, self.delay) for ref in self._refs}
         for ref in self._refs:
             self._by_topic.setdefault(ref.topic, []).append((self._readers[ref],
                                                             self._cells[ref]))
@@ -404,7 +408,7 @@ def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
 
 def relation_from_config(node: ConfigNode) -> RelationObserver:
     node.check_keys((*COMMON_KEYS, "topic", "topic_b", "step", "block", "window", "fresh",
-                     "relations"))
+                     "delay", "relations"))
     topic, topic_b = read_name(node, "topic"), read_name(node, "topic_b")
     if topic == topic_b:
         raise node["topic_b"].error("topic_b must differ from topic")
@@ -412,13 +416,16 @@ def relation_from_config(node: ConfigNode) -> RelationObserver:
     block = node["block"].int(min=1, max=10_000) if node.get("block") else 10
     window = node["window"].float(min=0.0, min_exclusive=True) if node.get("window") else 5.0
     fresh = node["fresh"].float(min=0.0, min_exclusive=True) if node.get("fresh") else 0.5
+    delay_node = node.get("delay")
+    delay = (delay_node.float(min=step / 2, max=60.0) if delay_node is not None
+             else max(fresh, step / 2))
     names: set[str] = set()
     items = node["relations"].list()
     if not items:
         raise node["relations"].error("relations lists no relation")
     relations = [_relation(item, step, (topic, topic_b), names) for item in items]
     return RelationObserver(topic, topic_b, relations, step=step, block=block, window=window,
-                            fresh=fresh, every=read_every(node))
+                            fresh=fresh, delay=delay, every=read_every(node))
 
 
 OBSERVERS.add("relation", ObserverKind("relation", relation_from_config, Subject.TOPIC_PAIR,
