@@ -114,7 +114,8 @@ def test_nan_and_inf_are_counted_not_judged():
 
 
 @pytest.mark.parametrize("bad,where", [
-    ("topic_b: /cmd", "topic_b"),
+    # one topic may relate its own signals, but then the target must be of it
+    ("topic_b: /cmd", "relations[0].target.topic"),
     ("relations: []", "relations"),
 ])
 def test_a_malformed_relation_entry_names_its_key(bad: str, where: str):

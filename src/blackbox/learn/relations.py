@@ -67,6 +67,12 @@ FALSE_ALARMS_PER_HOUR = 0.1
 MIN_SIGNAL_SAMPLES = 100
 MIN_GRID_BLOCKS = 60
 """A relation needs at least this many blocks (30 s) of both signals to be learned."""
+TRACK = 20.0
+"""Seconds over which a relation of trending signals follows its residual's bias (short
+enough that a discharge of a volt an hour lags by a fraction of the noise; a fault's
+evidence freezes the bias)."""
+CHANGE_STEPS = 100
+"""Grid steps over which a trending signal's change is taken (five seconds)."""
 LIVENESS_BLOCK_SECONDS = 0.5
 LOGGING_TOPICS = frozenset({"/rosout", "/rosout_agg"})
 LAMBDAS = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
@@ -110,6 +116,13 @@ class Relation:
     z: np.ndarray
     sensitivity: float
     calibration: Calibration | None = None
+    clears: bool = True
+    """Whether a held verdict is evidence of health (it sees a fault of four noise std on
+    every one of its signals)."""
+    track: float | None = None
+    """Seconds over which the observer follows a slowly moving bias of the residual (a
+    relation of signals that move on their own: a discharging battery's voltage against
+    its current, two climbing wheel angles), ``None`` for a fixed bias."""
 
     @property
     def topics(self) -> tuple[str, str]:
@@ -243,7 +256,7 @@ def window_means(t: np.ndarray, x: np.ndarray, taus: np.ndarray, step: float,
 
 DRIFT_BLOCK = 20
 """Grid steps per block when looking for a drift (one second)."""
-DRIFT_T = 5.0
+DRIFT_T = 3.0
 """A drift's slope must be this many (autocorrelation-inflated) standard errors from 0."""
 
 
@@ -429,6 +442,39 @@ def _rolling_std(x: np.ndarray, w: int) -> np.ndarray:
     return out
 
 
+def tracked(z: np.ndarray, alpha: float, limit: float = 3.0) -> np.ndarray:
+    """``z`` less a bias followed by exponential smoothing (weight ``alpha`` per block),
+    the bias frozen while ``|z|`` exceeds ``limit`` (evidence of a fault is not learned):
+    what the relation observer does with ``track``."""
+    out = np.empty_like(z)
+    bias = 0.0
+    for i, x in enumerate(z.tolist()):
+        d = x - bias
+        out[i] = d
+        if abs(d) < limit:
+            bias += alpha * d
+    return out
+
+
+def change(x: np.ndarray, steps: int = CHANGE_STEPS) -> np.ndarray:
+    """``x[k] - x[k - steps]`` (NaN for the first ``steps``)."""
+    out = np.full_like(x, np.nan)
+    out[steps:] = x[steps:] - x[:-steps]
+    return out
+
+
+def change_r2(fitted: Fit, target: np.ndarray) -> float:
+    """How much of the target's one-second changes the fit explains (out of fold): for
+    trending signals, whose levels any two climbing signals would "explain"."""
+    dy = change(target)
+    dr = change(fitted.residual)
+    ok = np.isfinite(dy) & np.isfinite(dr)
+    if ok.sum() < MIN_GRID_BLOCKS * BLOCK // 2:
+        return -math.inf
+    var = float(np.var(dy[ok]))
+    return 1.0 - float(np.mean(dr[ok] ** 2)) / var if var > 0 else -math.inf
+
+
 def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Relation | None:
     """Residual noise per mode, sensitivity and span of a fitted relation; ``None`` when it
     cannot see a fault of four noise std on one of its signals."""
@@ -444,7 +490,18 @@ def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Rela
     moving = ok & (spread >= excitation)
     still = ok & np.isfinite(spread) & (spread < excitation)
     if moving.sum() < MIN_GRID_BLOCKS // 2:
-        return None
+        if still.sum() < MIN_GRID_BLOCKS:
+            return None
+        # the prediction never moves much beside the residual's noise (a battery voltage
+        # sagging a little under its current): one mode, judged always
+        excitation = 0.0
+        moving, still = ok, np.zeros_like(ok)
+    trending = any(s.trend is not None or s.drift is not None for s in (target, *inputs))
+    track = TRACK if trending else None
+    if trending:
+        # the bias moves: the noise is what is left around a followed bias
+        res_b = res_b.copy()
+        res_b[ok] = tracked(res_b[ok] / noise_all, STEP * BLOCK / TRACK, math.inf) * noise_all
     m_bias, m_noise = float(res_b[moving].mean()), float(res_b[moving].std()) or noise_all
     z_parts = [(res_b[moving] - m_bias) / m_noise]
     still_mode = None
@@ -452,16 +509,20 @@ def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Rela
         s_bias, s_noise = float(res_b[still].mean()), float(res_b[still].std()) or noise_all
         still_mode = (s_bias, s_noise)
         z_parts.append((res_b[still] - s_bias) / s_noise)
+    z_all = np.concatenate(z_parts)
     n_in = len(inputs)
     per = len(fitted.gains) // n_in
     gains = [fitted.gains[i * per:(i + 1) * per].tolist() for i in range(n_in)]
     noise_mode = max(m_noise, still_mode[1] if still_mode else 0.0)
-    seen = [4 * target.noise / noise_mode]
-    seen += [4 * sig.noise * abs(sum(g)) / noise_mode for sig, g in zip(inputs, gains,
-                                                                        strict=True)]
-    sensitivity = min(seen)
-    if sensitivity < SENSITIVITY:
+    seen_target = 4 * target.noise / noise_mode
+    seen = [4 * sig.noise * abs(sum(g)) / noise_mode for sig, g in zip(inputs, gains,
+                                                                      strict=True)]
+    if seen_target < SENSITIVITY:
         return None
+    # one that sees its target but not a fault of its inputs (a clean command beside a
+    # noisy sensor) still accuses when it fails; held, it clears nobody
+    clears = min(seen) >= SENSITIVITY
+    sensitivity = min(seen_target, *seen)
     p = fitted.predicted[np.isfinite(fitted.predicted)]
     lo, hi = float(p.min()), float(p.max())
     margin = 0.25 * (hi - lo) + 3 * noise_all
@@ -469,7 +530,8 @@ def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Rela
     return Relation(target, [(s, lags) for s, lags in zip(inputs, fitted.lags, strict=True)],
                     gains, fitted.intercept, fitted.target_steps, fitted.r2,
                     float(np.std(residual)), (m_bias, m_noise), still_mode, excitation,
-                    (lo - margin, hi + margin), np.concatenate(z_parts), sensitivity)
+                    (lo - margin, hi + margin), z_all, sensitivity, track=track,
+                    clears=clears)
 
 
 def learn_relations(rec: Recording) -> RelationsLearned:
@@ -486,7 +548,7 @@ def learn_relations(rec: Recording) -> RelationsLearned:
         live = learn_liveness(s)
         if live is not None:
             liveness.setdefault(s.ref.topic, []).append(live)
-    related = [s for s in signals if s.trend is None and not s.wrap]
+    related = [s for s in signals if not s.wrap]
     relations: list[Relation] = []
     if rec.duration > 0:
         g0 = math.ceil(rec.started / STEP) * STEP
@@ -502,7 +564,7 @@ def learn_relations(rec: Recording) -> RelationsLearned:
                         f"{s.ref.field} trend: drifts {s.drift * 3600:+.4g} per hour beside "
                         "the other signals of its topic (more than its learned range): no "
                         "band, it would leave it; checked for being alive")
-    if rec.duration > 0 and len({s.ref.topic for s in related}) >= 2:
+    if rec.duration > 0 and len(related) >= 2:
         relations = _search(related, notes)
     checks = len(relations) + sum(1 for ls in liveness.values() for live in ls
                                   if live.z is not None)
@@ -525,15 +587,26 @@ def learn_relations(rec: Recording) -> RelationsLearned:
     return RelationsLearned(relations, liveness, trends, notes, len(signals), related_fields)
 
 
+def _trending(s: Signal) -> bool:
+    return s.trend is not None or s.drift is not None
+
+
 def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
+    """Per target, the best relation from each other topic; a signal with none from another
+    topic (a battery voltage, a climbing wheel angle) may be related within its own topic.
+    Trending signals are screened and judged on their five-second changes."""
     max_steps = round(MAX_LAG / STEP)
+    changes = {i: change(s.grid) for i, s in enumerate(signals) if _trending(s)}
     corr: dict[tuple[int, int], tuple[int, float]] = {}
     for i, a in enumerate(signals):
         for j in range(i + 1, len(signals)):
             b = signals[j]
-            if a.ref.topic == b.ref.topic:
-                continue
-            corr[(i, j)] = best_lag(a.grid, b.grid, max_steps)
+            if i in changes or j in changes:
+                ga = changes.get(i, change(a.grid)) if j in changes else a.grid
+                gb = changes.get(j, change(b.grid)) if i in changes else b.grid
+                corr[(i, j)] = best_lag(ga, gb, max_steps)
+            else:
+                corr[(i, j)] = best_lag(a.grid, b.grid, max_steps)
 
     def lag_corr(t: int, x: int) -> tuple[int, float]:
         """Lag of x relative to target t, and the correlation."""
@@ -542,32 +615,43 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
         lag, c = corr[(x, t)]
         return -lag, c
 
+    def quality(target: Signal, inputs: list[Signal], fitted: Fit) -> float:
+        if _trending(target) or any(_trending(x) for x in inputs):
+            return change_r2(fitted, target.grid)
+        return fitted.r2
+
+    def from_topic(ti: int, topic: str) -> Relation | None:
+        target = signals[ti]
+        peers = [(xi, *lag_corr(ti, xi)) for xi, s in enumerate(signals)
+                 if s.ref.topic == topic and xi != ti]
+        peers.sort(key=lambda p: -abs(p[2]))
+        if peers and abs(peers[0][2]) >= SCREEN:
+            xi, lag, _ = peers[0]
+            fitted = fit(target.grid, [signals[xi].grid], [_taps(lag)])
+            if fitted is not None:
+                fitted.r2 = quality(target, [signals[xi]], fitted)
+                if fitted.r2 >= R2_MIN:
+                    relation = relation_from_fit(target, [signals[xi]], fitted)
+                    if relation is not None:
+                        return relation
+        joint = [p for p in peers if abs(p[2]) >= JOINT_SCREEN][:MAX_JOINT]
+        if len(joint) >= 2:
+            inputs = [signals[p[0]] for p in joint]
+            fitted = fit(target.grid, [x.grid for x in inputs], [_taps(p[1]) for p in joint])
+            if fitted is not None:
+                fitted.r2 = quality(target, inputs, fitted)
+                if fitted.r2 >= R2_MIN:
+                    return relation_from_fit(target, inputs, fitted)
+        return None
+
     by_target: dict[int, list[Relation]] = {}
     topics = sorted({s.ref.topic for s in signals})
     for ti, target in enumerate(signals):
-        found: list[Relation] = []
-        for topic in topics:
-            if topic == target.ref.topic:
-                continue
-            peers = [(xi, *lag_corr(ti, xi)) for xi, s in enumerate(signals)
-                     if s.ref.topic == topic]
-            peers.sort(key=lambda p: -abs(p[2]))
-            relation = None
-            if peers and abs(peers[0][2]) >= SCREEN:
-                xi, lag, _ = peers[0]
-                fitted = fit(target.grid, [signals[xi].grid], [_taps(lag)])
-                if fitted is not None and fitted.r2 >= R2_MIN:
-                    relation = relation_from_fit(target, [signals[xi]], fitted)
-            if relation is None:
-                joint = [p for p in peers if abs(p[2]) >= JOINT_SCREEN][:MAX_JOINT]
-                if len(joint) >= 2:
-                    fitted = fit(target.grid, [signals[p[0]].grid for p in joint],
-                                 [_taps(p[1]) for p in joint])
-                    if fitted is not None and fitted.r2 >= R2_MIN:
-                        relation = relation_from_fit(target, [signals[p[0]] for p in joint],
-                                                     fitted)
-            if relation is not None:
-                found.append(relation)
+        found = [r for topic in topics if topic != target.ref.topic
+                 for r in [from_topic(ti, topic)] if r is not None]
+        if not found:
+            own = from_topic(ti, target.ref.topic)
+            found = [own] if own is not None else []
         found.sort(key=lambda r: -r.r2)
         by_target[ti] = found[:MAX_PEERS]
     # one direction per pair of single signals: the cleaner signal is the input
@@ -665,6 +749,8 @@ def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict
                       {"bias": _g(r.still[0], 4), "block_noise": _g(r.still[1], 4)}),
             "cusum": {"k": r.calibration.k, "h": round_up(r.calibration.h, 3)},
             "excitation": _g(r.excitation, 4),
+            **({"track": r.track} if r.track is not None else {}),
+            **({} if r.clears else {"clears": False}),
             "span": [round_down(r.span[0]), round_up(r.span[1])],
         })
     return {"type": "relation", "topic": pair[0], "topic_b": pair[1], "step": STEP,
@@ -680,9 +766,15 @@ def relation_comments(relations: Sequence[Relation]) -> list[str]:
                            for s, lags in r.inputs)
         mode = ("standing still judged with its own noise" if r.still is not None
                 else "unjudged while standing still (not seen while learning)")
+        if r.track is not None:
+            mode += (f"; its signals move on their own: R2 of five-second changes, the bias "
+                     f"followed over {r.track:g} s (frozen while the residual is off)")
+        seen = (f"a 4-noise-std fault on any of its signals moves the residual >= "
+                f"{r.sensitivity:.1f} block noise" if r.clears else
+                f"its inputs' faults of 4 noise std move the residual less than {SENSITIVITY:g} "
+                "block noise: held, it clears nobody")
         out.append(f"{r.target.ref.label()} from {inputs}: held-out R2 {r.r2:.4f}, residual "
-                   f"std {r.noise:.3g}, block noise {r.moving[1]:.3g}; a 4-noise-std fault on "
-                   f"any of its signals moves the residual >= {r.sensitivity:.1f} block noise; "
+                   f"std {r.noise:.3g}, block noise {r.moving[1]:.3g}; {seen}; "
                    f"{r.calibration.describe()}; {mode}")
     return out
 

@@ -17,6 +17,15 @@ checks them on a common grid of ``step`` seconds:
   learned standing still if the learning run had such a mode (``still``), else it is
   unjudged; a prediction outside the learned range is not extrapolated; a stale signal
   (nothing for ``fresh`` seconds: killed, stalled, NaN) gives no verdict either;
+* signals that move on their own (``track``: a battery's voltage against its current, two
+  climbing wheel angles) have a residual bias that moves slowly: it is followed over
+  ``track`` seconds, and not while a block is ``TRACK_LIMIT`` noise std off (a fault's
+  evidence is never learned as the new normal);
+* ``topic_b`` may be ``topic``: a signal related to others of its own topic (the only
+  relation it has) accuses that topic's producers alone;
+* ``clears: false``: the relation sees a fault of its target but not one of its inputs (a
+  clean command beside a noisy sensor); failed, it accuses as any other, held, it clears
+  nobody (``NOT_AVAILABLE``);
 * the verdict has three values: failed (CUSUM at ``h``), held (below ``h / 2``), and in
   between, or unjudged, ``NOT_AVAILABLE``: a held relation clears the values of both
   topics in the diagnosis (docs/diagnosis.md), so it says so only when it is sure.
@@ -65,6 +74,8 @@ from blackbox.observe.signals import (
     read_signal_ref,
 )
 
+TRACK_LIMIT = 3.0
+"""A block residual this many noise std off is evidence, not a bias to follow."""
 MAX_GAP = 30.0
 """A gap in time longer than this (seconds) restarts the grid instead of replaying it."""
 _NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
@@ -101,6 +112,11 @@ class RelationSpec:
     cusum: CusumSpec
     excitation: float
     span: tuple[float, float]
+    clears: bool = True
+    """Whether holding is evidence of health (false: it cannot see its inputs' faults)."""
+    track: float | None = None
+    """Seconds over which a moving bias of the residual is followed (signals that move on
+    their own), ``None``: the learned bias is fixed."""
 
     def inputs(self) -> str:
         return ", ".join(dict.fromkeys(t.signal.label() for t in self.taps))
@@ -109,11 +125,13 @@ class RelationSpec:
 class _Judge:
     """The running test of one relation."""
 
-    __slots__ = ("count", "cusum", "excite", "last_z", "pred_sum", "reason", "res_sum",
-                 "spec", "unjudged_blocks", "verdict")
+    __slots__ = ("alpha", "count", "cusum", "excite", "followed", "last_z", "pred_sum",
+                 "reason", "res_sum", "spec", "unjudged_blocks", "verdict")
 
-    def __init__(self, spec: RelationSpec, window_blocks: int) -> None:
+    def __init__(self, spec: RelationSpec, window_blocks: int, block_seconds: float) -> None:
         self.spec = spec
+        self.alpha = 0.0 if spec.track is None else min(1.0, block_seconds / spec.track)
+        self.followed = 0.0
         self.cusum = Cusum(spec.cusum)
         self.excite: deque[float] = deque(maxlen=window_blocks)
         self.res_sum = 0.0
@@ -162,7 +180,9 @@ class _Judge:
                 return
             mode = spec.still
         self.unjudged_blocks = 0
-        self.last_z = (residual - mode.bias) / mode.block_noise
+        self.last_z = (residual - mode.bias - self.followed) / mode.block_noise
+        if abs(self.last_z) < TRACK_LIMIT:  # evidence of a fault is not followed
+            self.followed += self.alpha * self.last_z * mode.block_noise
         stat = self.cusum.update(self.last_z)
         h = spec.cusum.h
         self.verdict = "failed" if stat >= h else "undecided" if stat >= h / 2 else "held"
@@ -192,8 +212,6 @@ class RelationObserver(ObserverBase):
                  delay: float | None = None, every: float = 1.0) -> None:
         if not relations:
             raise ValueError("a relation observer needs at least one relation")
-        if topic == topic_b:
-            raise ValueError("a relation relates two different topics")
         self.topic, self.topic_b = topic, topic_b
         self.resource = Resource(topic=topic, topic_b=topic_b)
         self.interval = every
@@ -214,7 +232,7 @@ class RelationObserver(ObserverBase):
         depth = 1 + max(max((t.steps for r in relations for t in r.taps), default=0),
                         max(r.target_steps for r in relations))
         self._history = {ref: deque([math.nan] * depth, maxlen=depth) for ref in self._refs}
-        self._judges = [_Judge(r, self.window_blocks) for r in relations]
+        self._judges = [_Judge(r, self.window_blocks, step * block) for r in relations]
         self._next: float | None = None
         self._ticks = 0
         self._undecodable = 0
@@ -312,6 +330,9 @@ class RelationObserver(ObserverBase):
                 failed.append(f"{spec.target.label()} disagrees with {spec.inputs()} "
                               f"(residual {judge.last_z:+.1f} noise std, CUSUM {stat:.1f} >= "
                               f"{spec.cusum.h:.1f})")
+            elif judge.verdict == "held" and not spec.clears:
+                open_.append(f"{what}: holds (CUSUM {stat:.1f}) but cannot see its inputs' "
+                             "faults, clears nobody")
             elif judge.verdict == "held":
                 held.append(f"{what} (CUSUM {stat:.1f} < {spec.cusum.h / 2:.1f})")
             elif judge.verdict == "undecided":
@@ -357,7 +378,8 @@ def _steps(node: ConfigNode, step: float) -> int:
 def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
               names: set[str]) -> RelationSpec:
     node.check_keys(("name", "target", "target_lag", "inputs", "intercept", "block_noise",
-                     "bias", "still", "cusum", "excitation", "span", "fit"))
+                     "bias", "still", "cusum", "excitation", "span", "fit", "track",
+                     "clears"))
     name_node = node["name"]
     name = name_node.str()
     if not name or not set(name) <= _NAME_CHARS or name[0].isdigit():
@@ -403,15 +425,16 @@ def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
         moving=moving, still=None if still is None or still.is_null else _mode(still),
         cusum=CusumSpec.read(node["cusum"]),
         excitation=node["excitation"].float(min=0.0) if node.get("excitation") else 0.0,
-        span=(span[0].float(), span[1].float()))
+        span=(span[0].float(), span[1].float()),
+        track=(node["track"].float(min=0.0, min_exclusive=True)
+               if node.get("track") is not None else None),
+        clears=node["clears"].bool() if node.get("clears") is not None else True)
 
 
 def relation_from_config(node: ConfigNode) -> RelationObserver:
     node.check_keys((*COMMON_KEYS, "topic", "topic_b", "step", "block", "window", "fresh",
                      "delay", "relations"))
     topic, topic_b = read_name(node, "topic"), read_name(node, "topic_b")
-    if topic == topic_b:
-        raise node["topic_b"].error("topic_b must differ from topic")
     step = node["step"].float(min=0.001, max=10.0) if node.get("step") else 0.05
     block = node["block"].int(min=1, max=10_000) if node.get("block") else 10
     window = node["window"].float(min=0.0, min_exclusive=True) if node.get("window") else 5.0
