@@ -234,9 +234,12 @@ def _topic_block(topic: TopicRecord, rec: Recording, related: RelationsLearned) 
         block.notes.append(f"no message in {rec.duration:.0f} s: neither rate nor values "
                            "learned")
         return block
+    if topic.unmeasured:
+        block.comments.append(f"{topic.unmeasured} message(s) inside measurement gaps not "
+                              "learned from")
     if topic.split_gaps:
         block.comments.append(f"{topic.split_gaps} gap(s) while a publisher was not running "
-                              "left out of the periods")
+                              "left out of the periods (or while it was not measured)")
     periods = _rate_entries(topic, block)
     trends = related.trends.get(topic.name, [])
     block.comments.extend(trends)

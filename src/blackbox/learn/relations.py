@@ -701,7 +701,10 @@ def learn_liveness(s: Signal) -> Liveness | None:
     mean = std = 0.0
     if n >= 40:
         sq = (d[:n * block] ** 2).reshape(n, block).mean(axis=1)
-        if np.all(sq > 0):
+        # a quantised signal has blocks without a change: they can only lower the upward
+        # statistic, so the noise is learned from the others (when most blocks change)
+        sq = sq[sq > 0]
+        if sq.size >= max(40, n // 2):
             v = np.log(sq)
             mean, std = float(v.mean()), max(float(v.std()), 0.05)
             z = (v - mean) / std
