@@ -19,7 +19,7 @@ Everything is pure: time is passed in, nothing reads a clock.
 from __future__ import annotations
 
 import math
-from collections import deque
+from bisect import bisect_right
 from collections.abc import Callable
 from dataclasses import dataclass
 from numbers import Real
@@ -101,59 +101,79 @@ class SignalReader:
 
 
 class GridCell:
-    """The grid value of one signal (module docstring): the last samples with the running
-    integral of the line through them, so a cell mean is two look-ups."""
+    """The grid value of one signal (module docstring): the recent samples with the running
+    integral of the line through them, so a cell mean is two binary searches."""
 
-    __slots__ = ("delay", "fresh", "half", "samples", "step")
+    __slots__ = ("_c", "_head", "_t", "_x", "delay", "fresh", "half", "step")
 
     def __init__(self, fresh: float, step: float, delay: float) -> None:
         self.fresh = fresh
         self.step = step
         self.half = step / 2.0
         self.delay = delay
-        self.samples: deque[tuple[float, float, float]] = deque()
-        """``(time, value, integral from the first sample)``, times strictly increasing."""
+        self._t: list[float] = []
+        self._x: list[float] = []
+        self._c: list[float] = []
+        """Times (strictly increasing), values and the integral from the first sample."""
+        self._head = 0
+
+    @property
+    def samples(self) -> list[tuple[float, float]]:
+        """The samples still needed, oldest first."""
+        h = self._head
+        return list(zip(self._t[h:], self._x[h:], strict=True))
 
     @property
     def last_time(self) -> float:
-        return self.samples[-1][0] if self.samples else -math.inf
+        return self._t[-1] if self._t else -math.inf
 
     def add(self, t: float, x: float) -> None:
         """A sample; one not later than the last is dropped (the line needs increasing
         times, and learning drops the same ones)."""
-        samples = self.samples
-        if not samples:
-            samples.append((t, x, 0.0))
+        times = self._t
+        if not times:
+            times.append(t)
+            self._x.append(x)
+            self._c.append(0.0)
             return
-        t0, x0, c0 = samples[-1]
+        t0 = times[-1]
         if t <= t0:
             return
-        samples.append((t, x, c0 + (t - t0) * (x + x0) * 0.5))
+        times.append(t)
+        self._c.append(self._c[-1] + (t - t0) * (x + self._x[-1]) * 0.5)
+        self._x.append(x)
 
     def _integral(self, u: float) -> float:
         """The integral of the line up to ``u``, NaN in a gap or beyond the samples."""
-        samples = self.samples
-        for i in range(len(samples) - 1):
-            ta, xa, ca = samples[i]
-            tb, xb, _ = samples[i + 1]
-            if ta <= u < tb:
-                if tb - ta > self.fresh:
-                    return math.nan
-                xu = xa + (u - ta) / (tb - ta) * (xb - xa)
-                return ca + (u - ta) * (xa + xu) * 0.5
-        return math.nan
+        times = self._t
+        i = bisect_right(times, u, self._head) - 1
+        if i < self._head or i >= len(times) - 1:
+            return math.nan
+        ta, tb = times[i], times[i + 1]
+        if tb - ta > self.fresh:
+            return math.nan
+        xa = self._x[i]
+        xu = xa + (u - ta) / (tb - ta) * (self._x[i + 1] - xa)
+        return self._c[i] + (u - ta) * (xa + xu) * 0.5
 
     def close(self, g: float) -> float:
         """The value at ``g - delay`` (the grid point the relation judges at tick ``g``)."""
         tau = g - self.delay
-        lo, hi = tau - self.half, tau + self.half
-        samples = self.samples
-        while len(samples) > 2 and samples[1][0] <= lo:
-            samples.popleft()
-        return (self._integral(hi) - self._integral(lo)) / self.step
+        lo = tau - self.half
+        times = self._t
+        keep = bisect_right(times, lo, self._head) - 1
+        if keep > self._head:
+            self._head = keep
+            if keep > 512:
+                del times[:keep], self._x[:keep], self._c[:keep]
+                self._head = 0
+        return (self._integral(tau + self.half) - self._integral(lo)) / self.step
 
     def reset(self) -> None:
-        self.samples.clear()
+        self._t.clear()
+        self._x.clear()
+        self._c.clear()
+        self._head = 0
 
 
 def wrapped_difference(a: float, b: float) -> float:
