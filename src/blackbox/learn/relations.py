@@ -69,8 +69,10 @@ MIN_GRID_BLOCKS = 60
 """A relation needs at least this many blocks (30 s) of both signals to be learned."""
 TRACK = 20.0
 """Seconds over which a relation of trending signals follows its residual's bias (short
-enough that a discharge of a volt an hour lags by a fraction of the noise; a fault's
-evidence freezes the bias)."""
+enough that a discharge of a volt an hour lags by a fraction of the noise; the bias's
+rate is bounded, so a fault is not followed)."""
+TRACK_RATE = 5.0
+"""The followed bias may move this many times as fast as it did while learning."""
 CHANGE_STEPS = 100
 """Grid steps over which a trending signal's change is taken (five seconds)."""
 LIVENESS_BLOCK_SECONDS = 0.5
@@ -123,6 +125,8 @@ class Relation:
     """Seconds over which the observer follows a slowly moving bias of the residual (a
     relation of signals that move on their own: a discharging battery's voltage against
     its current, two climbing wheel angles), ``None`` for a fixed bias."""
+    track_rate: float | None = None
+    """The most the followed bias moves per second (residual units)."""
 
     @property
     def topics(self) -> tuple[str, str]:
@@ -363,6 +367,8 @@ class Fit:
     predicted: np.ndarray
     target_steps: int
     lags: list[list[int]]
+    slope: float = 0.0
+    """The time regressor's gain (a ``trend`` fit): how fast the bias moved, per second."""
 
 
 def _ridge(a: np.ndarray, y: np.ndarray, lam: float) -> tuple[np.ndarray, float]:
@@ -381,14 +387,19 @@ def _r2(y: np.ndarray, p: np.ndarray) -> float:
     return 1.0 - float(np.mean((y - p) ** 2)) / var if var > 0 else -math.inf
 
 
-def fit(target: np.ndarray, inputs: Sequence[np.ndarray], lags: Sequence[Sequence[int]]
-        ) -> Fit | None:
+def fit(target: np.ndarray, inputs: Sequence[np.ndarray], lags: Sequence[Sequence[int]],
+        trend: bool = False) -> Fit | None:
     """``target[k - s]`` from ``inputs[i][k - s - lag]`` for each lag, ridge chosen by the
-    forward held-out R²; ``s`` makes every lag >= 0 (a target leading its input)."""
+    forward held-out R²; ``s`` makes every lag >= 0 (a target leading its input).
+    ``trend``: time is one more regressor (signals that move on their own: the gains are
+    not bent by a discharge that happens to follow the load), left out of ``gains`` (the
+    observer follows that bias instead)."""
     low = min(min(ls) for ls in lags)
     shift = max(0, -low)
     y = _shifted(target, shift)
     cols = [_shifted(x, lag + shift) for x, ls in zip(inputs, lags, strict=True) for lag in ls]
+    if trend:
+        cols.append(np.arange(target.size, dtype=np.float64) * STEP)
     a_all = np.stack(cols, axis=1)
     rows = np.isfinite(y) & np.isfinite(a_all).all(axis=1)
     index = np.flatnonzero(rows)
@@ -413,8 +424,11 @@ def fit(target: np.ndarray, inputs: Sequence[np.ndarray], lags: Sequence[Sequenc
         residual[index[fold]] = yv[fold] - p
         predicted[index[fold]] = p
     gains, intercept = _ridge(a, yv, best_lam)
+    slope = 0.0
+    if trend:
+        gains, slope = gains[:-1], float(gains[-1])
     shifted_lags = [[lag + shift for lag in ls] for ls in lags]
-    return Fit(gains, intercept, best_r2, residual, predicted, shift, shifted_lags)
+    return Fit(gains, intercept, best_r2, residual, predicted, shift, shifted_lags, slope)
 
 
 def _taps(center: int) -> list[int]:
@@ -442,17 +456,16 @@ def _rolling_std(x: np.ndarray, w: int) -> np.ndarray:
     return out
 
 
-def tracked(z: np.ndarray, alpha: float, limit: float = 3.0) -> np.ndarray:
+def tracked(z: np.ndarray, alpha: float, limit: float = math.inf) -> np.ndarray:
     """``z`` less a bias followed by exponential smoothing (weight ``alpha`` per block),
-    the bias frozen while ``|z|`` exceeds ``limit`` (evidence of a fault is not learned):
-    what the relation observer does with ``track``."""
+    moving by at most ``limit`` per block: what the relation observer does with ``track``
+    and ``track_rate``."""
     out = np.empty_like(z)
     bias = 0.0
     for i, x in enumerate(z.tolist()):
         d = x - bias
         out[i] = d
-        if abs(d) < limit:
-            bias += alpha * d
+        bias += min(limit, max(-limit, alpha * d))
     return out
 
 
@@ -498,10 +511,15 @@ def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Rela
         moving, still = ok, np.zeros_like(ok)
     trending = any(s.trend is not None or s.drift is not None for s in (target, *inputs))
     track = TRACK if trending else None
+    track_rate = None
     if trending:
-        # the bias moves: the noise is what is left around a followed bias
+        # the bias moves, at a bounded rate (five times what it did while learning, as the
+        # load may be heavier later, and at least a twentieth of the block noise a second):
+        # a fault's offset or drift, far faster, is not followed
+        track_rate = max(TRACK_RATE * abs(fitted.slope), 0.05 * noise_all)
+        limit = track_rate * STEP * BLOCK / noise_all
         res_b = res_b.copy()
-        res_b[ok] = tracked(res_b[ok] / noise_all, STEP * BLOCK / TRACK, math.inf) * noise_all
+        res_b[ok] = tracked(res_b[ok] / noise_all, STEP * BLOCK / TRACK, limit) * noise_all
     m_bias, m_noise = float(res_b[moving].mean()), float(res_b[moving].std()) or noise_all
     z_parts = [(res_b[moving] - m_bias) / m_noise]
     still_mode = None
@@ -531,7 +549,7 @@ def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Rela
                     gains, fitted.intercept, fitted.target_steps, fitted.r2,
                     float(np.std(residual)), (m_bias, m_noise), still_mode, excitation,
                     (lo - margin, hi + margin), z_all, sensitivity, track=track,
-                    clears=clears)
+                    track_rate=track_rate, clears=clears)
 
 
 def learn_relations(rec: Recording) -> RelationsLearned:
@@ -627,7 +645,8 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
         peers.sort(key=lambda p: -abs(p[2]))
         if peers and abs(peers[0][2]) >= SCREEN:
             xi, lag, _ = peers[0]
-            fitted = fit(target.grid, [signals[xi].grid], [_taps(lag)])
+            fitted = fit(target.grid, [signals[xi].grid], [_taps(lag)],
+                         _trending(target) or _trending(signals[xi]))
             if fitted is not None:
                 fitted.r2 = quality(target, [signals[xi]], fitted)
                 if fitted.r2 >= R2_MIN:
@@ -637,7 +656,8 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
         joint = [p for p in peers if abs(p[2]) >= JOINT_SCREEN][:MAX_JOINT]
         if len(joint) >= 2:
             inputs = [signals[p[0]] for p in joint]
-            fitted = fit(target.grid, [x.grid for x in inputs], [_taps(p[1]) for p in joint])
+            fitted = fit(target.grid, [x.grid for x in inputs], [_taps(p[1]) for p in joint],
+                         _trending(target) or any(_trending(x) for x in inputs))
             if fitted is not None:
                 fitted.r2 = quality(target, inputs, fitted)
                 if fitted.r2 >= R2_MIN:
@@ -752,7 +772,8 @@ def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict
                       {"bias": _g(r.still[0], 4), "block_noise": _g(r.still[1], 4)}),
             "cusum": {"k": r.calibration.k, "h": round_up(r.calibration.h, 3)},
             "excitation": _g(r.excitation, 4),
-            **({"track": r.track} if r.track is not None else {}),
+            **({"track": r.track, "track_rate": _g(r.track_rate or 0.0, 4)}
+               if r.track is not None else {}),
             **({} if r.clears else {"clears": False}),
             "span": [round_down(r.span[0]), round_up(r.span[1])],
         })
@@ -771,7 +792,7 @@ def relation_comments(relations: Sequence[Relation]) -> list[str]:
                 else "unjudged while standing still (not seen while learning)")
         if r.track is not None:
             mode += (f"; its signals move on their own: R2 of five-second changes, the bias "
-                     f"followed over {r.track:g} s (frozen while the residual is off)")
+                     f"followed over {r.track:g} s, at most {r.track_rate or 0.0:.3g} a second")
         seen = (f"a 4-noise-std fault on any of its signals moves the residual >= "
                 f"{r.sensitivity:.1f} block noise" if r.clears else
                 f"its inputs' faults of 4 noise std move the residual less than {SENSITIVITY:g} "

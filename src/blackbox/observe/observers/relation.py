@@ -19,8 +19,8 @@ checks them on a common grid of ``step`` seconds:
   (nothing for ``fresh`` seconds: killed, stalled, NaN) gives no verdict either;
 * signals that move on their own (``track``: a battery's voltage against its current, two
   climbing wheel angles) have a residual bias that moves slowly: it is followed over
-  ``track`` seconds, and not while a block is ``TRACK_LIMIT`` noise std off (a fault's
-  evidence is never learned as the new normal);
+  ``track`` seconds, by at most ``track_rate`` a second (bounded by what it did while
+  learning), so a fault's offset or drift is not learned as the new normal;
 * ``topic_b`` may be ``topic``: a signal related to others of its own topic (the only
   relation it has) accuses that topic's producers alone;
 * ``clears: false``: the relation sees a fault of its target but not one of its inputs (a
@@ -74,8 +74,6 @@ from blackbox.observe.signals import (
     read_signal_ref,
 )
 
-TRACK_LIMIT = 3.0
-"""A block residual this many noise std off is evidence, not a bias to follow."""
 MAX_GAP = 30.0
 """A gap in time longer than this (seconds) restarts the grid instead of replaying it."""
 _NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
@@ -114,6 +112,8 @@ class RelationSpec:
     span: tuple[float, float]
     clears: bool = True
     """Whether holding is evidence of health (false: it cannot see its inputs' faults)."""
+    track_rate: float = math.inf
+    """The most the followed bias moves per second."""
     track: float | None = None
     """Seconds over which a moving bias of the residual is followed (signals that move on
     their own), ``None``: the learned bias is fixed."""
@@ -126,11 +126,12 @@ class _Judge:
     """The running test of one relation."""
 
     __slots__ = ("alpha", "count", "cusum", "excite", "followed", "last_z", "pred_sum",
-                 "reason", "res_sum", "spec", "unjudged_blocks", "verdict")
+                 "reason", "res_sum", "spec", "step_limit", "unjudged_blocks", "verdict")
 
     def __init__(self, spec: RelationSpec, window_blocks: int, block_seconds: float) -> None:
         self.spec = spec
         self.alpha = 0.0 if spec.track is None else min(1.0, block_seconds / spec.track)
+        self.step_limit = spec.track_rate * block_seconds
         self.followed = 0.0
         self.cusum = Cusum(spec.cusum)
         self.excite: deque[float] = deque(maxlen=window_blocks)
@@ -180,9 +181,10 @@ class _Judge:
                 return
             mode = spec.still
         self.unjudged_blocks = 0
-        self.last_z = (residual - mode.bias - self.followed) / mode.block_noise
-        if abs(self.last_z) < TRACK_LIMIT:  # evidence of a fault is not followed
-            self.followed += self.alpha * self.last_z * mode.block_noise
+        off = residual - mode.bias - self.followed
+        self.last_z = off / mode.block_noise
+        if self.alpha:  # at a bounded rate: a fault's offset or drift is not followed
+            self.followed += min(self.step_limit, max(-self.step_limit, self.alpha * off))
         stat = self.cusum.update(self.last_z)
         h = spec.cusum.h
         self.verdict = "failed" if stat >= h else "undecided" if stat >= h / 2 else "held"
@@ -379,7 +381,7 @@ def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
               names: set[str]) -> RelationSpec:
     node.check_keys(("name", "target", "target_lag", "inputs", "intercept", "block_noise",
                      "bias", "still", "cusum", "excitation", "span", "fit", "track",
-                     "clears"))
+                     "track_rate", "clears"))
     name_node = node["name"]
     name = name_node.str()
     if not name or not set(name) <= _NAME_CHARS or name[0].isdigit():
@@ -428,6 +430,8 @@ def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
         span=(span[0].float(), span[1].float()),
         track=(node["track"].float(min=0.0, min_exclusive=True)
                if node.get("track") is not None else None),
+        track_rate=(node["track_rate"].float(min=0.0)
+                    if node.get("track_rate") is not None else math.inf),
         clears=node["clears"].bool() if node.get("clears") is not None else True)
 
 
