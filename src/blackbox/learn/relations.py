@@ -16,7 +16,8 @@ From the time-stamped samples of a healthy run (``blackbox.learn.timed``):
    taps (a short FIR filter, so a delay or a smoothing on the way is modelled), or from up
    to four signals of that topic together when none alone suffices (two wheel speeds and a
    forward speed). Ridge regularisation is chosen by the R² on the last 30 % of the run
-   (held out, forward in time), and a relation is kept when that R² is at least ``R2_MIN``
+   (held out, forward in time), and a relation is kept when its five-fold out-of-fold R²
+   over the whole run is at least ``R2_MIN``
    and a fault of four noise std on any of its signals moves the residual by at least
    ``SENSITIVITY`` block noise (a relation that cannot see a signal must not vouch for it).
    Of the two directions of a pair the one with the cleaner input is kept (least squares
@@ -56,7 +57,6 @@ TAPS = 3
 R2_MIN = 0.8
 SCREEN = 0.6
 """Smallest correlation (at the best lag) worth fitting a single-input relation for."""
-JOINT_SCREEN = 0.3
 MAX_JOINT = 4
 MAX_PEERS = 4
 """Relations kept per target signal (the best by held-out R²)."""
@@ -423,6 +423,11 @@ def fit(target: np.ndarray, inputs: Sequence[np.ndarray], lags: Sequence[Sequenc
         p = a[fold] @ g + c
         residual[index[fold]] = yv[fold] - p
         predicted[index[fold]] = p
+    # the R² reported and judged is of the out-of-fold predictions over the whole run: the
+    # last 30 % alone may be one operating mode (driving straight: no yaw to explain)
+    oof = residual[index]
+    var = float(np.var(yv))
+    best_r2 = 1.0 - float(np.mean(oof ** 2)) / var if var > 0 else -math.inf
     gains, intercept = _ridge(a, yv, best_lam)
     slope = 0.0
     if trend:
@@ -653,7 +658,11 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
                     relation = relation_from_fit(target, [signals[xi]], fitted)
                     if relation is not None:
                         return relation
-        joint = [p for p in peers if abs(p[2]) >= JOINT_SCREEN][:MAX_JOINT]
+        # together, signals may explain what none does alone (a yaw rate from the left and
+        # right wheel speeds, each mostly the forward speed): the best few of the same kind
+        # (trending or not) as the target, whatever their single correlation
+        joint = [p for p in peers
+                 if _trending(signals[p[0]]) == _trending(target)][:MAX_JOINT]
         if len(joint) >= 2:
             inputs = [signals[p[0]] for p in joint]
             fitted = fit(target.grid, [x.grid for x in inputs], [_taps(p[1]) for p in joint],
