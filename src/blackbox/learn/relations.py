@@ -67,10 +67,11 @@ FALSE_ALARMS_PER_HOUR = 0.1
 MIN_SIGNAL_SAMPLES = 100
 MIN_GRID_BLOCKS = 60
 """A relation needs at least this many blocks (30 s) of both signals to be learned."""
-TRACK = 20.0
-"""Seconds over which a relation of trending signals follows its residual's bias (short
-enough that a discharge of a volt an hour lags by a fraction of the noise; the bias's
-rate is bounded, so a fault is not followed)."""
+TRACK = 2.5
+"""Seconds over which a relation of trending signals follows its residual's bias. Short:
+exponential smoothing lags a steady discharge by its rate times this (at 20 s the lag
+was half a block noise, and a two-hour healthy run raised 185 alarms); the bias's rate
+is bounded (``TRACK_RATE``), so a fault is still not followed."""
 TRACK_RATE = 5.0
 """The followed bias may move this many times as fast as it did while learning."""
 CHANGE_STEPS = 100
