@@ -384,8 +384,10 @@ class DiagnosisEngine:
         """Cardinality first, then the larger prior odds product, then the components
         closer to the ``failed`` observations (fewer nodes the fault must cross, summed
         over the failed observations: the producer of the one topic two failed relations
-        share is closer than a node upstream of one of them), then names. Closeness is only
-        computed when candidates tie on the first two."""
+        share is closer than a node upstream of one of them), then the fewer passing
+        observations that involve the candidate (a command that four relations and its
+        liveness currently pass is less suspect than a sensor only one passes), then names.
+        Closeness and passing are only computed when candidates tie on the first two."""
         def odds(s: frozenset[str]) -> float:
             return round(sum(math.log(self.prior(c) / (1.0 - self.prior(c))) for c in s), 9)
 
@@ -402,8 +404,17 @@ class DiagnosisEngine:
             return sum(min(near.get(c, far) for near in nears) if nears else 0 for c in s) \
                 + sum(min(near.get(c, far) for c in s) for near in nears)
 
+        passing: dict[str, int] = {}
+        for key, obs in zip(self._keys, self._obs, strict=True):
+            if obs is not None and obs.code >= 0:
+                for c in self._explain(key).components:
+                    passing[c] = passing.get(c, 0) + 1
+
+        def vouched(s: frozenset[str]) -> int:
+            return sum(passing.get(c, 0) for c in s)
+
         return tuple(k[3] for k in sorted(
-            keyed, key=lambda k: (k[0], k[1], distance(k[3]), k[2])))
+            keyed, key=lambda k: (k[0], k[1], distance(k[3]), vouched(k[3]), k[2])))
 
     @property
     def independent(self) -> frozenset[Edge]:
