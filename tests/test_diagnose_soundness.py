@@ -220,6 +220,11 @@ def random_robot(rng: random.Random) -> Robot:
             obs.append(ObservationSpec(kind, Resource(node=rng.choice(nodes).name)))
         elif kind == "network":
             obs.append(ObservationSpec(kind, Resource(interface="eth0")))
+        elif kind == RELATION and rng.random() < 0.3:
+            # learned within one topic (a voltage against its current): accuses and clears
+            # that topic alone
+            t = rng.choice(topics)
+            obs.append(ObservationSpec(kind, Resource(topic=t, topic_b=t)))
         elif kind in (RATE_PAIR, VALUE_PAIR, RELATION):
             if len(topics) > 1:
                 a, b = rng.sample(topics, 2)

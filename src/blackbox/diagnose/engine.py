@@ -385,8 +385,12 @@ class DiagnosisEngine:
     def rank(self, sets: Iterable[frozenset[str]], failed: Iterable[Key] = ()
              ) -> tuple[frozenset[str], ...]:
         """Cardinality first, then the larger prior odds product, then the components
-        closer to the ``failed`` observations (fewer nodes the fault must cross), then
-        names. Closeness is only computed when candidates tie on the first two."""
+        closer to the ``failed`` observations (fewer nodes the fault must cross, summed
+        over the failed observations: the producer of the one topic two failed relations
+        share is closer than a node upstream of one of them), then the fewer passing
+        observations that involve the candidate (a command that four relations and its
+        liveness currently pass is less suspect than a sensor only one passes), then names.
+        Closeness and passing are only computed when candidates tie on the first two."""
         def odds(s: frozenset[str]) -> float:
             return round(sum(math.log(self.prior(c) / (1.0 - self.prior(c))) for c in s), 9)
 
@@ -395,10 +399,25 @@ class DiagnosisEngine:
         tied = any(a[:2] == b[:2] for a, b in itertools.pairwise(keyed))
         if not tied:
             return tuple(k[3] for k in keyed)
-        near = self.closeness(failed)
+        keys = list(dict.fromkeys(failed))
         far = len(self.model.topics) + 1
+        nears = [self.closeness((key,)) for key in keys]
+
+        def distance(s: frozenset[str]) -> int:
+            return sum(min(near.get(c, far) for near in nears) if nears else 0 for c in s) \
+                + sum(min(near.get(c, far) for c in s) for near in nears)
+
+        passing: dict[str, int] = {}
+        for key, obs in zip(self._keys, self._obs, strict=True):
+            if obs is not None and obs.code >= 0:
+                for c in self._explain(key).components:
+                    passing[c] = passing.get(c, 0) + 1
+
+        def vouched(s: frozenset[str]) -> int:
+            return sum(passing.get(c, 0) for c in s)
+
         return tuple(k[3] for k in sorted(
-            keyed, key=lambda k: (k[0], k[1], sum(near.get(c, far) for c in k[3]), k[2])))
+            keyed, key=lambda k: (k[0], k[1], distance(k[3]), vouched(k[3]), k[2])))
 
     @property
     def independent(self) -> frozenset[Edge]:

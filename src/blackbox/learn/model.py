@@ -234,9 +234,12 @@ def _topic_block(topic: TopicRecord, rec: Recording, related: RelationsLearned) 
         block.notes.append(f"no message in {rec.duration:.0f} s: neither rate nor values "
                            "learned")
         return block
+    if topic.unmeasured:
+        block.comments.append(f"{topic.unmeasured} message(s) inside measurement gaps not "
+                              "learned from")
     if topic.split_gaps:
         block.comments.append(f"{topic.split_gaps} gap(s) while a publisher was not running "
-                              "left out of the periods")
+                              "left out of the periods (or while it was not measured)")
     periods = _rate_entries(topic, block)
     trends = related.trends.get(topic.name, [])
     block.comments.extend(trends)
@@ -314,6 +317,12 @@ def _value_entries(topic: TopicRecord, block: Block, periods: np.ndarray | None,
             _age_entry(topic, rec, block, max_window, listed)
             continue
         summaries = ("value",) if rec.info.kind == "scalar" else ("mean", "min", "max")
+        if rec.info.kind != "scalar" and any(t.startswith(f"{rec.info.path}[") for t in trends):
+            # elements that climb or are judged by relations: their summaries would leave
+            # any band learned in two minutes just the same (issue 22 item 7)
+            block.comments.append(f"{rec.info.path}: elements trend or are judged by "
+                                  "relations, no band for the array's summaries")
+            continue
         kinds = []
         for summary in summaries:
             series = rec.series.get(summary)

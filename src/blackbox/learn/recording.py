@@ -8,7 +8,10 @@ per topic (arrival times per publisher, numeric fields) and per node (liveness, 
 memory); nothing is judged yet (``blackbox.learn.model`` does that).
 
 A node seen dead during the run splits its topics' arrival times: an interval that spans a
-time the publisher was dead is not a period of the healthy robot and is not recorded.
+time the publisher was dead is not a period of the healthy robot and is not recorded. A
+measurement gap (``MeasurementGap``: the black box could not measure a topic, or anything,
+for a while) is skipped the same way: values stamped inside it are not kept and an
+interval between arrivals that spans it is not a period.
 """
 
 from __future__ import annotations
@@ -20,7 +23,13 @@ from typing import Any
 
 import numpy as np
 
-from blackbox.events import GraphSnapshot, Interest, MessageArrival, ResourceSample
+from blackbox.events import (
+    GraphSnapshot,
+    Interest,
+    MeasurementGap,
+    MessageArrival,
+    ResourceSample,
+)
 from blackbox.learn.fields import Discovery, FieldInfo, discover
 from blackbox.learn.timed import MAX_ELEMENTS, TimedSeries
 from blackbox.model import BlackBoxEvent
@@ -93,6 +102,8 @@ class TopicRecord:
     undecodable: int = 0
     decode_reason: str = ""
     split_gaps: int = 0
+    unmeasured: int = 0
+    """Messages stamped inside a measurement gap (not learned from)."""
 
     @property
     def total(self) -> int:
@@ -129,6 +140,14 @@ class Recording:
     late_nodes: set[str] = field(default_factory=set)
     events: list[str] = field(default_factory=list)
     graphs: int = 0
+    gaps: list[MeasurementGap] = field(default_factory=list)
+    """Measurement gaps of topics or of everything (open ones with ``end`` None)."""
+
+    def unmeasured(self, topic: str, start: float, end: float) -> bool:
+        """Whether a measurement gap of ``topic`` (or of everything) touches
+        ``[start, end]``."""
+        return any((g.topic is None or g.topic == topic) and g.start <= end
+                   and (g.end is None or g.end >= start) for g in self.gaps)
 
     @property
     def duration(self) -> float:
@@ -170,11 +189,28 @@ class Recorder:
             topic.subscribers.update(tinfo.subscribers)
             topic.type = topic.type or tinfo.type
 
+    def on_gap(self, gap: MeasurementGap) -> None:
+        """Remember a gap of a topic or of everything (a node's or the graph's own leave
+        values alone); its closing report replaces the open one."""
+        if gap.graph or (gap.topic is None and gap.node is not None):
+            return
+        gaps = self.recording.gaps
+        for i, g in enumerate(gaps):
+            if g.start == gap.start and g.topic == gap.topic and g.end is None:
+                gaps[i] = gap
+                return
+        gaps.append(gap)
+
     def on_message(self, msg: MessageArrival) -> None:
         topic = self.recording.topics.get(msg.topic)
         if topic is None:
             return
         t = msg.time
+        gaps = self.recording
+        if gaps.gaps and gaps.unmeasured(msg.topic, t, t):
+            topic.unmeasured += 1  # stamped inside a measurement gap: says nothing
+            topic.last_arrival.pop(msg.publisher, None)
+            return
         topic.first = t if topic.first is None else topic.first
         topic.last = t
         pub = msg.publisher
@@ -183,7 +219,8 @@ class Recorder:
         topic.last_arrival[pub] = t
         if last is not None and t >= last:
             node = self.recording.nodes.get(pub)
-            if node is not None and node.dead_between(last, t):
+            if (node is not None and node.dead_between(last, t)) or (
+                    gaps.gaps and gaps.unmeasured(msg.topic, last, t)):
                 topic.split_gaps += 1
             else:
                 topic.periods.setdefault(pub, Series()).add(t - last)
@@ -334,6 +371,8 @@ def record(source: Source, graph: GraphSnapshot, duration: float,
                     recorder.on_graph(event)
                 elif isinstance(event, ResourceSample):
                     recorder.on_resources(event)
+                elif isinstance(event, MeasurementGap):
+                    recorder.on_gap(event)
                 elif isinstance(event, BlackBoxEvent):
                     recorder.on_event(event)
             recording.ended = t

@@ -7,15 +7,17 @@ From the time-stamped samples of a healthy run (``blackbox.learn.timed``):
    (a straight line over time explains most of it: a discharging battery, a warming motor;
    it would leave any band it was learned in) or an angle that wraps (no linear relation
    holds across the wrap).
-2. **Grid.** All signals are resampled on one grid of ``STEP`` seconds (mean of each cell,
-   the last value held while fresh), so different rates line up.
+2. **Grid.** All signals are resampled on one grid of ``STEP`` seconds (the mean over each
+   cell of the lines joining the samples, ``window_means``), so different rates line up
+   without a phase that changes from run to run.
 3. **Relations.** For each target signal and each other topic, the lag (within
    ``MAX_LAG``) at which a signal of that topic correlates best with the target is found
    over the whole run; the target is then fitted from that signal through ``TAPS`` lagged
    taps (a short FIR filter, so a delay or a smoothing on the way is modelled), or from up
    to four signals of that topic together when none alone suffices (two wheel speeds and a
    forward speed). Ridge regularisation is chosen by the R² on the last 30 % of the run
-   (held out, forward in time), and a relation is kept when that R² is at least ``R2_MIN``
+   (held out, forward in time), and a relation is kept when its five-fold out-of-fold R²
+   over the whole run is at least ``R2_MIN``
    and a fault of four noise std on any of its signals moves the residual by at least
    ``SENSITIVITY`` block noise (a relation that cannot see a signal must not vouch for it).
    Of the two directions of a pair the one with the cleaner input is kept (least squares
@@ -28,7 +30,8 @@ From the time-stamped samples of a healthy run (``blackbox.learn.timed``):
    them, standing still gets its own noise and is judged; otherwise the relation is
    unjudged while the robot stands still (no excitation, no verdict).
 6. **Liveness** per signal: the longest run of equal samples and the log of the mean
-   squared difference of consecutive samples per block (stuck values, noise bursts).
+   squared second difference of consecutive samples per block (stuck values, noise
+   bursts; a second difference cancels smooth motion, so turning is not a noise burst).
 """
 
 from __future__ import annotations
@@ -54,7 +57,6 @@ TAPS = 3
 R2_MIN = 0.8
 SCREEN = 0.6
 """Smallest correlation (at the best lag) worth fitting a single-input relation for."""
-JOINT_SCREEN = 0.3
 MAX_JOINT = 4
 MAX_PEERS = 4
 """Relations kept per target signal (the best by held-out R²)."""
@@ -65,6 +67,15 @@ FALSE_ALARMS_PER_HOUR = 0.1
 MIN_SIGNAL_SAMPLES = 100
 MIN_GRID_BLOCKS = 60
 """A relation needs at least this many blocks (30 s) of both signals to be learned."""
+TRACK = 2.5
+"""Seconds over which a relation of trending signals follows its residual's bias. Short:
+exponential smoothing lags a steady discharge by its rate times this (at 20 s the lag
+was half a block noise, and a two-hour healthy run raised 185 alarms); the bias's rate
+is bounded (``TRACK_RATE``), so a fault is still not followed."""
+TRACK_RATE = 5.0
+"""The followed bias may move this many times as fast as it did while learning."""
+CHANGE_STEPS = 100
+"""Grid steps over which a trending signal's change is taken (five seconds)."""
 LIVENESS_BLOCK_SECONDS = 0.5
 LOGGING_TOPICS = frozenset({"/rosout", "/rosout_agg"})
 LAMBDAS = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
@@ -84,6 +95,10 @@ class Signal:
     """Slope per second when a straight line explains the signal (a trend), else None."""
     integer: bool
     grid: np.ndarray = field(default_factory=lambda: np.empty(0))
+    drift: float | None = None
+    """Slope per second of what the signal does on its own beside the other signals of its
+    topic, when it is significant and would leave the learned range within an hour (a
+    battery voltage discharging under a current that moves it more): no band."""
     note: str = ""
 
 
@@ -104,6 +119,15 @@ class Relation:
     z: np.ndarray
     sensitivity: float
     calibration: Calibration | None = None
+    clears: bool = True
+    """Whether a held verdict is evidence of health (it sees a fault of four noise std on
+    every one of its signals)."""
+    track: float | None = None
+    """Seconds over which the observer follows a slowly moving bias of the residual (a
+    relation of signals that move on their own: a discharging battery's voltage against
+    its current, two climbing wheel angles), ``None`` for a fixed bias."""
+    track_rate: float | None = None
+    """The most the followed bias moves per second (residual units)."""
 
     @property
     def topics(self) -> tuple[str, str]:
@@ -197,26 +221,104 @@ def _trend(t: np.ndarray, x: np.ndarray, noise: float) -> float | None:
     return None
 
 
+def increasing(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The samples later than every sample before them (what ``GridCell.add`` keeps)."""
+    if t.size == 0:
+        return t, x
+    before = np.concatenate(([-np.inf], np.maximum.accumulate(t)[:-1]))
+    keep = t > before
+    return t[keep], x[keep]
+
+
+def window_means(t: np.ndarray, x: np.ndarray, taus: np.ndarray, step: float,
+                 fresh: float) -> np.ndarray:
+    """At each ``tau``, the mean over ``[tau - step/2, tau + step/2]`` of the straight lines
+    joining the samples ``(t, x)`` (strictly increasing times); NaN where a line spans more
+    than ``fresh`` seconds or the samples do not reach. The same arithmetic as
+    :class:`blackbox.observe.signals.GridCell`, vectorised."""
+    if t.size < 2:
+        return np.full(taus.size, np.nan)
+    dt = np.diff(t)
+    c = np.concatenate(([0.0], np.cumsum(dt * (x[1:] + x[:-1]) * 0.5)))
+
+    def integral(u: np.ndarray) -> np.ndarray:
+        i = np.searchsorted(t, u, side="right") - 1
+        ok = (i >= 0) & (i < t.size - 1)
+        j = np.clip(i, 0, t.size - 2)
+        span = dt[j]
+        ok &= span <= fresh
+        ta, xa, ca = t[j], x[j], c[j]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            xu = xa + (u - ta) / span * (x[j + 1] - xa)
+        out = ca + (u - ta) * (xa + xu) * 0.5
+        got: np.ndarray = np.where(ok, out, np.nan)
+        return got
+
+    half = step / 2.0
+    means: np.ndarray = (integral(taus + half) - integral(taus - half)) / step
+    return means
+
+
+DRIFT_BLOCK = 20
+"""Grid steps per block when looking for a drift (one second)."""
+DRIFT_T = 3.0
+"""A drift's slope must be this many (autocorrelation-inflated) standard errors from 0."""
+
+
+def drift_of(sig: Signal, peers: Sequence[Signal]) -> float | None:
+    """The slope per second of ``sig`` over time beside ``peers`` (regressed together on
+    one-second block means), when significant and large enough to leave the signal's
+    learned range (0.5 % .. 99.5 %) within an hour; else ``None``."""
+    y = _blocks_of(sig.grid, DRIFT_BLOCK)
+    cols = [_blocks_of(p.grid, DRIFT_BLOCK) for p in peers]
+    t = np.arange(y.size, dtype=np.float64) * STEP * DRIFT_BLOCK
+    a = np.stack([np.ones(y.size), t, *cols], axis=1)
+    ok = np.isfinite(y) & np.isfinite(a).all(axis=1)
+    if ok.sum() < 30:
+        return None
+    a, y, t = a[ok], y[ok], t[ok]
+    sd = a.std(axis=0)
+    sd[0] = 1.0
+    sd[sd == 0] = 1.0
+    coef, *_ = np.linalg.lstsq(a / sd, y, rcond=None)
+    coef = coef / sd
+    res = y - a @ coef
+    if res.size < 3 or float(np.var(res)) == 0.0:
+        return None
+    rho = float(np.corrcoef(res[:-1], res[1:])[0, 1]) if np.std(res[:-1]) > 0 else 0.0
+    rho = min(max(rho, 0.0), 0.95)
+    inflate = math.sqrt((1 + rho) / (1 - rho))
+    xtx = np.linalg.pinv((a / sd).T @ (a / sd))
+    se = math.sqrt(float(np.var(res)) * float(xtx[1, 1])) / sd[1] * inflate
+    slope = float(coef[1])
+    values = sig.values
+    width = float(np.quantile(values, 0.995) - np.quantile(values, 0.005))
+    if se > 0 and abs(slope) / se >= DRIFT_T and abs(slope) * 3600.0 > width:
+        return slope
+    return None
+
+
+def _blocks_of(x: np.ndarray, block: int) -> np.ndarray:
+    n = x.size // block
+    if n == 0:
+        return np.empty(0)
+    b = x[:n * block].reshape(n, block)
+    with np.errstate(invalid="ignore"):
+        out: np.ndarray = b.mean(axis=1)
+    return out
+
+
 def grid_of(sig: Signal, g0: float, count: int) -> np.ndarray:
-    """The signal on the grid ``g0 + k * STEP``: mean of the cell ``(g - STEP, g]``, else the
-    last value while younger than its freshness, else NaN."""
-    fresh = freshness(sig)
-    idx = np.ceil((sig.times - g0) / STEP - 1e-9).astype(np.int64)
-    keep = (idx >= 0) & (idx < count)
-    idx, x, t = idx[keep], sig.values[keep], sig.times[keep]
-    sums = np.bincount(idx, x, minlength=count)
-    counts = np.bincount(idx, minlength=count)
-    last_t = np.full(count, -np.inf)
-    np.maximum.at(last_t, idx, t)
-    has = counts > 0
-    means = np.where(has, sums / np.maximum(counts, 1), np.nan)
-    where = np.where(has, np.arange(count), -1)
-    np.maximum.accumulate(where, out=where)
-    grid = np.where(where >= 0, means[np.maximum(where, 0)], np.nan)
-    age = g0 + np.arange(count) * STEP - np.where(where >= 0, last_t[np.maximum(where, 0)],
-                                                  -np.inf)
-    grid[age > fresh] = np.nan
-    return grid
+    """The signal on the grid ``g0 + k * STEP`` (``window_means``)."""
+    t, x = increasing(sig.times, sig.values)
+    return window_means(t, x, g0 + np.arange(count) * STEP, STEP, freshness(sig))
+
+
+def delay_of(signals: Sequence[Signal]) -> float:
+    """How late a relation judges a grid point: the sample after its cell must have arrived
+    (two periods of the slowest signal, whole grid steps)."""
+    slowest = max((s.period for s in signals if math.isfinite(s.period)), default=STEP)
+    return math.ceil((STEP / 2 + 2.0 * slowest) / STEP - 1e-9) * STEP
 
 
 def freshness(sig: Signal) -> float:
@@ -266,6 +368,8 @@ class Fit:
     predicted: np.ndarray
     target_steps: int
     lags: list[list[int]]
+    slope: float = 0.0
+    """The time regressor's gain (a ``trend`` fit): how fast the bias moved, per second."""
 
 
 def _ridge(a: np.ndarray, y: np.ndarray, lam: float) -> tuple[np.ndarray, float]:
@@ -284,14 +388,19 @@ def _r2(y: np.ndarray, p: np.ndarray) -> float:
     return 1.0 - float(np.mean((y - p) ** 2)) / var if var > 0 else -math.inf
 
 
-def fit(target: np.ndarray, inputs: Sequence[np.ndarray], lags: Sequence[Sequence[int]]
-        ) -> Fit | None:
+def fit(target: np.ndarray, inputs: Sequence[np.ndarray], lags: Sequence[Sequence[int]],
+        trend: bool = False) -> Fit | None:
     """``target[k - s]`` from ``inputs[i][k - s - lag]`` for each lag, ridge chosen by the
-    forward held-out R²; ``s`` makes every lag >= 0 (a target leading its input)."""
+    forward held-out R²; ``s`` makes every lag >= 0 (a target leading its input).
+    ``trend``: time is one more regressor (signals that move on their own: the gains are
+    not bent by a discharge that happens to follow the load), left out of ``gains`` (the
+    observer follows that bias instead)."""
     low = min(min(ls) for ls in lags)
     shift = max(0, -low)
     y = _shifted(target, shift)
     cols = [_shifted(x, lag + shift) for x, ls in zip(inputs, lags, strict=True) for lag in ls]
+    if trend:
+        cols.append(np.arange(target.size, dtype=np.float64) * STEP)
     a_all = np.stack(cols, axis=1)
     rows = np.isfinite(y) & np.isfinite(a_all).all(axis=1)
     index = np.flatnonzero(rows)
@@ -315,9 +424,17 @@ def fit(target: np.ndarray, inputs: Sequence[np.ndarray], lags: Sequence[Sequenc
         p = a[fold] @ g + c
         residual[index[fold]] = yv[fold] - p
         predicted[index[fold]] = p
+    # the R² reported and judged is of the out-of-fold predictions over the whole run: the
+    # last 30 % alone may be one operating mode (driving straight: no yaw to explain)
+    oof = residual[index]
+    var = float(np.var(yv))
+    best_r2 = 1.0 - float(np.mean(oof ** 2)) / var if var > 0 else -math.inf
     gains, intercept = _ridge(a, yv, best_lam)
+    slope = 0.0
+    if trend:
+        gains, slope = gains[:-1], float(gains[-1])
     shifted_lags = [[lag + shift for lag in ls] for ls in lags]
-    return Fit(gains, intercept, best_r2, residual, predicted, shift, shifted_lags)
+    return Fit(gains, intercept, best_r2, residual, predicted, shift, shifted_lags, slope)
 
 
 def _taps(center: int) -> list[int]:
@@ -345,6 +462,38 @@ def _rolling_std(x: np.ndarray, w: int) -> np.ndarray:
     return out
 
 
+def tracked(z: np.ndarray, alpha: float, limit: float = math.inf) -> np.ndarray:
+    """``z`` less a bias followed by exponential smoothing (weight ``alpha`` per block),
+    moving by at most ``limit`` per block: what the relation observer does with ``track``
+    and ``track_rate``."""
+    out = np.empty_like(z)
+    bias = 0.0
+    for i, x in enumerate(z.tolist()):
+        d = x - bias
+        out[i] = d
+        bias += min(limit, max(-limit, alpha * d))
+    return out
+
+
+def change(x: np.ndarray, steps: int = CHANGE_STEPS) -> np.ndarray:
+    """``x[k] - x[k - steps]`` (NaN for the first ``steps``)."""
+    out = np.full_like(x, np.nan)
+    out[steps:] = x[steps:] - x[:-steps]
+    return out
+
+
+def change_r2(fitted: Fit, target: np.ndarray) -> float:
+    """How much of the target's one-second changes the fit explains (out of fold): for
+    trending signals, whose levels any two climbing signals would "explain"."""
+    dy = change(target)
+    dr = change(fitted.residual)
+    ok = np.isfinite(dy) & np.isfinite(dr)
+    if ok.sum() < MIN_GRID_BLOCKS * BLOCK // 2:
+        return -math.inf
+    var = float(np.var(dy[ok]))
+    return 1.0 - float(np.mean(dr[ok] ** 2)) / var if var > 0 else -math.inf
+
+
 def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Relation | None:
     """Residual noise per mode, sensitivity and span of a fitted relation; ``None`` when it
     cannot see a fault of four noise std on one of its signals."""
@@ -360,7 +509,23 @@ def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Rela
     moving = ok & (spread >= excitation)
     still = ok & np.isfinite(spread) & (spread < excitation)
     if moving.sum() < MIN_GRID_BLOCKS // 2:
-        return None
+        if still.sum() < MIN_GRID_BLOCKS:
+            return None
+        # the prediction never moves much beside the residual's noise (a battery voltage
+        # sagging a little under its current): one mode, judged always
+        excitation = 0.0
+        moving, still = ok, np.zeros_like(ok)
+    trending = any(s.trend is not None or s.drift is not None for s in (target, *inputs))
+    track = TRACK if trending else None
+    track_rate = None
+    if trending:
+        # the bias moves, at a bounded rate (five times what it did while learning, as the
+        # load may be heavier later, and at least a twentieth of the block noise a second):
+        # a fault's offset or drift, far faster, is not followed
+        track_rate = max(TRACK_RATE * abs(fitted.slope), 0.05 * noise_all)
+        limit = track_rate * STEP * BLOCK / noise_all
+        res_b = res_b.copy()
+        res_b[ok] = tracked(res_b[ok] / noise_all, STEP * BLOCK / TRACK, limit) * noise_all
     m_bias, m_noise = float(res_b[moving].mean()), float(res_b[moving].std()) or noise_all
     z_parts = [(res_b[moving] - m_bias) / m_noise]
     still_mode = None
@@ -368,16 +533,20 @@ def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Rela
         s_bias, s_noise = float(res_b[still].mean()), float(res_b[still].std()) or noise_all
         still_mode = (s_bias, s_noise)
         z_parts.append((res_b[still] - s_bias) / s_noise)
+    z_all = np.concatenate(z_parts)
     n_in = len(inputs)
     per = len(fitted.gains) // n_in
     gains = [fitted.gains[i * per:(i + 1) * per].tolist() for i in range(n_in)]
     noise_mode = max(m_noise, still_mode[1] if still_mode else 0.0)
-    seen = [4 * target.noise / noise_mode]
-    seen += [4 * sig.noise * abs(sum(g)) / noise_mode for sig, g in zip(inputs, gains,
-                                                                        strict=True)]
-    sensitivity = min(seen)
-    if sensitivity < SENSITIVITY:
+    seen_target = 4 * target.noise / noise_mode
+    seen = [4 * sig.noise * abs(sum(g)) / noise_mode for sig, g in zip(inputs, gains,
+                                                                      strict=True)]
+    if seen_target < SENSITIVITY:
         return None
+    # one that sees its target but not a fault of its inputs (a clean command beside a
+    # noisy sensor) still accuses when it fails; held, it clears nobody
+    clears = min(seen) >= SENSITIVITY
+    sensitivity = min(seen_target, *seen)
     p = fitted.predicted[np.isfinite(fitted.predicted)]
     lo, hi = float(p.min()), float(p.max())
     margin = 0.25 * (hi - lo) + 3 * noise_all
@@ -385,7 +554,8 @@ def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Rela
     return Relation(target, [(s, lags) for s, lags in zip(inputs, fitted.lags, strict=True)],
                     gains, fitted.intercept, fitted.target_steps, fitted.r2,
                     float(np.std(residual)), (m_bias, m_noise), still_mode, excitation,
-                    (lo - margin, hi + margin), np.concatenate(z_parts), sensitivity)
+                    (lo - margin, hi + margin), z_all, sensitivity, track=track,
+                    track_rate=track_rate, clears=clears)
 
 
 def learn_relations(rec: Recording) -> RelationsLearned:
@@ -402,13 +572,23 @@ def learn_relations(rec: Recording) -> RelationsLearned:
         live = learn_liveness(s)
         if live is not None:
             liveness.setdefault(s.ref.topic, []).append(live)
-    related = [s for s in signals if s.trend is None and not s.wrap]
+    related = [s for s in signals if not s.wrap]
     relations: list[Relation] = []
-    if rec.duration > 0 and len({s.ref.topic for s in related}) >= 2:
+    if rec.duration > 0:
         g0 = math.ceil(rec.started / STEP) * STEP
         count = int((rec.ended - g0) / STEP) + 1
-        for s in related:
+        for s in signals:
             s.grid = grid_of(s, g0, count)
+        for s in signals:
+            if s.trend is None:
+                s.drift = drift_of(s, [p for p in signals if p.ref.topic == s.ref.topic
+                                       and p is not s and p.trend is None])
+                if s.drift is not None:
+                    trends.setdefault(s.ref.topic, []).append(
+                        f"{s.ref.field} trend: drifts {s.drift * 3600:+.4g} per hour beside "
+                        "the other signals of its topic (more than its learned range): no "
+                        "band, it would leave it; checked for being alive")
+    if rec.duration > 0 and len(related) >= 2:
         relations = _search(related, notes)
     checks = len(relations) + sum(1 for ls in liveness.values() for live in ls
                                   if live.z is not None)
@@ -431,15 +611,26 @@ def learn_relations(rec: Recording) -> RelationsLearned:
     return RelationsLearned(relations, liveness, trends, notes, len(signals), related_fields)
 
 
+def _trending(s: Signal) -> bool:
+    return s.trend is not None or s.drift is not None
+
+
 def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
+    """Per target, the best relation from each other topic; a signal with none from another
+    topic (a battery voltage, a climbing wheel angle) may be related within its own topic.
+    Trending signals are screened and judged on their five-second changes."""
     max_steps = round(MAX_LAG / STEP)
+    changes = {i: change(s.grid) for i, s in enumerate(signals) if _trending(s)}
     corr: dict[tuple[int, int], tuple[int, float]] = {}
     for i, a in enumerate(signals):
         for j in range(i + 1, len(signals)):
             b = signals[j]
-            if a.ref.topic == b.ref.topic:
-                continue
-            corr[(i, j)] = best_lag(a.grid, b.grid, max_steps)
+            if i in changes or j in changes:
+                ga = changes.get(i, change(a.grid)) if j in changes else a.grid
+                gb = changes.get(j, change(b.grid)) if i in changes else b.grid
+                corr[(i, j)] = best_lag(ga, gb, max_steps)
+            else:
+                corr[(i, j)] = best_lag(a.grid, b.grid, max_steps)
 
     def lag_corr(t: int, x: int) -> tuple[int, float]:
         """Lag of x relative to target t, and the correlation."""
@@ -448,32 +639,49 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
         lag, c = corr[(x, t)]
         return -lag, c
 
+    def quality(target: Signal, inputs: list[Signal], fitted: Fit) -> float:
+        if _trending(target) or any(_trending(x) for x in inputs):
+            return change_r2(fitted, target.grid)
+        return fitted.r2
+
+    def from_topic(ti: int, topic: str) -> Relation | None:
+        target = signals[ti]
+        peers = [(xi, *lag_corr(ti, xi)) for xi, s in enumerate(signals)
+                 if s.ref.topic == topic and xi != ti]
+        peers.sort(key=lambda p: -abs(p[2]))
+        if peers and abs(peers[0][2]) >= SCREEN:
+            xi, lag, _ = peers[0]
+            fitted = fit(target.grid, [signals[xi].grid], [_taps(lag)],
+                         _trending(target) or _trending(signals[xi]))
+            if fitted is not None:
+                fitted.r2 = quality(target, [signals[xi]], fitted)
+                if fitted.r2 >= R2_MIN:
+                    relation = relation_from_fit(target, [signals[xi]], fitted)
+                    if relation is not None:
+                        return relation
+        # together, signals may explain what none does alone (a yaw rate from the left and
+        # right wheel speeds, each mostly the forward speed): the best few of the same kind
+        # (trending or not) as the target, whatever their single correlation
+        joint = [p for p in peers
+                 if _trending(signals[p[0]]) == _trending(target)][:MAX_JOINT]
+        if len(joint) >= 2:
+            inputs = [signals[p[0]] for p in joint]
+            fitted = fit(target.grid, [x.grid for x in inputs], [_taps(p[1]) for p in joint],
+                         _trending(target) or any(_trending(x) for x in inputs))
+            if fitted is not None:
+                fitted.r2 = quality(target, inputs, fitted)
+                if fitted.r2 >= R2_MIN:
+                    return relation_from_fit(target, inputs, fitted)
+        return None
+
     by_target: dict[int, list[Relation]] = {}
     topics = sorted({s.ref.topic for s in signals})
     for ti, target in enumerate(signals):
-        found: list[Relation] = []
-        for topic in topics:
-            if topic == target.ref.topic:
-                continue
-            peers = [(xi, *lag_corr(ti, xi)) for xi, s in enumerate(signals)
-                     if s.ref.topic == topic]
-            peers.sort(key=lambda p: -abs(p[2]))
-            relation = None
-            if peers and abs(peers[0][2]) >= SCREEN:
-                xi, lag, _ = peers[0]
-                fitted = fit(target.grid, [signals[xi].grid], [_taps(lag)])
-                if fitted is not None and fitted.r2 >= R2_MIN:
-                    relation = relation_from_fit(target, [signals[xi]], fitted)
-            if relation is None:
-                joint = [p for p in peers if abs(p[2]) >= JOINT_SCREEN][:MAX_JOINT]
-                if len(joint) >= 2:
-                    fitted = fit(target.grid, [signals[p[0]].grid for p in joint],
-                                 [_taps(p[1]) for p in joint])
-                    if fitted is not None and fitted.r2 >= R2_MIN:
-                        relation = relation_from_fit(target, [signals[p[0]] for p in joint],
-                                                     fitted)
-            if relation is not None:
-                found.append(relation)
+        found = [r for topic in topics if topic != target.ref.topic
+                 for r in [from_topic(ti, topic)] if r is not None]
+        if not found:
+            own = from_topic(ti, target.ref.topic)
+            found = [own] if own is not None else []
         found.sort(key=lambda r: -r.r2)
         by_target[ti] = found[:MAX_PEERS]
     # one direction per pair of single signals: the cleaner signal is the input
@@ -517,12 +725,16 @@ def learn_liveness(s: Signal) -> Liveness | None:
     d = np.diff(x)
     if s.wrap:
         d = _wrapped(d)
+    d = np.diff(d)  # second differences: smooth motion (a turn starting) is not noise
     n = d.size // block
     z: np.ndarray | None = None
     mean = std = 0.0
     if n >= 40:
         sq = (d[:n * block] ** 2).reshape(n, block).mean(axis=1)
-        if np.all(sq > 0):
+        # a quantised signal has blocks without a change: they can only lower the upward
+        # statistic, so the noise is learned from the others (when most blocks change)
+        sq = sq[sq > 0]
+        if sq.size >= max(40, n // 2):
             v = np.log(sq)
             mean, std = float(v.mean()), max(float(v.std()), 0.05)
             z = (v - mean) / std
@@ -545,7 +757,8 @@ def _g(x: float, digits: int = 6) -> float:
 
 
 def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict[str, Any]:
-    fresh = max(freshness(s) for r in relations for s in (r.target, *(i for i, _ in r.inputs)))
+    signals = [s for r in relations for s in (r.target, *(i for i, _ in r.inputs))]
+    fresh = max(freshness(s) for s in signals)
     items = []
     names: set[str] = set()
     for r in relations:
@@ -569,10 +782,14 @@ def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict
                       {"bias": _g(r.still[0], 4), "block_noise": _g(r.still[1], 4)}),
             "cusum": {"k": r.calibration.k, "h": round_up(r.calibration.h, 3)},
             "excitation": _g(r.excitation, 4),
+            **({"track": r.track, "track_rate": _g(r.track_rate or 0.0, 4)}
+               if r.track is not None else {}),
+            **({} if r.clears else {"clears": False}),
             "span": [round_down(r.span[0]), round_up(r.span[1])],
         })
     return {"type": "relation", "topic": pair[0], "topic_b": pair[1], "step": STEP,
-            "block": BLOCK, "window": WINDOW, "fresh": round_up(fresh, 2), "relations": items}
+            "block": BLOCK, "window": WINDOW, "fresh": round_up(fresh, 2),
+            "delay": _g(delay_of(signals)), "relations": items}
 
 
 def relation_comments(relations: Sequence[Relation]) -> list[str]:
@@ -583,9 +800,15 @@ def relation_comments(relations: Sequence[Relation]) -> list[str]:
                            for s, lags in r.inputs)
         mode = ("standing still judged with its own noise" if r.still is not None
                 else "unjudged while standing still (not seen while learning)")
+        if r.track is not None:
+            mode += (f"; its signals move on their own: R2 of five-second changes, the bias "
+                     f"followed over {r.track:g} s, at most {r.track_rate or 0.0:.3g} a second")
+        seen = (f"a 4-noise-std fault on any of its signals moves the residual >= "
+                f"{r.sensitivity:.1f} block noise" if r.clears else
+                f"its inputs' faults of 4 noise std move the residual less than {SENSITIVITY:g} "
+                "block noise: held, it clears nobody")
         out.append(f"{r.target.ref.label()} from {inputs}: held-out R2 {r.r2:.4f}, residual "
-                   f"std {r.noise:.3g}, block noise {r.moving[1]:.3g}; a 4-noise-std fault on "
-                   f"any of its signals moves the residual >= {r.sensitivity:.1f} block noise; "
+                   f"std {r.noise:.3g}, block noise {r.moving[1]:.3g}; {seen}; "
                    f"{r.calibration.describe()}; {mode}")
     return out
 

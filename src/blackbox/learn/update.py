@@ -34,8 +34,10 @@ from blackbox.observe.build import build_observers, load_config_text
 _START = re.compile(r"^(\s*)# >>> learned (.+?) >>>\s*$")
 _END = re.compile(r"^\s*# <<< learned (.+?) <<<\s*$")
 _LOWER_KEYS = frozenset({"lower_bound", "greater_than"})
-_UPPER_KEYS = frozenset({"upper_bound", "less_than", "timeout", "window_size"})
-_LIST_KEYS = {"fields": "name", "states": "number"}
+_UPPER_KEYS = frozenset({"upper_bound", "less_than", "timeout", "window_size",
+                         "block_noise", "h", "repeats", "std", "fresh", "delay"})
+_LIST_KEYS = {"fields": "name", "states": "number", "relations": "name", "signals": "name"}
+_SPAN_KEYS = frozenset({"span"})
 
 Key = tuple[str, str, tuple[str, ...]]
 
@@ -96,9 +98,17 @@ def entry_key(entry: Mapping[str, Any]) -> Key:
 
 
 def merge_values(old: Any, new: Any, key: str = "") -> Any:
-    """``new`` widened by ``old`` (module docstring)."""
+    """``new`` widened by ``old`` (module docstring). For learned relations and liveness:
+    residual noise, thresholds and spans widen, and an operating mode only one run saw
+    (``still``: standing, judged with its own noise) is kept, so ``--update`` with a run in
+    another mode adds that mode."""
+    if new is None and old is not None:
+        return old
     if isinstance(old, bool) or isinstance(new, bool):
         return new
+    if key in _SPAN_KEYS and isinstance(old, list) and isinstance(new, list) \
+            and len(old) == len(new) == 2:
+        return [min(old[0], new[0]), max(old[1], new[1])]
     if isinstance(old, (int, float)) and isinstance(new, (int, float)):
         if key in _LOWER_KEYS:
             return min(old, new)

@@ -3,10 +3,15 @@
 Learned relations (``relation``) and per-signal liveness (``liveness``) read single numbers
 out of messages: a scalar field (``twist.twist.linear.x``) or one element of a numeric
 array (``velocity[1]``). Topics arrive at different rates and at irregular times, so a
-relation compares them on a common grid of ``step`` seconds: the grid value of a signal is
-the mean of its samples in the cell ``(g - step, g]``, or the last value when the cell is
-empty and the last sample is younger than ``fresh`` seconds; older, the signal is *stale*
-and the grid value is NaN (no verdict is made on it).
+relation compares them on a common grid of ``step`` seconds. The grid value of a signal at
+``tau`` is the mean, over the cell ``[tau - step/2, tau + step/2]``, of the straight lines
+joining its samples (:func:`window_mean`): a fast signal is averaged over the cell, a slow
+one interpolated, and neither is shifted in time by where its samples happen to fall (a
+cell mean or a held value would delay a signal by up to one period, differently in every
+run, and a relation with a large gain would see that as a residual). The cell is judged
+``delay`` seconds late, when the sample after it has arrived. A line between samples more
+than ``fresh`` seconds apart is a gap: the signal is *stale* and the grid value is NaN (no
+verdict is made on it).
 
 Everything is pure: time is passed in, nothing reads a clock.
 """
@@ -14,6 +19,7 @@ Everything is pure: time is passed in, nothing reads a clock.
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from collections.abc import Callable
 from dataclasses import dataclass
 from numbers import Real
@@ -95,39 +101,79 @@ class SignalReader:
 
 
 class GridCell:
-    """The grid value of one signal: mean of the samples of the current cell, else the held
-    value while it is fresh."""
+    """The grid value of one signal (module docstring): the recent samples with the running
+    integral of the line through them, so a cell mean is two binary searches."""
 
-    __slots__ = ("_count", "_sum", "fresh", "held", "last_time")
+    __slots__ = ("_c", "_head", "_t", "_x", "delay", "fresh", "half", "step")
 
-    def __init__(self, fresh: float) -> None:
+    def __init__(self, fresh: float, step: float, delay: float) -> None:
         self.fresh = fresh
-        self._sum = 0.0
-        self._count = 0
-        self.held = math.nan
-        self.last_time = -math.inf
+        self.step = step
+        self.half = step / 2.0
+        self.delay = delay
+        self._t: list[float] = []
+        self._x: list[float] = []
+        self._c: list[float] = []
+        """Times (strictly increasing), values and the integral from the first sample."""
+        self._head = 0
+
+    @property
+    def samples(self) -> list[tuple[float, float]]:
+        """The samples still needed, oldest first."""
+        h = self._head
+        return list(zip(self._t[h:], self._x[h:], strict=True))
+
+    @property
+    def last_time(self) -> float:
+        return self._t[-1] if self._t else -math.inf
 
     def add(self, t: float, x: float) -> None:
-        self._sum += x
-        self._count += 1
-        self.last_time = t
+        """A sample; one not later than the last is dropped (the line needs increasing
+        times, and learning drops the same ones)."""
+        times = self._t
+        if not times:
+            times.append(t)
+            self._x.append(x)
+            self._c.append(0.0)
+            return
+        t0 = times[-1]
+        if t <= t0:
+            return
+        times.append(t)
+        self._c.append(self._c[-1] + (t - t0) * (x + self._x[-1]) * 0.5)
+        self._x.append(x)
+
+    def _integral(self, u: float) -> float:
+        """The integral of the line up to ``u``, NaN in a gap or beyond the samples."""
+        times = self._t
+        i = bisect_right(times, u, self._head) - 1
+        if i < self._head or i >= len(times) - 1:
+            return math.nan
+        ta, tb = times[i], times[i + 1]
+        if tb - ta > self.fresh:
+            return math.nan
+        xa = self._x[i]
+        xu = xa + (u - ta) / (tb - ta) * (self._x[i + 1] - xa)
+        return self._c[i] + (u - ta) * (xa + xu) * 0.5
 
     def close(self, g: float) -> float:
-        """The value at grid time ``g`` (ending the cell ``(g - step, g]``)."""
-        if self._count:
-            self.held = self._sum / self._count
-            self._sum = 0.0
-            self._count = 0
-            return self.held
-        if g - self.last_time > self.fresh:
-            return math.nan
-        return self.held
+        """The value at ``g - delay`` (the grid point the relation judges at tick ``g``)."""
+        tau = g - self.delay
+        lo = tau - self.half
+        times = self._t
+        keep = bisect_right(times, lo, self._head) - 1
+        if keep > self._head:
+            self._head = keep
+            if keep > 512:
+                del times[:keep], self._x[:keep], self._c[:keep]
+                self._head = 0
+        return (self._integral(tau + self.half) - self._integral(lo)) / self.step
 
     def reset(self) -> None:
-        self._sum = 0.0
-        self._count = 0
-        self.held = math.nan
-        self.last_time = -math.inf
+        self._t.clear()
+        self._x.clear()
+        self._c.clear()
+        self._head = 0
 
 
 def wrapped_difference(a: float, b: float) -> float:
@@ -158,11 +204,12 @@ class CusumSpec:
 class Cusum:
     """Two-sided (or upward only) CUSUM with a ceiling, so an alarm ends soon after the
     fault: the statistic stays at most ``ceiling`` drifts above ``h`` and falls by ``k`` per
-    healthy block."""
+    healthy block (one drift: the alarm ends within two blocks of the evidence; a longer
+    afterglow was measured to blame neighbours of a fault that had already ended)."""
 
     __slots__ = ("down", "spec", "top", "two_sided", "up")
 
-    def __init__(self, spec: CusumSpec, two_sided: bool = True, ceiling: float = 4.0) -> None:
+    def __init__(self, spec: CusumSpec, two_sided: bool = True, ceiling: float = 1.0) -> None:
         self.spec = spec
         self.two_sided = two_sided
         self.top = spec.h + ceiling * max(spec.k, 0.25)

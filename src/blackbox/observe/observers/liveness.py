@@ -6,8 +6,9 @@ A healthy sensor's reading moves a little from one message to the next (noise, m
 * **repeats**: the longest run of exactly equal consecutive samples while healthy; a run of
   ``repeats`` equal samples (at least twice the healthy one) is a *stuck* value. A signal
   that repeated a lot while healthy (quantised, a command held constant) gets no such check;
-* **noise**: per block of ``block`` samples, ``ln(mean squared difference)`` of consecutive
-  samples, standardised by its healthy ``mean`` and ``std``; an upward CUSUM (``k``, ``h``
+* **noise**: per block of ``block`` samples, ``ln(mean squared second difference)`` of
+  consecutive samples (``x[k] - 2 x[k-1] + x[k-2]``: smooth motion cancels, noise stays),
+  standardised by its healthy ``mean`` and ``std``; an upward CUSUM (``k``, ``h``
   calibrated for a stated false-alarm rate) finds a *noise burst*. Only upward: a signal
   moves less when the robot stands still, so a variance collapse is no fault by itself
   (a frozen value is caught by ``repeats`` and by the relations).
@@ -70,7 +71,8 @@ class LivenessSpec:
 
 
 class _Signal:
-    __slots__ = ("blocks", "cusum", "last", "last_z", "reader", "run", "spec", "sq", "sq_n")
+    __slots__ = ("blocks", "cusum", "last", "last_d", "last_z", "reader", "run", "spec", "sq",
+                 "sq_n")
 
     def __init__(self, spec: LivenessSpec) -> None:
         self.spec = spec
@@ -78,6 +80,7 @@ class _Signal:
         self.cusum = (Cusum(spec.noise.cusum, two_sided=False) if spec.noise is not None
                       else None)
         self.last = math.nan
+        self.last_d = math.nan
         self.run = 0
         self.sq = 0.0
         self.sq_n = 0
@@ -94,6 +97,11 @@ class _Signal:
         if noise is None or self.cusum is None:
             return
         d = wrapped_difference(x, last) if self.spec.wrap else x - last
+        last_d = self.last_d
+        self.last_d = d
+        if math.isnan(last_d):
+            return
+        d -= last_d
         self.sq += d * d
         self.sq_n += 1
         if self.sq_n >= noise.block:

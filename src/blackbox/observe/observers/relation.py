@@ -6,6 +6,8 @@ predict a *target* signal of one topic from *inputs* of the other, each input th
 few lagged taps (a linear FIR fit, so different rates and delays line up). This observer
 checks them on a common grid of ``step`` seconds:
 
+* every signal is put on the grid ``delay`` seconds late, when the sample after each cell
+  has arrived (``blackbox.observe.signals``: the mean of the lines joining its samples);
 * the residual ``target - prediction`` is averaged over blocks of ``block`` grid steps and
   standardised by the healthy block noise; a two-sided CUSUM (drift ``k``, alarm ``h``,
   ``h`` calibrated while learning for a stated false-alarm rate) accumulates it, so a slow
@@ -15,6 +17,15 @@ checks them on a common grid of ``step`` seconds:
   learned standing still if the learning run had such a mode (``still``), else it is
   unjudged; a prediction outside the learned range is not extrapolated; a stale signal
   (nothing for ``fresh`` seconds: killed, stalled, NaN) gives no verdict either;
+* signals that move on their own (``track``: a battery's voltage against its current, two
+  climbing wheel angles) have a residual bias that moves slowly: it is followed over
+  ``track`` seconds, by at most ``track_rate`` a second (bounded by what it did while
+  learning), so a fault's offset or drift is not learned as the new normal;
+* ``topic_b`` may be ``topic``: a signal related to others of its own topic (the only
+  relation it has) accuses that topic's producers alone;
+* ``clears: false``: the relation sees a fault of its target but not one of its inputs (a
+  clean command beside a noisy sensor); failed, it accuses as any other, held, it clears
+  nobody (``NOT_AVAILABLE``);
 * the verdict has three values: failed (CUSUM at ``h``), held (below ``h / 2``), and in
   between, or unjudged, ``NOT_AVAILABLE``: a held relation clears the values of both
   topics in the diagnosis (docs/diagnosis.md), so it says so only when it is sure.
@@ -28,6 +39,7 @@ checks them on a common grid of ``step`` seconds:
       block: 10
       window: 5.0
       fresh: 0.3
+      delay: 0.15
       relations:
         - name: imu_data_angular_velocity_z
           target: {topic: /imu/data, field: angular_velocity.z}
@@ -98,6 +110,13 @@ class RelationSpec:
     cusum: CusumSpec
     excitation: float
     span: tuple[float, float]
+    clears: bool = True
+    """Whether holding is evidence of health (false: it cannot see its inputs' faults)."""
+    track_rate: float = math.inf
+    """The most the followed bias moves per second."""
+    track: float | None = None
+    """Seconds over which a moving bias of the residual is followed (signals that move on
+    their own), ``None``: the learned bias is fixed."""
 
     def inputs(self) -> str:
         return ", ".join(dict.fromkeys(t.signal.label() for t in self.taps))
@@ -106,11 +125,14 @@ class RelationSpec:
 class _Judge:
     """The running test of one relation."""
 
-    __slots__ = ("count", "cusum", "excite", "last_z", "pred_sum", "reason", "res_sum",
-                 "spec", "unjudged_blocks", "verdict")
+    __slots__ = ("alpha", "count", "cusum", "excite", "followed", "last_z", "pred_sum",
+                 "reason", "res_sum", "spec", "step_limit", "unjudged_blocks", "verdict")
 
-    def __init__(self, spec: RelationSpec, window_blocks: int) -> None:
+    def __init__(self, spec: RelationSpec, window_blocks: int, block_seconds: float) -> None:
         self.spec = spec
+        self.alpha = 0.0 if spec.track is None else min(1.0, block_seconds / spec.track)
+        self.step_limit = spec.track_rate * block_seconds
+        self.followed = 0.0
         self.cusum = Cusum(spec.cusum)
         self.excite: deque[float] = deque(maxlen=window_blocks)
         self.res_sum = 0.0
@@ -159,7 +181,10 @@ class _Judge:
                 return
             mode = spec.still
         self.unjudged_blocks = 0
-        self.last_z = (residual - mode.bias) / mode.block_noise
+        off = residual - mode.bias - self.followed
+        self.last_z = off / mode.block_noise
+        if self.alpha:  # at a bounded rate: a fault's offset or drift is not followed
+            self.followed += min(self.step_limit, max(-self.step_limit, self.alpha * off))
         stat = self.cusum.update(self.last_z)
         h = spec.cusum.h
         self.verdict = "failed" if stat >= h else "undecided" if stat >= h / 2 else "held"
@@ -186,11 +211,9 @@ class RelationObserver(ObserverBase):
 
     def __init__(self, topic: str, topic_b: str, relations: Sequence[RelationSpec], *,
                  step: float, block: int, window: float, fresh: float,
-                 every: float = 1.0) -> None:
+                 delay: float | None = None, every: float = 1.0) -> None:
         if not relations:
             raise ValueError("a relation observer needs at least one relation")
-        if topic == topic_b:
-            raise ValueError("a relation relates two different topics")
         self.topic, self.topic_b = topic, topic_b
         self.resource = Resource(topic=topic, topic_b=topic_b)
         self.interval = every
@@ -203,14 +226,15 @@ class RelationObserver(ObserverBase):
         self._refs = tuple(refs)
         self._readers = {ref: SignalReader(ref) for ref in self._refs}
         self._by_topic: dict[str, list[tuple[SignalReader, GridCell]]] = {}
-        self._cells = {ref: GridCell(fresh) for ref in self._refs}
+        self.delay = fresh if delay is None else delay
+        self._cells = {ref: GridCell(fresh, step, self.delay) for ref in self._refs}
         for ref in self._refs:
             self._by_topic.setdefault(ref.topic, []).append((self._readers[ref],
                                                             self._cells[ref]))
         depth = 1 + max(max((t.steps for r in relations for t in r.taps), default=0),
                         max(r.target_steps for r in relations))
         self._history = {ref: deque([math.nan] * depth, maxlen=depth) for ref in self._refs}
-        self._judges = [_Judge(r, self.window_blocks) for r in relations]
+        self._judges = [_Judge(r, self.window_blocks, step * block) for r in relations]
         self._next: float | None = None
         self._ticks = 0
         self._undecodable = 0
@@ -308,6 +332,9 @@ class RelationObserver(ObserverBase):
                 failed.append(f"{spec.target.label()} disagrees with {spec.inputs()} "
                               f"(residual {judge.last_z:+.1f} noise std, CUSUM {stat:.1f} >= "
                               f"{spec.cusum.h:.1f})")
+            elif judge.verdict == "held" and not spec.clears:
+                open_.append(f"{what}: holds (CUSUM {stat:.1f}) but cannot see its inputs' "
+                             "faults, clears nobody")
             elif judge.verdict == "held":
                 held.append(f"{what} (CUSUM {stat:.1f} < {spec.cusum.h / 2:.1f})")
             elif judge.verdict == "undecided":
@@ -353,7 +380,8 @@ def _steps(node: ConfigNode, step: float) -> int:
 def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
               names: set[str]) -> RelationSpec:
     node.check_keys(("name", "target", "target_lag", "inputs", "intercept", "block_noise",
-                     "bias", "still", "cusum", "excitation", "span", "fit"))
+                     "bias", "still", "cusum", "excitation", "span", "fit", "track",
+                     "track_rate", "clears"))
     name_node = node["name"]
     name = name_node.str()
     if not name or not set(name) <= _NAME_CHARS or name[0].isdigit():
@@ -399,26 +427,32 @@ def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
         moving=moving, still=None if still is None or still.is_null else _mode(still),
         cusum=CusumSpec.read(node["cusum"]),
         excitation=node["excitation"].float(min=0.0) if node.get("excitation") else 0.0,
-        span=(span[0].float(), span[1].float()))
+        span=(span[0].float(), span[1].float()),
+        track=(node["track"].float(min=0.0, min_exclusive=True)
+               if node.get("track") is not None else None),
+        track_rate=(node["track_rate"].float(min=0.0)
+                    if node.get("track_rate") is not None else math.inf),
+        clears=node["clears"].bool() if node.get("clears") is not None else True)
 
 
 def relation_from_config(node: ConfigNode) -> RelationObserver:
     node.check_keys((*COMMON_KEYS, "topic", "topic_b", "step", "block", "window", "fresh",
-                     "relations"))
+                     "delay", "relations"))
     topic, topic_b = read_name(node, "topic"), read_name(node, "topic_b")
-    if topic == topic_b:
-        raise node["topic_b"].error("topic_b must differ from topic")
     step = node["step"].float(min=0.001, max=10.0) if node.get("step") else 0.05
     block = node["block"].int(min=1, max=10_000) if node.get("block") else 10
     window = node["window"].float(min=0.0, min_exclusive=True) if node.get("window") else 5.0
     fresh = node["fresh"].float(min=0.0, min_exclusive=True) if node.get("fresh") else 0.5
+    delay_node = node.get("delay")
+    delay = (delay_node.float(min=step / 2, max=60.0) if delay_node is not None
+             else max(fresh, step / 2))
     names: set[str] = set()
     items = node["relations"].list()
     if not items:
         raise node["relations"].error("relations lists no relation")
     relations = [_relation(item, step, (topic, topic_b), names) for item in items]
     return RelationObserver(topic, topic_b, relations, step=step, block=block, window=window,
-                            fresh=fresh, every=read_every(node))
+                            fresh=fresh, delay=delay, every=read_every(node))
 
 
 OBSERVERS.add("relation", ObserverKind("relation", relation_from_config, Subject.TOPIC_PAIR,
