@@ -6,7 +6,10 @@ from __future__ import annotations
 import argparse
 import signal
 import threading
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from blackbox.transport.zenoh_bus import ZenohSettings
 
 
 def register(sub: Any) -> None:
@@ -27,13 +30,30 @@ def register(sub: Any) -> None:
 
 
 def add_tls_arguments(p: argparse.ArgumentParser) -> None:
-    """``--tls-ca``, ``--tls-certificate``, ``--tls-key``: shared by router, run, station."""
-    p.add_argument("--tls-ca", default=None, metavar="PEM",
+    """``--zenoh-ca``, ``--zenoh-certificate``, ``--zenoh-key``: Zenoh TLS files, shared by
+    router, run and station (the station's ``--tls-*`` are its HTTPS)."""
+    p.add_argument("--zenoh-ca", default=None, metavar="PEM",
                    help="the CA certificate that signed the routers' certificates")
-    p.add_argument("--tls-certificate", default=None, metavar="PEM",
-                   help="this side's certificate (a router's tls/ listener needs one)")
-    p.add_argument("--tls-key", default=None, metavar="PEM",
-                   help="the private key of --tls-certificate")
+    p.add_argument("--zenoh-certificate", default=None, metavar="PEM",
+                   help="this side's certificate for Zenoh TLS (a router's tls/ listener "
+                        "needs one)")
+    p.add_argument("--zenoh-key", default=None, metavar="PEM",
+                   help="the private key of --zenoh-certificate")
+
+
+def zenoh_settings(args: argparse.Namespace) -> ZenohSettings | None:
+    """``--zenoh`` and the TLS files as settings; a bad endpoint is a one-line error."""
+    if not args.zenoh:
+        return None
+    from blackbox.errors import BlackBoxError
+    from blackbox.transport.zenoh_bus import ZenohSettings
+
+    try:
+        return ZenohSettings(tuple(args.zenoh), root_ca=args.zenoh_ca,
+                             certificate=args.zenoh_certificate,
+                             private_key=args.zenoh_key)
+    except ValueError as exc:
+        raise BlackBoxError(f"--zenoh: {exc}") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -42,8 +62,8 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         settings = RouterSettings(tuple(args.listen or ("tcp/127.0.0.1:7447",)),
-                                  tuple(args.connect), args.tls_ca, args.tls_certificate,
-                                  args.tls_key)
+                                  tuple(args.connect), args.zenoh_ca, args.zenoh_certificate,
+                                  args.zenoh_key)
     except ValueError as exc:
         raise BlackBoxError(str(exc)) from None
     stop = threading.Event()

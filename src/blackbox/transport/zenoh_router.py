@@ -33,7 +33,7 @@ class RouterSettings:
                 raise ValueError(f"not a Zenoh endpoint: {endpoint!r} "
                                  "(expected e.g. tcp/127.0.0.1:7447 or tls/host:7447)")
         if any(e.startswith("tls/") for e in self.listen) and self.certificate is None:
-            raise ValueError("a tls/ endpoint needs --certificate and --private-key")
+            raise ValueError("a tls/ endpoint needs --zenoh-certificate and --zenoh-key")
 
     def config(self) -> zenoh.Config:
         config = zenoh.Config()
