@@ -1,8 +1,8 @@
 """``blackbox station``: the remote station, a web application for a fleet of black boxes.
 
 ``blackbox station`` joins the DDS domain (or Zenoh routers, ``--zenoh``), follows every robot
-on it into its own database and serves the web pages (http://127.0.0.1:8080 unless ``--bind`` says otherwise; HTTPS with
-``--tls-cert``/``--tls-key``). ``blackbox station user add NAME --role ROLE`` makes an
+on it into its own database and serves the web pages (http://127.0.0.1:8080 unless
+``--bind`` says otherwise; HTTPS with ``--tls-cert``/``--tls-key``). ``blackbox station user add NAME --role ROLE`` makes an
 account; there is none until then.
 """
 
