@@ -2,8 +2,8 @@
 
 ``blackbox station`` joins the DDS domain (or Zenoh routers, ``--zenoh``), follows every robot
 on it into its own database and serves the web pages (http://127.0.0.1:8080 unless
-``--bind`` says otherwise; HTTPS with ``--tls-cert``/``--tls-key``). ``blackbox station user add NAME --role ROLE`` makes an
-account; there is none until then.
+``--bind`` says otherwise; HTTPS with ``--tls-cert``/``--tls-key``). ``blackbox station
+user add NAME --role ROLE`` makes an account; there is none until then.
 """
 
 from __future__ import annotations
