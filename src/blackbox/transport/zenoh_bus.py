@@ -37,6 +37,8 @@ CACHED_SAMPLES = 4096
 HEARTBEAT_SECONDS = 0.5
 """How often a publisher tells subscribers its last sequence number, so that a station
 notices samples it missed even when the robot has nothing new to say."""
+CONNECT_WAIT_MS = 10_000
+"""How long opening a session waits for a router before it gives up with an error."""
 READER_DEPTH = 100_000
 """Samples a reader holds between two takes; beyond it the oldest go (and are counted)."""
 VOLATILE_TOPICS = frozenset({"BlackBox_Log_Request", "BlackBox_Log_Reply",
@@ -77,12 +79,14 @@ class ZenohSettings:
                                  "(expected e.g. tcp/127.0.0.1:7447 or tls/host:7447)")
 
     def config(self) -> zenoh.Config:
-        """A client configuration: no multicast scouting (nothing is announced on the LAN),
-        retry for ever when a router is down instead of failing."""
+        """A client of the routers: no multicast scouting (nothing is announced on the LAN).
+        Opening waits :data:`CONNECT_WAIT_MS` for a router and fails after that (a Zenoh
+        client cannot open without one; Zenoh peers could, but a router does not forward
+        between peers); once open, a lost router is reconnected in the background."""
         config = zenoh.Config()
         config.insert_json5("mode", '"client"')
         config.insert_json5("connect/endpoints", _json_list(self.endpoints))
-        config.insert_json5("connect/timeout_ms", "-1")
+        config.insert_json5("connect/timeout_ms", str(CONNECT_WAIT_MS))
         config.insert_json5("connect/exit_on_failure", "false")
         config.insert_json5("scouting/multicast/enabled", "false")
         apply_tls(config, self.root_ca, self.certificate, self.private_key)
