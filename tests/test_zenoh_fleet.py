@@ -1,7 +1,7 @@
 """Robots reach a station across networks over Zenoh: a real router (``blackbox router``)
 on loopback in its own process, a scripted black box in another, the station follower in
 this one. The link is cut by killing the router and restored by starting it again; every
-event is counted by its identity."""
+event is counted by its identity. TLS uses a throwaway CA made by the test."""
 
 from __future__ import annotations
 
@@ -12,12 +12,14 @@ from pathlib import Path
 
 import pytest
 
+from blackbox.record import Store
 from blackbox.station.follow import StationFollower
 from blackbox.station.store import StationStore, UnknownRobot
 from blackbox.transport.participant import TransportSettings
-from blackbox.transport.zenoh_bus import ZenohSettings
+from blackbox.transport.zenoh_bus import ZenohBus, ZenohError, ZenohSettings
 from conftest import wait_until
 from station_support import ScriptedBlackBox, station_signer_for_tests
+from throwaway_ca import make_ca_and_server
 from zenoh_support import RouterProcess, free_tcp_port
 
 pytestmark = pytest.mark.dds
@@ -115,3 +117,60 @@ def test_events_sent_while_the_router_was_down_arrive_once_when_it_returns(
     finally:
         follower.stop()
         store.close()
+
+
+def test_over_tls_health_signed_log_requests_and_built_in_tests_reach_the_robot(
+        tmp_path: Path, cleanup: list[RouterProcess | ScriptedBlackBox]) -> None:
+    tls = make_ca_and_server(tmp_path / "tls")
+    endpoint = f"tls/127.0.0.1:{free_tcp_port()}"
+    cleanup.append(RouterProcess(endpoint, ["--zenoh-certificate", str(tls.certificate),
+                                            "--zenoh-key", str(tls.private_key)]))
+    health_db = tmp_path / "health.db"
+    box = ScriptedBlackBox("thesis", 0, store=health_db, zenoh=endpoint, tls_ca=tls.ca)
+    cleanup.append(box)
+    start = time.time()
+    for command in ("ok", "fault", "ok"):
+        box.send(command)
+    end = time.time()
+    store = StationStore.open(tmp_path / "station.db")
+    follower = StationFollower(
+        store, TransportSettings(zenoh=ZenohSettings((endpoint,), root_ca=str(tls.ca))),
+        station_id="test-station", signer=station_signer_for_tests(), backfill=0)
+    follower.start()
+    try:
+        # the robot spoke before the station came: the robot's cache gives it all
+        wait_until(lambda: event_counts(tmp_path / "station.db") == {
+            "failure": 1, "rectification": 1, "distinct": 2},
+            "the failure and rectification made before the station came", timeout=30)
+        assert usb_cam(store) is not None
+
+        own = Store.open(str(health_db), readonly=True, check=False)
+        try:
+            logged = [e.to_dict() for e in own.query(start=start, end=end)]
+        finally:
+            own.close()
+        request = follower.request_logs("thesis", since=start, until=end, requested_by="olga")
+        done = wait_until(lambda: (r := store.log_request(request)) and r.status not in (
+            "pending", "running") and r, "the signed log request's answer", timeout=30)
+        assert (done.status, done.rows) == ("done", len(logged))  # type: ignore[union-attr]
+        assert [e.to_dict() for e in store.iter_log_entries(request)] == logged
+
+        run = follower.run_ibit("thesis", requested_by="olga")
+        result = wait_until(lambda: (r := store.ibit_run(run)) and r.status != "pending" and r,
+                            "the built-in test's result", timeout=30)
+        assert (result.status, result.observations, result.failed) == (  # type: ignore[union-attr]
+            "done", 5, 0)
+    finally:
+        follower.stop()
+        store.close()
+
+
+def test_a_station_that_does_not_trust_the_routers_certificate_stops_with_one_line(
+        tmp_path: Path, cleanup: list[RouterProcess | ScriptedBlackBox]) -> None:
+    tls = make_ca_and_server(tmp_path / "tls")
+    stranger = make_ca_and_server(tmp_path / "other", "another CA")
+    endpoint = f"tls/127.0.0.1:{free_tcp_port()}"
+    cleanup.append(RouterProcess(endpoint, ["--zenoh-certificate", str(tls.certificate),
+                                            "--zenoh-key", str(tls.private_key)]))
+    with pytest.raises(ZenohError, match=f"cannot open a Zenoh session to {endpoint}"):
+        ZenohBus.open(ZenohSettings((endpoint,), root_ca=str(stranger.ca)), "station")
