@@ -5,7 +5,10 @@ event is counted by its identity. TLS uses a throwaway CA made by the test."""
 
 from __future__ import annotations
 
+import signal
 import sqlite3
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -18,7 +21,7 @@ from blackbox.station.store import StationStore, UnknownRobot
 from blackbox.transport.participant import TransportSettings
 from blackbox.transport.zenoh_bus import ZenohBus, ZenohError, ZenohSettings
 from conftest import wait_until
-from station_support import ScriptedBlackBox, station_signer_for_tests
+from station_support import ScriptedBlackBox, dds_env, station_signer_for_tests
 from throwaway_ca import make_ca_and_server
 from zenoh_support import RouterProcess, free_tcp_port
 
@@ -174,3 +177,46 @@ def test_a_station_that_does_not_trust_the_routers_certificate_stops_with_one_li
                                             "--zenoh-key", str(tls.private_key)]))
     with pytest.raises(ZenohError, match=f"cannot open a Zenoh session to {endpoint}"):
         ZenohBus.open(ZenohSettings((endpoint,), root_ca=str(stranger.ca)), "station")
+
+
+def test_blackbox_run_and_blackbox_station_meet_through_a_router(
+        tmp_path: Path, router_endpoint: str,
+        cleanup: list[RouterProcess | ScriptedBlackBox]) -> None:
+    """The commands of docs/station.md, Fleet deployment: a simulated robot whose camera
+    node dies at 3 s, a station serving the web pages, both only knowing the router."""
+    cleanup.append(RouterProcess(router_endpoint))
+    faults = tmp_path / "faults.yaml"
+    faults.write_text("faults:\n  - {kind: kill, component: /usb_cam, start: 3, end: 8}\n")
+    ready = tmp_path / "station.url"
+    station_db = tmp_path / "station.db"
+    station = subprocess.Popen(
+        [sys.executable, "-m", "blackbox", "station", "--db", str(station_db), "--bind",
+         "127.0.0.1:0", "--zenoh", router_endpoint, "--ready-file", str(ready),
+         "--duration", "90"], env=dds_env(), stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE, text=True)
+    robot = subprocess.Popen(
+        [sys.executable, "-m", "blackbox", "run", "--zenoh", router_endpoint, "--quiet",
+         "--faults", str(faults), "--record", str(tmp_path / "bb.db"), "--duration", "40"],
+        env=dds_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_until(ready.exists, "the station to serve", timeout=60)
+        wait_until(lambda: event_counts(station_db).get("failure", 0) >= 1
+                   and event_counts(station_db).get("rectification", 0) >= 1,
+                   "the camera's failure and rectification at the station", timeout=60)
+        db = sqlite3.connect(f"file:{station_db}?mode=ro", uri=True)
+        try:
+            [(entity,)] = db.execute("SELECT entity FROM events WHERE kind = 'failure' "
+                                     "LIMIT 1").fetchall()
+        finally:
+            db.close()
+        assert entity == "/usb_cam"
+    finally:
+        for proc in (robot, station):
+            proc.send_signal(signal.SIGINT)
+        for proc in (robot, station):
+            try:
+                _, err = proc.communicate(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                _, err = proc.communicate()
+            assert "Traceback" not in err, err
