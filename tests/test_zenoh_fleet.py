@@ -220,3 +220,30 @@ def test_blackbox_run_and_blackbox_station_meet_through_a_router(
                 proc.kill()
                 _, err = proc.communicate()
             assert "Traceback" not in err, err
+
+
+def test_a_robot_and_a_station_at_two_sites_meet_through_two_routers(
+        tmp_path: Path, cleanup: list[RouterProcess | ScriptedBlackBox]) -> None:
+    robot_site = f"tcp/127.0.0.1:{free_tcp_port()}"
+    station_site = f"tcp/127.0.0.1:{free_tcp_port()}"
+    cleanup.append(RouterProcess(station_site))
+    cleanup.append(RouterProcess(robot_site, ["--connect", station_site]))
+    box = ScriptedBlackBox("thesis", 0, store=tmp_path / "health.db", zenoh=robot_site)
+    cleanup.append(box)
+    store = StationStore.open(tmp_path / "station.db")
+    follower = StationFollower(
+        store, TransportSettings(zenoh=ZenohSettings((station_site,))),
+        station_id="test-station", signer=station_signer_for_tests(), backfill=0)
+    follower.start()
+    try:
+        box.send("ok")
+        wait_until(lambda: usb_cam(store) == "OPERATIONAL",
+                   "the camera's state across two routers", timeout=30)
+        box.send("burst 100")
+        wait_until(lambda: event_counts(tmp_path / "station.db").get("distinct") == 200,
+                   "100 failures and 100 rectifications across two routers", timeout=30)
+        assert event_counts(tmp_path / "station.db") == {
+            "failure": 100, "rectification": 100, "distinct": 200}
+    finally:
+        follower.stop()
+        store.close()

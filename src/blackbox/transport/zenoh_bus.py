@@ -53,6 +53,11 @@ class ZenohError(BlackBoxError, RuntimeError):
     """The Zenoh session cannot be opened (bad endpoint, certificate, ...)."""
 
 
+def first_line(exc: BaseException) -> str:
+    """Zenoh's message without the Rust source location it ends with."""
+    return str(exc).split(" at /", 1)[0].splitlines()[0] if str(exc) else type(exc).__name__
+
+
 def key_part(text: str) -> str:
     """``text`` as one chunk of a key expression: wildcards and separators replaced."""
     return _NOT_IN_KEY.sub("_", text) or "_"
@@ -237,7 +242,7 @@ class ZenohBus:
             session = zenoh.open(settings.config())
         except Exception as exc:
             raise ZenohError(f"cannot open a Zenoh session to "
-                             f"{', '.join(settings.endpoints)}: {exc}") from None
+                             f"{', '.join(settings.endpoints)}: {first_line(exc)}") from None
         return cls(settings, session, key_part(origin or f"node-{session.info.zid()}"))
 
     def key(self, origin: str, topic: str) -> str:

@@ -12,7 +12,7 @@ from typing import Any
 
 import zenoh
 
-from blackbox.transport.zenoh_bus import ENDPOINT, ZenohError, _json_list, apply_tls
+from blackbox.transport.zenoh_bus import ENDPOINT, ZenohError, _json_list, apply_tls, first_line
 
 
 @dataclass(frozen=True, slots=True)
@@ -51,4 +51,4 @@ def open_router(settings: RouterSettings) -> Any:
         return zenoh.open(settings.config())
     except Exception as exc:
         raise ZenohError(f"cannot start a Zenoh router on "
-                         f"{', '.join(settings.listen)}: {exc}") from None
+                         f"{', '.join(settings.listen)}: {first_line(exc)}") from None
