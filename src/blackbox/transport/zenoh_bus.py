@@ -45,6 +45,8 @@ VOLATILE_TOPICS = frozenset({"BlackBox_Log_Request", "BlackBox_Log_Reply",
                              "C_Monitored_Entity_run_IBIT", "BlackBox_IBIT_Request",
                              "BlackBox_IBIT_Result"})
 """Request/reply topics: an old request must not be answered again, nor an old reply taken."""
+CDR_HEADER = 4
+"""Bytes of the encapsulation header every serialised sample starts with."""
 _NOT_IN_KEY = re.compile(r"[^A-Za-z0-9_.\-]")
 ENDPOINT = re.compile(r"^(tcp|tls|udp|quic)/[^/\s]+:[0-9]{1,5}$")
 
@@ -197,6 +199,9 @@ class ZenohReader:
             payloads = [self._payloads.popleft() for _ in range(min(N, len(self._payloads)))]
         samples = []
         for payload in payloads:
+            if len(payload) < CDR_HEADER:  # Cyclone decodes b"" as an all-default sample
+                self.malformed += 1
+                continue
             try:
                 samples.append(self.type.deserialize(payload))
             except Exception:  # a foreign or truncated payload is not a crash
