@@ -141,8 +141,11 @@ class ZenohWriter:
         if self._volatile:
             self._publisher = session.declare_publisher(key)
         else:
+            # BLOCK, as a reliable DDS writer: a full send queue in a burst waits rather
+            # than drops (with no route at all, while the router is down, nothing waits)
             self._publisher = zext.declare_advanced_publisher(
-                session, key, cache=zext.CacheConfig(max_samples=CACHED_SAMPLES),
+                session, key, congestion_control=zenoh.CongestionControl.BLOCK,
+                cache=zext.CacheConfig(max_samples=CACHED_SAMPLES),
                 sample_miss_detection=zext.MissDetectionConfig(
                     heartbeat=HEARTBEAT_SECONDS, sporadic_heartbeat=None),
                 publisher_detection=True)
