@@ -132,6 +132,11 @@ def _config(path: Path, names: list[str], rate: float) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
+PURE_PYTHON = "python"
+"""An ``--options`` entry: the defaults, with the Python receive path instead of the native
+loop (``BLACKBOX_PURE_PYTHON=1``)."""
+
+
 def run_case(topics: int, rate: float, seconds: float, warmup: float, work: Path,
              src: Path | None = None, options: str = "", fast: bool = False,
              fast_load: float = 50_000.0, variant: str = "") -> Case:
@@ -147,6 +152,8 @@ def run_case(topics: int, rate: float, seconds: float, warmup: float, work: Path
         env = {k: v for k, v in os.environ.items() if k != "ROS_MASTER_URI"}
         if src is not None:
             env["PYTHONPATH"] = str(src)
+        if options == PURE_PYTHON:  # the receive path's Python fallback
+            env["BLACKBOX_PURE_PYTHON"], options = "1", ""
         spec = f"ros1://127.0.0.1:{robot.port}"
         if options:
             spec += f"?{options}"
@@ -256,7 +263,8 @@ def main(argv: list[str] | None = None) -> int:
                              "directory (e.g. an older checkout), alternating, same window")
     parser.add_argument("--options", default="",
                         help="';'-separated source options to run every case with, e.g. "
-                             "';readers=1;coalesce=0.001' (empty entry: the defaults)")
+                             "';readers=1;coalesce=0.001' (empty entry: the defaults; "
+                             "'python': the defaults with the Python receive path)")
     parser.add_argument("--fast-load", type=float, default=50_000.0,
                         help="msg/s per fast publisher process")
     args = parser.parse_args(argv)

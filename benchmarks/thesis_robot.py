@@ -56,12 +56,19 @@ from robot import NODES, ThesisRobot, free_port, ros_env
 CAMERA = "/usb_cam/image_raw"
 
 
+PURE_PYTHON = "python"
+"""A ``--variant`` query starting with this runs the black box with the Python receive path
+(``BLACKBOX_PURE_PYTHON=1``), e.g. ``--variant python-subscribed=python?counters=0``."""
+
+
 def _blackbox(robot: ThesisRobot, work: Path, domain: int, extra: list[str],
               src: Path | None = None, query: str = "") -> subprocess.Popen[bytes]:
     env = {k: v for k, v in os.environ.items()
            if k not in ("ROS_MASTER_URI", "CYCLONEDDS_URI")}
     if src is not None:
         env["PYTHONPATH"] = str(src)
+    if query.startswith(PURE_PYTHON):  # the receive path's Python fallback
+        env["BLACKBOX_PURE_PYTHON"], query = "1", query.removeprefix(PURE_PYTHON)
     log = (work / "bb.log").open("wb")
     return subprocess.Popen([*BLACKBOX, "run", "--source",
                              f"ros1://127.0.0.1:{robot.port}{query}",

@@ -8,6 +8,9 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
+
+import pytest
 
 from blackbox.app import RunOptions, build
 from blackbox.model import Observation, Resource
@@ -81,3 +84,25 @@ class Collected(SinkBase):
         with self.lock:
             return [o for o in self.observations
                     if o.observer == observer and o.resource == resource and o.time >= since]
+
+
+RECEIVE_PATHS = ("native", "python")
+
+
+def _receive_path(request: Any, monkeypatch: Any) -> str:
+    """The TCPROS receive path under test: the compiled loop or the Python fallback
+    (``BLACKBOX_PURE_PYTHON``, inherited by reader processes). Where the loop is not built
+    the native case is skipped; tests/test_ros1_native.py fails if it should have been."""
+    from blackbox.sources.ros1.native import FORCE_PYTHON, native_loop
+
+    path = str(request.param)
+    if path == "python":
+        monkeypatch.setenv(FORCE_PYTHON, "1")
+    else:
+        monkeypatch.delenv(FORCE_PYTHON, raising=False)
+        if native_loop() is None:
+            pytest.skip("the native TCPROS loop is not built here")
+    return path
+
+
+receive_path = pytest.fixture(params=RECEIVE_PATHS)(_receive_path)

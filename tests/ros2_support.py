@@ -11,7 +11,7 @@ from types import ModuleType
 
 import pytest
 
-from blackbox.events import Event, GraphSnapshot, Interest, MessageArrival
+from blackbox.events import Event, GraphSnapshot, Interest, MeasurementGap, MessageArrival
 from blackbox.model import BlackBoxEvent
 from blackbox.sources.ros2 import Ros2Settings, Ros2Source
 
@@ -68,6 +68,9 @@ class Watched:
 
     def arrivals(self, topic: str) -> list[MessageArrival]:
         return [e for e in self.events if isinstance(e, MessageArrival) and e.topic == topic]
+
+    def gaps(self, topic: str) -> list[MeasurementGap]:
+        return [e for e in self.events if isinstance(e, MeasurementGap) and e.topic == topic]
 
     def graphs(self) -> list[GraphSnapshot]:
         return [e for e in self.events if isinstance(e, GraphSnapshot)]

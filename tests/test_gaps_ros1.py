@@ -203,3 +203,64 @@ def test_the_black_box_stopped_for_three_seconds_raises_no_alarm(
             proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             proc.kill()
+
+
+def test_a_lost_connection_to_a_live_publisher_is_a_gap_until_it_reconnects(
+        robot: ThesisRobot) -> None:
+    """The black box's own TCPROS connections break while the publishers live on: the
+    reader process holding the camera and audio connections (``readers=1``, subscriptions
+    only) is killed. Each topic is a gap from the round before the loss until the first
+    message on its new connection, and nothing times out or reads a wrong rate."""
+    seen = Seen()
+    box = build(RunOptions(config=THESIS, live=False, extra_sinks=[seen],
+                           source=f"ros1://127.0.0.1:{robot.port}?readers=1&counters=0"))
+    source = box.pipeline.source
+    stop = threading.Event()
+    thread = threading.Thread(target=box.run, args=(stop,), daemon=True)
+    thread.start()
+    try:
+        start = settled(seen)
+        processes = source.reader_processes  # type: ignore[attr-defined]
+        assert processes is not None
+        for _ in range(2):
+            before = time.time()
+            (pid,) = processes.pids()
+            os.kill(pid, signal.SIGKILL)
+            assert wait_for(lambda b=before: {e.component for e in seen.gaps()
+                                              if e.time >= b
+                                              and "reconnecting" in e.message} >= set(COUNTED),
+                            15), "no reconnection gap closed on both topics"
+            assert wait_for(lambda p=pid: processes.pids() not in ([], [p]), 10)
+            back = time.time()
+            assert wait_for(lambda b=back: seen.ok(b + 2.0), 20), "not healthy after"
+        assert seen.alarms(start) == []
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+
+
+def test_a_stalled_counted_topic_leaves_the_other_counted_topics_rate_alone(
+        robot: ThesisRobot) -> None:
+    """SIGSTOP of the camera node: its probe times out every round, so rounds wait up to
+    0.5 s for it, then stop waiting when it continues. The audio topic's rate, counted in
+    the same rounds, must read as ever: each round's counts continue where the previous
+    round's ended instead of piling up on them (the hz false alarms on /audio during camera
+    stalls in the real 10 x 300 s campaign)."""
+    seen = Seen()
+    options = RunOptions(config=THESIS, source=f"ros1://127.0.0.1:{robot.port}", live=False,
+                         extra_sinks=[seen])
+    with black_box_running(options):
+        start = settled(seen)
+        for _ in range(3):
+            os.kill(robot.pid("/usb_cam"), signal.SIGSTOP)
+            stopped = time.time()
+            try:
+                assert wait_for(lambda s=stopped: any(
+                    o.resource.topic == "/usb_cam/image_raw" or o.resource.node == "/usb_cam"
+                    for o in seen.alarms(s)), 10), "the stall was not seen"
+                time.sleep(3.0)  # the stall's length is the input, not a wait
+            finally:
+                os.kill(robot.pid("/usb_cam"), signal.SIGCONT)
+            back = time.time()
+            assert wait_for(lambda b=back: seen.ok(b + 2.0), 30), "not healthy after the stall"
+        assert seen.alarms(start, ["/audio", "/signal"]) == []

@@ -93,9 +93,10 @@ def burst(topic: str, seed: int) -> Callable[[socket.socket], None]:
 
 @pytest.mark.parametrize("mode", ["messages", "batches", "processes"])
 def test_a_burst_is_counted_exactly_one_by_one_in_batches_and_in_reader_processes(
-        robot: ThesisRobot, mode: str) -> None:
-    topic = f"/burst_{mode}"
-    fake = FakePublisher(robot.master_uri, topic, burst(topic, 7), f"/burster_{mode}")
+        robot: ThesisRobot, mode: str, receive_path: str) -> None:
+    topic = f"/burst_{mode}_{receive_path}"
+    fake = FakePublisher(robot.master_uri, topic, burst(topic, 7),
+                         f"/burster_{mode}_{receive_path}")
     w = watch(robot, {topic}, batches=mode != "messages",
               readers=1 if mode == "processes" else 0)
     try:
@@ -202,14 +203,14 @@ def _zombie_or_gone(pid: int) -> bool:
 
 @pytest.mark.parametrize("garbage", ["length", "random"])
 def test_garbage_in_a_reader_process_closes_only_that_connection(
-        robot: ThesisRobot, garbage: str) -> None:
-    junk = f"/junk_{garbage}"
+        robot: ThesisRobot, garbage: str, receive_path: str) -> None:
+    junk = f"/junk_{garbage}_{receive_path}"
     rng = random.Random(3)
     body = (struct.pack("<I", 0xFFFFFFF0) if garbage == "length"
             else struct.pack("<I", 8) + b"\x00" * 8 + bytes(rng.randrange(256)
                                                             for _ in range(4096)))
     fake = FakePublisher(robot.master_uri, junk, lambda c: c.sendall(_float_header(junk) + body),
-                         f"/garbage_{garbage}")
+                         f"/garbage_{garbage}_{receive_path}")
     w = watch(robot, {junk, IMAGE}, readers=1)
     try:
         assert w.until(lambda: fake.connections >= 2 and w.count(IMAGE) >= 10)

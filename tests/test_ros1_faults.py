@@ -232,7 +232,7 @@ GARBAGE = {
 
 @pytest.mark.parametrize("mode", sorted(GARBAGE))
 def test_garbage_publisher_is_survived_with_a_reason_and_retried_with_backoff(
-        shared_robot: ThesisRobot, mode: str) -> None:
+        shared_robot: ThesisRobot, mode: str, receive_path: str) -> None:
     junk = f"/junk_{mode}"
     fake = FakePublisher(shared_robot.master_uri, junk, GARBAGE[mode], f"/garbage_{mode}")
     w = _watch(shared_robot, {junk, "/signal"}, {junk},
@@ -270,7 +270,7 @@ def test_oversized_messages_respect_the_per_topic_cap(shared_robot: ThesisRobot)
 
 
 def test_half_open_connection_is_closed_once_the_publisher_is_gone(
-        shared_robot: ThesisRobot) -> None:
+        shared_robot: ThesisRobot, receive_path: str) -> None:
     """The peer keeps the socket open but sends nothing and its API no longer answers."""
     fake = FakePublisher(shared_robot.master_uri, "/quiet",
                          lambda c: c.sendall(_float_header("/quiet") + struct.pack("<I", 8)

@@ -93,10 +93,12 @@ class _Collected:
         self.done.set()
 
 
-def _reader(decoder: MessageDecoder | None = None) -> tuple[TcprosReader, _Collected]:
+def _reader(path: str, decoder: MessageDecoder | None = None
+            ) -> tuple[TcprosReader, _Collected]:
     got = _Collected()
     reader = TcprosReader(got.on_message, got.on_closed, got.first.append,
                           decoder or MessageDecoder())
+    assert reader.native == (path == "native")
     reader.start()
     return reader, got
 
@@ -113,10 +115,11 @@ def _tcp_pair() -> tuple[socket.socket, socket.socket]:
 
 
 @pytest.mark.parametrize("pair", [socket.socketpair, _tcp_pair], ids=["unix", "tcp"])
-def test_reader_splits_a_byte_stream_into_messages_however_it_arrives(pair: Any) -> None:
+def test_reader_splits_a_byte_stream_into_messages_however_it_arrives(
+        pair: Any, receive_path: str) -> None:
     """Length prefixes and bodies split across writes, an empty message, one large body
     (over TCP the kernel drops its bytes uncopied and wakes the reader when it is whole)."""
-    reader, got = _reader()
+    reader, got = _reader(receive_path)
     ours, theirs = pair()
     payloads = [b"abc", b"", b"x" * 700_000, b"\x01\x02\x03\x04\x05"]
     stream = _frames(payloads)
@@ -139,10 +142,10 @@ def test_reader_splits_a_byte_stream_into_messages_however_it_arrives(pair: Any)
     assert got.closed == [(key, "publisher closed the connection", 4)]
 
 
-def test_decoded_topics_keep_their_bytes_and_decode_lazily() -> None:
+def test_decoded_topics_keep_their_bytes_and_decode_lazily(receive_path: str) -> None:
     decoder = MessageDecoder()
     name = decoder.register("std_msgs/Float64", FLOAT64_DEF)
-    reader, got = _reader(decoder)
+    reader, got = _reader(receive_path, decoder)
     ours, theirs = socket.socketpair()
     try:
         reader.add(StreamKey("/v", "/pub"), ours, max_bytes=64, decode_as=name)
@@ -157,8 +160,9 @@ def test_decoded_topics_keep_their_bytes_and_decode_lazily() -> None:
     assert bad.value is None  # undecodable bytes give no value instead of an exception
 
 
-def test_an_absurd_length_prefix_closes_only_that_connection_with_a_reason() -> None:
-    reader, got = _reader()
+def test_an_absurd_length_prefix_closes_only_that_connection_with_a_reason(
+        receive_path: str) -> None:
+    reader, got = _reader(receive_path)
     ours, theirs = socket.socketpair()
     try:
         reader.add(StreamKey("/t", "/evil"), ours, max_bytes=1000, decode_as=None)
@@ -170,7 +174,8 @@ def test_an_absurd_length_prefix_closes_only_that_connection_with_a_reason() -> 
     assert [m.size for m in got.messages] == [2]
     (key, reason, count), = got.closed
     assert key == StreamKey("/t", "/evil")
-    assert "4294967280 bytes exceeds the cap of 1000 bytes" in reason
+    assert reason == ("message length prefix of 4294967280 bytes exceeds the cap of 1000 "
+                      "bytes for /t (garbage or oversized message)")
     assert count == 1
 
 
@@ -243,7 +248,7 @@ def test_arrival_time_is_when_the_bytes_reached_the_socket_not_when_they_were_re
             s.close()
 
 
-def test_the_arrivals_of_one_read_are_handed_on_together() -> None:
+def test_the_arrivals_of_one_read_are_handed_on_together(receive_path: str) -> None:
     batches: list[list[MessageArrival]] = []
     got = _Collected()
     reader = TcprosReader(got.on_message, got.on_closed, got.first.append, MessageDecoder(),
@@ -261,7 +266,8 @@ def test_the_arrivals_of_one_read_are_handed_on_together() -> None:
         a.close()
 
 
-def test_compact_reader_hands_on_one_batch_per_receive_and_counts_every_message() -> None:
+def test_compact_reader_hands_on_one_batch_per_receive_and_counts_every_message(
+        receive_path: str) -> None:
     from blackbox.events import ArrivalBatch
 
     handed: list[list[Any]] = []

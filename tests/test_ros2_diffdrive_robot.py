@@ -4,19 +4,18 @@ ROS 2 source, and an IMU offset injected at run time that stays inside the norma
 from __future__ import annotations
 
 import statistics
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from blackbox.events import Interest
+from diffdrive_support import motion_model
+from diffdrive_support import ros2_diffdrive as diffdrive_robot
 from isolation import fresh_domain
 from ros2_support import Watched, needs_rclpy, ros2_robot
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts" / "ros2_robot"))
-import diffdrive_robot
-from diffdrive_motion import DiffdriveMotion
+DiffdriveMotion = motion_model.DiffdriveMotion
 
 
 @pytest.fixture

@@ -188,3 +188,29 @@ def test_an_empty_domain_says_so_and_never_hangs(domain: int) -> None:
         assert f"domain {domain}" in watched.reports("ros2_no_participants")[0].message
     finally:
         watched.close()
+
+
+@needs_rclpy
+@pytest.mark.ros2
+def test_a_topic_is_unmeasured_from_the_start_until_its_first_message(robot, domain: int) -> None:
+    """Discovery and node names take seconds; the messages held back meanwhile are not the
+    robot's silence, so a time-out must not count them. A topic nobody publishes is judged
+    again after ``first_message_limit``."""
+    robot.start(["/audio_capture"])
+    watched = Watched(domain, Interest(frozenset({"/audio", "/nobody"})),
+                      settings=Ros2Settings(first_message_limit=8.0))
+    try:
+        assert watched.until(lambda: len(watched.gaps("/nobody")) == 2
+                             and bool(watched.arrivals("/audio")), 20), \
+            "the start gap of /nobody closed and /audio arrived within 20 s"
+        opened, closed = watched.gaps("/audio")[:2]
+        assert opened.end is None and closed.start == opened.start
+        first = watched.arrivals("/audio")[0]
+        assert closed.end == first.time, "measured from the first message on"
+        assert [e for e in watched.events if getattr(e, "topic", None) == "/audio"][:2] == [
+            opened, closed], "nothing of /audio is handed out inside its gap"
+        nobody = watched.gaps("/nobody")[1]
+        assert nobody.end is not None and 8.0 <= nobody.end - nobody.start < 9.0
+        assert "no message within 8 s" in nobody.reason
+    finally:
+        watched.close()

@@ -52,6 +52,7 @@ from fault_injection import (
     add_campaign_arguments,
     chosen_kinds,
     run_random,
+    run_schedule,
     stop_on_signals,
 )
 
@@ -137,34 +138,6 @@ class Injector:
         if topic not in TOPICS:
             raise ValueError(f"no topic {topic}; expected one of {', '.join(TOPICS)}")
         return TOPICS[topic]
-
-
-def run_schedule(injector: Injector, schedule: list[dict[str, Any]], t0: float,
-                 stop: dict[str, bool]) -> None:
-    """Begin and end every fault of ``schedule`` at ``t0`` + its offsets (wall clock)."""
-    steps: list[tuple[float, int, int]] = []
-    for i, f in enumerate(schedule):
-        steps.append((t0 + float(f["start"]), 1, i))
-        if f.get("end") is not None:
-            steps.append((t0 + float(f["end"]), 0, i))
-    steps.sort()
-    active: dict[int, ActiveFault] = {}
-    try:
-        for at, begin, i in steps:
-            while not stop["now"] and time.time() < at:
-                time.sleep(min(0.05, max(0.0, at - time.time())))
-            if stop["now"]:
-                return
-            f = schedule[i]
-            if begin:
-                active[i] = injector.begin(f["kind"], f["component"], **f.get("params", {}))
-                print(f"{active[i].start:.3f} begin {f['kind']} {f['component']}", flush=True)
-            elif i in active:
-                rec = injector.end(active.pop(i))
-                print(f"{rec['end']:.3f} end {f['kind']} {f['component']}", flush=True)
-    finally:
-        for fault in active.values():
-            injector.end(fault)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -4,7 +4,8 @@
     diffdrive_robot.py --domain 42 [--seed 0]            # start all nodes, print pids
     diffdrive_robot.py node ROLE --epoch T --seed S       # one node (what the above runs)
 
-Five nodes measure one motion (:mod:`diffdrive_motion`, shared with the ROS 1 robot):
+Five nodes measure one motion (``scripts/robots/diffdrive_motion.py``, shared with the ROS 1
+robot ``scripts/ros1_robot/diffdrive_robot.py``):
 
 - ``/teleop``: ``/cmd_vel`` (geometry_msgs/Twist: ``linear.x`` = v, ``angular.z`` = w), 20 Hz
 - ``/base_driver``: ``/joint_states`` (sensor_msgs/JointState, left and right wheel
@@ -32,7 +33,7 @@ from pathlib import Path
 from types import ModuleType
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent / "robots"))  # the motion model both robots share
 
 from diffdrive_motion import DiffdriveMotion  # noqa: E402
 
@@ -145,7 +146,7 @@ def run_node(role: str, epoch: float, seed: int) -> None:
         # Serve parameter requests while waiting for the next sample.
         while (delay := next_t - time.time()) > 0:
             executor.spin_once(timeout_sec=delay)
-        if -delay > 1.0:
+        if -delay > 2.0 / rate:  # descheduled: skip the missed cycles, as ROS timers do
             next_t = time.time()
 
 

@@ -3,6 +3,7 @@
 
     inject.py --domain 42 --truth truth.jsonl [--duration 300] [--seed 1]
               [--kinds kill,stall,rate,offset,scale] [--mean-gap 20] [--length 5:15]
+    inject.py --domain 42 --truth truth.jsonl --schedule faults.json
 
 Starts the three rclpy thesis nodes (see ``robot.py``) on ``--domain``, then injects one
 fault at a time on the real processes, separated by random gaps; the same kinds, random
@@ -16,6 +17,12 @@ times) as ``scripts/ros1_robot/inject.py``:
 
 Parameters are set through the nodes' ROS 2 parameter services by a node of this script's
 own (``/blackbox_test_injector``).
+
+With ``--schedule`` (a JSON list of ``{kind, component, start, end, params}``, offsets in
+seconds) it prints ``ready`` and the pids once every node is in the graph, reads the start
+instant (wall-clock seconds) from a line on stdin and injects the schedule from then on,
+as the ROS 1 injector does for ``blackbox evaluate --source ros2``. A fault's ground-truth
+line is written when it begins (``end: null``) and again when it ends.
 """
 
 from __future__ import annotations
@@ -38,10 +45,12 @@ from fault_injection import (
     add_campaign_arguments,
     chosen_kinds,
     run_random,
+    run_schedule,
     stop_on_signals,
 )
 
 KINDS = ("kill", "stall", "rate", "offset", "scale")
+SET_ATTEMPTS = 3
 
 
 class Injector:
@@ -63,16 +72,19 @@ class Injector:
             self.robot.kill(node, signal.SIGSTOP)
         elif kind == "rate":
             node = TOPICS[_check(component, TOPICS)]
-            self.params.set(node, rate=float(params["hz"]))
+            hz = params["hz"] if "hz" in params else DEFAULT_RATES[component] * params["factor"]
+            self._set(node, rate=float(hz))
         elif kind in ("offset", "scale"):
             if component != "/signal":
                 raise ValueError(f"{kind} acts on /signal, not {component}")
             node = TOPICS[component]
             key = "value" if kind == "offset" else "factor"
-            self.params.set(node, **{kind: float(params[key])})
+            self._set(node, **{kind: float(params[key])})
         else:
             raise ValueError(f"unknown fault kind {kind!r}; expected one of {', '.join(KINDS)}")
-        return ActiveFault(kind, component, node, time.time(), dict(params))
+        fault = ActiveFault(kind, component, node, time.time(), dict(params))
+        self._write(fault.record(None))
+        return fault
 
     def end(self, fault: ActiveFault) -> dict[str, Any]:
         end = time.time()
@@ -81,17 +93,33 @@ class Injector:
         elif fault.kind == "stall":
             self.robot.kill(fault.node, signal.SIGCONT)
         elif fault.kind == "rate":
-            self.params.set(fault.node, rate=DEFAULT_RATES[fault.component])
+            self._set(fault.node, rate=DEFAULT_RATES[fault.component])
         elif fault.kind == "offset":
-            self.params.set(fault.node, offset=0.0)
+            self._set(fault.node, offset=0.0)
         elif fault.kind == "scale":
-            self.params.set(fault.node, scale=1.0)
+            self._set(fault.node, scale=1.0)
         rec = fault.record(end)
         self.records.append(rec)
+        self._write(rec)
+        return rec
+
+    def _set(self, node: str, **values: float) -> None:
+        """Set parameters, asking again when a busy machine makes the service call time out
+        (a lost call must not end the campaign and take the robot down with it)."""
+        for attempt in range(SET_ATTEMPTS):
+            try:
+                self.params.set(node, **values)
+                return
+            except TimeoutError as exc:
+                print(f"warning: {exc} (attempt {attempt + 1} of {SET_ATTEMPTS})",
+                      file=sys.stderr, flush=True)
+        raise TimeoutError(f"{node} did not take {values} in {SET_ATTEMPTS} attempts")
+
+    def _write(self, rec: dict[str, Any]) -> None:
+        """Append one ground-truth line now, so a crash loses nothing already injected."""
         if self.truth is not None:
             with self.truth.open("a", encoding="utf-8") as f:
                 f.write(json.dumps(rec, sort_keys=True) + "\n")
-        return rec
 
 
 def _check(name: str, known: dict[str, str]) -> str:
@@ -104,6 +132,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--domain", type=int, required=True)
     add_campaign_arguments(parser, KINDS)
+    parser.add_argument("--schedule", type=Path,
+                        help="inject these faults (JSON list) from a start instant read on stdin")
     args = parser.parse_args(argv)
     kinds = chosen_kinds(parser, args, KINDS)
     stop = stop_on_signals()
@@ -119,6 +149,15 @@ def main(argv: list[str] | None = None) -> int:
         for node in NODES:
             if not params.wait_for_node(node, 30):
                 raise RuntimeError(f"{node} did not join the ROS 2 graph within 30 s")
+        if args.schedule is not None:
+            schedule = json.loads(args.schedule.read_text(encoding="utf-8"))
+            print("ready " + json.dumps(robot.pids(), sort_keys=True), flush=True)
+            line = sys.stdin.readline()
+            if line.strip():
+                run_schedule(injector, schedule, float(line), stop)
+                while not stop["now"]:
+                    time.sleep(0.1)
+            return 0
         print(json.dumps(robot.pids(), sort_keys=True), flush=True)  # the robot is up
         run_random(injector, rng, kinds, (NODES, TOPICS), args, stop,
                    lambda node: params.wait_for_node(node, 30))

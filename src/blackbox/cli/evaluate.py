@@ -38,8 +38,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--config", type=Path, default=DEFAULT_CONFIG,
                    help="observer configuration (default: the thesis's ten observers)")
     p.add_argument("--source", default="sim:thesis",
-                   help="simulated robot (sim:thesis or sim:TOPOLOGY.yaml), or ros1: the real "
-                        "demo robot under ROS 1 with faults injected on its processes")
+                   help="simulated robot (sim:thesis or sim:TOPOLOGY.yaml), or ros1 / ros2: "
+                        "the real demo robot under ROS 1 / ROS 2 with faults injected on "
+                        "its processes")
     p.add_argument("--runs", type=int, default=10, help="number of runs (default 10)")
     p.add_argument("--duration", type=float, default=300.0, metavar="S",
                    help="simulated seconds per run (default 300)")

@@ -91,6 +91,9 @@ def add_run_arguments(p: argparse.ArgumentParser, default_config: Path = DEFAULT
                         "(docs/ros1.md), else ROS 2 on the domain of --source ros2:N or "
                         "$ROS_DOMAIN_ID (docs/ros2.md)")
     p.add_argument("--quiet", action="store_true", help="no live status view")
+    p.add_argument("--metrics", default=None, metavar="HOST:PORT",
+                   help="serve the black box's own figures at http://HOST:PORT/metrics "
+                        "(Prometheus text format; docs/station.md \"Metrics\")")
 
 
 def options_from_args(args: argparse.Namespace) -> RunOptions:
@@ -114,13 +117,39 @@ def run_command(args: argparse.Namespace) -> int:
         except RequestAuthError as exc:
             print(f"error: --key: {exc}", file=sys.stderr)
             return EXIT_USAGE
+    from blackbox.output.metrics import MetricsServer, RobotMetrics
+
+    options = options_from_args(args)
+    metrics = RobotMetrics() if getattr(args, "metrics", None) else None
+    server = None
+    if metrics is not None:
+        host, sep, port = str(args.metrics).rpartition(":")
+        if not sep or not port.isdigit() or int(port) > 65535:
+            print(f"error: --metrics wants HOST:PORT, got {args.metrics!r}", file=sys.stderr)
+            return EXIT_USAGE
+        options.extra_sinks.append(metrics)
     try:
-        blackbox = build(options_from_args(args))
+        blackbox = build(options)
     except StorageError as exc:  # the record path cannot be used: nothing was touched
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    with graceful_interrupts() as stop:
-        stats = blackbox.run(stop)
+    if metrics is not None:
+        metrics.pipeline = blackbox.pipeline
+        try:
+            server = MetricsServer(metrics, host.strip("[]") or "127.0.0.1", int(port))
+        except OSError as exc:
+            print(f"error: --metrics: cannot listen on {args.metrics}: {exc.strerror}",
+                  file=sys.stderr)
+            return EXIT_USAGE
+        server.start()
+        print(f"blackbox: metrics at http://{host or '127.0.0.1'}:{server.port}/metrics",
+              file=sys.stderr, flush=True)
+    try:
+        with graceful_interrupts() as stop:
+            stats = blackbox.run(stop)
+    finally:
+        if server is not None:
+            server.stop()
     span = stats.ended - stats.started
     print(f"blackbox: {span:.1f} s observed, {stats.messages:,} messages, "
           f"{stats.observations:,} observations ({stats.faulty_observations:,} faulty), "

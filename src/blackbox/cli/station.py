@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import getpass
+import os
 import socket
 import sys
 import threading
@@ -51,6 +52,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="this station's private key (blackbox keygen) signing log requests "
                         "and IBIT commands; default $BLACKBOX_STATION_KEY. Robots answer only "
                         "stations their configuration lists (docs/health.md)")
+    p.add_argument("--alerts", type=Path, default=None, metavar="FILE",
+                   help="alert rules and channels (YAML; docs/station.md \"Alerts\")")
+    p.add_argument("--metrics-token-env", default=None, metavar="NAME",
+                   help="/metrics answers only 'Authorization: Bearer <token>' with the token "
+                        "in environment variable NAME (default: /metrics is open)")
     p.add_argument("--robots", type=Path, default=None, metavar="FILE",
                    help="enrol the robots of FILE at start: lines 'ed25519 <base64> ROBOT_ID' "
                         "(their keygen .pub files); their health is then authenticated")
@@ -263,20 +269,31 @@ def serve_command(args: argparse.Namespace) -> int:
         host, port = parse_bind(args.bind)
     except ValueError as exc:
         return _usage_error(exc)
+    from blackbox.station.alerts.rules import AlertConfig, load_alert_config
+
+    if args.metrics_token_env and len(os.environ.get(args.metrics_token_env, "")) < 16:
+        return _usage_error(f"--metrics-token-env: ${args.metrics_token_env} must hold a "
+                            "token of at least 16 characters")
+
+    alerts = load_alert_config(args.alerts) if args.alerts is not None \
+        else AlertConfig("<none>")  # a ConfigError here exits 2 naming file, line, key
     opened = _open_or_say(args.db, args.stale_after)
     if opened is None:
         return EXIT_USAGE
     store, auth = opened
     try:
-        return serve(args, store, auth, host, port)
+        return serve(args, store, auth, host, port, alerts)
     finally:
         auth.close()
         store.close()
 
 
-def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int) -> int:
+def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int,
+          alert_config: Any = None) -> int:
     import uvicorn
 
+    from blackbox.station.alerts.rules import AlertConfig
+    from blackbox.station.alerts.service import AlertService
     from blackbox.station.enrolment import EnrolmentError, RobotKeys, read_robots_file
     from blackbox.station.follow import StationFollower
     from blackbox.station.web.app import WebSettings, create_app
@@ -312,9 +329,14 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
                                                         zenoh=zenoh),
                                signer=signer, robot_keys=robot_keys)
     follower.start()
+    alerts = AlertService(store, args.db, alert_config or AlertConfig("<none>"),
+                          audit=lambda u, a, t, o, d: auth.audit(u, a, t, o, "station", d))
+    alerts.start()
     stop = threading.Event()
     tls = args.tls_cert is not None
-    app = create_app(auth, store, follower, WebSettings(secure_cookies=tls), stop=stop)
+    app = create_app(auth, store, follower, WebSettings(secure_cookies=tls), stop=stop,
+                     alerts=alerts, metrics_token=os.environ.get(args.metrics_token_env)
+                     if args.metrics_token_env else None)
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
@@ -322,6 +344,7 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
         sock.listen(2048)  # connections wait in the backlog from here on: "ready" is true
     except OSError as exc:
         follower.stop()
+        alerts.stop()
         return _usage_error(f"cannot listen on {host}:{port}: {exc.strerror}")
     config = uvicorn.Config(app, log_level="warning", access_log=False,
                             ssl_certfile=str(args.tls_cert) if tls else None,
@@ -360,4 +383,5 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
         if timer is not None:
             timer.cancel()
         follower.stop()
+        alerts.stop()
     return 0

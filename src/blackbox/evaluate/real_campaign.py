@@ -9,8 +9,9 @@ clock, and is scored with the same episode definition (docs/evaluation.md). Its 
 resident memory are sampled during the run.
 
 A robot harness knows how to start a demo robot with an injector for one kind of source;
-harnesses are registered by source scheme in :data:`ROBOT_HARNESSES`, so adding ``ros2``
-is one more harness, not a change here.
+harnesses are registered by source scheme in :data:`ROBOT_HARNESSES`: ``ros1`` (Debian's
+ROS 1, ``scripts/ros1_robot``) and ``ros2`` (rclpy nodes on Fast DDS from the ROS 2
+wheels, ``scripts/ros2_robot``, on a fresh DDS domain per run).
 """
 
 from __future__ import annotations
@@ -18,9 +19,11 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import random
 import selectors
 import signal
 import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -32,7 +35,7 @@ from typing import Any, Protocol
 import psutil
 
 from blackbox.app import RunOptions, build
-from blackbox.events import Event, Interest, TopicSchema
+from blackbox.events import Event, Interest, MessageArrival, TopicSchema
 from blackbox.model import Diagnosis, Observation
 from blackbox.pipeline import RunStats
 from blackbox.registry import Registry
@@ -42,6 +45,7 @@ from blackbox.sources.sim import GroundTruth, Topology, random_campaign
 
 REPO = Path(__file__).resolve().parents[3]
 ROS1_ROBOT = REPO / "scripts" / "ros1_robot"
+ROS2_ROBOT = REPO / "scripts" / "ros2_robot"
 ROS_PYTHON = "/usr/bin/python3"
 
 
@@ -98,7 +102,12 @@ class _ResourceMeter:
 
 class RecordingSource:
     """Passes a source's events through and keeps them, for replaying the same real run
-    through other observer settings (the filter experiments)."""
+    through other observer settings (the filter experiments).
+
+    A kept message keeps its time, size and value but not its serialized bytes: a ROS 2
+    arrival holds its payload for snapshots, and five minutes of a 15 Hz camera would keep
+    4 GB alive. The value is taken at once, so only topics the pipeline decodes anyway are
+    decoded."""
 
     def __init__(self, inner: Source) -> None:
         self.inner = inner
@@ -114,7 +123,8 @@ class RecordingSource:
 
     def poll(self, until: float) -> list[Event]:
         events = self.inner.poll(until)
-        self.events.extend(events)
+        self.events.extend(_without_payload(e) if type(e) is MessageArrival else e
+                           for e in events)
         return events
 
     def schema(self, topic: str) -> TopicSchema | None:
@@ -144,6 +154,10 @@ class RealRun:
 class RobotHarness(Protocol):
     """Starts a demo robot of one kind of source with its fault injector."""
 
+    settle: float
+    """Seconds the black box runs before the schedule starts (connections, discovery,
+    filter windows; not scored)."""
+
     def topology(self) -> Topology:
         """The robot's nodes and topics, as the simulator knows them (same names)."""
         ...
@@ -165,7 +179,9 @@ ROBOT_HARNESSES: Registry[RobotHarness] = Registry("robot harness")
 
 
 @dataclass
-class _Ros1Injected:
+class _Injected:
+    """An injector process that printed ``ready`` and waits for its start instant."""
+
     proc: subprocess.Popen[str]
     source: str
 
@@ -177,6 +193,8 @@ class _Ros1Injected:
 
 class Ros1ThesisHarness:
     """The real thesis robot under Debian ROS 1 (``scripts/ros1_robot/inject.py``)."""
+
+    settle = 5.0
 
     def __init__(self, scripts: Path = ROS1_ROBOT, ready_timeout: float = 60.0) -> None:
         self.scripts = scripts
@@ -195,7 +213,7 @@ class Ros1ThesisHarness:
 
     @contextlib.contextmanager
     def running(self, schedule: Sequence[dict[str, Any]], truth: Path, log_dir: Path
-                ) -> Iterator[_Ros1Injected]:
+                ) -> Iterator[_Injected]:
         self.check()
         port = _free_port()
         plan = log_dir / "schedule.json"
@@ -207,28 +225,94 @@ class Ros1ThesisHarness:
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=out, text=True,
             start_new_session=True)
         try:
-            self._wait_ready(proc, log_dir)
-            yield _Ros1Injected(proc, f"ros1://127.0.0.1:{port}")
+            wait_ready(proc, log_dir, self.ready_timeout, "ROS 1")
+            yield _Injected(proc, f"ros1://127.0.0.1:{port}")
         finally:
             stop_process_group(proc)
             out.close()
 
-    def _wait_ready(self, proc: subprocess.Popen[str], log_dir: Path) -> None:
-        assert proc.stdout is not None
-        deadline = time.monotonic() + self.ready_timeout
-        with selectors.DefaultSelector() as sel:
-            sel.register(proc.stdout, selectors.EVENT_READ)
-            while time.monotonic() < deadline:
-                if sel.select(timeout=0.5):
-                    line = proc.stdout.readline()
-                    if line.startswith("ready"):
-                        threading.Thread(target=_drain, args=(proc.stdout,),
-                                         daemon=True).start()
-                        return
-                    if not line and proc.poll() is not None:
-                        break
-        raise RuntimeError(f"the ROS 1 demo robot did not start in {self.ready_timeout:g} s; "
-                           f"see {log_dir}/injector.log")
+
+def wait_ready(proc: subprocess.Popen[str], log_dir: Path, timeout: float, what: str) -> None:
+    """Wait for an injector's ``ready`` line (its robot is up), then drain its output."""
+    assert proc.stdout is not None
+    deadline = time.monotonic() + timeout
+    with selectors.DefaultSelector() as sel:
+        sel.register(proc.stdout, selectors.EVENT_READ)
+        while time.monotonic() < deadline:
+            if sel.select(timeout=0.5):
+                line = proc.stdout.readline()
+                if line.startswith("ready"):
+                    threading.Thread(target=_drain, args=(proc.stdout,), daemon=True).start()
+                    return
+                if not line and proc.poll() is not None:
+                    break
+    raise RuntimeError(f"the {what} demo robot did not start in {timeout:g} s; "
+                       f"see {log_dir}/injector.log")
+
+
+class Ros2ThesisHarness:
+    """The thesis robot as rclpy nodes on Fast DDS (``scripts/ros2_robot/inject.py``), on a
+    DDS domain of its own per run, loopback only; the black box reads it with Cyclone.
+
+    The black box settles for 8 s: Fast DDS tells a late joiner which nodes a participant
+    holds only at its next ``ros_discovery_info`` heartbeat (about 3 s), and until then the
+    ROS 2 source has no graph (``activated`` says so with ``NOT_AVAILABLE``)."""
+
+    settle = 8.0
+    kinds = ("kill", "stall", "rate", "offset", "scale")
+
+    def __init__(self, scripts: Path = ROS2_ROBOT, ready_timeout: float = 90.0,
+                 domains: tuple[int, int] = (150, 230)) -> None:
+        self.scripts = scripts
+        self.ready_timeout = ready_timeout
+        self.domains = domains
+
+    def topology(self) -> Topology:
+        return Topology.thesis()
+
+    def check(self, schedule: Sequence[dict[str, Any]]) -> None:
+        if not (self.scripts / "inject.py").is_file():
+            raise ValueError(f"--source ros2: the demo robot's scripts are not in "
+                             f"{self.scripts} (run from a source checkout)")
+        try:
+            import rclpy  # noqa: F401
+        except ImportError:
+            raise ValueError("--source ros2: needs the ROS 2 wheels (pip install ros-rclpy "
+                             "ros-std-msgs ros-sensor-msgs ros-rmw-fastrtps-cpp; x86_64 "
+                             "only)") from None
+        unknown = sorted({f["kind"] for f in schedule} - set(self.kinds))
+        if unknown:
+            raise ValueError(f"--source ros2: the ROS 2 demo robot injects "
+                             f"{', '.join(self.kinds)}, not {', '.join(unknown)}")
+
+    @contextlib.contextmanager
+    def running(self, schedule: Sequence[dict[str, Any]], truth: Path, log_dir: Path
+                ) -> Iterator[_Injected]:
+        self.check(schedule)
+        domain = random.Random().randrange(*self.domains)
+        plan = log_dir / "schedule.json"
+        plan.write_text(json.dumps(list(schedule), indent=1), encoding="utf-8")
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain),
+                   ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+                   RMW_IMPLEMENTATION="rmw_fastrtps_cpp", AMENT_PREFIX_PATH=sys.prefix,
+                   PYTHONUNBUFFERED="1")
+        out = (log_dir / "injector.log").open("w", encoding="utf-8")
+        proc = subprocess.Popen(
+            [sys.executable, str(self.scripts / "inject.py"), "--domain", str(domain),
+             "--truth", str(truth), "--schedule", str(plan), "--log-dir", str(log_dir)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=out, text=True, env=env,
+            start_new_session=True)
+        try:
+            wait_ready(proc, log_dir, self.ready_timeout, "ROS 2")
+            yield _Injected(proc, f"ros2:{domain}")
+        finally:
+            stop_process_group(proc)
+            out.close()
+
+
+def _without_payload(arrival: MessageArrival) -> MessageArrival:
+    return MessageArrival(arrival.time, arrival.topic, arrival.publisher, arrival.size,
+                          value=arrival.value)
 
 
 def _drain(stream: Any) -> None:
@@ -267,6 +351,7 @@ def _free_port() -> int:
 
 
 ROBOT_HARNESSES.add("ros1", Ros1ThesisHarness())
+ROBOT_HARNESSES.add("ros2", Ros2ThesisHarness())
 
 
 def read_truth_log(path: Path) -> list[GroundTruth]:
@@ -294,11 +379,12 @@ def schedule_for(topology: Topology, *, duration: float, tail: float, seed: int,
 
 def run_real(harness: RobotHarness, *, config: Path, duration: float, tail: float, seed: int,
              kinds: Sequence[str], mean_gap: float, warmup: float, separation: float,
-             diagnosis: bool, settle: float = 5.0, work_dir: Path | None = None,
+             diagnosis: bool, settle: float | None = None, work_dir: Path | None = None,
              tick: Callable[[float], None] | None = None) -> RealRun:
     """One real run: start the robot, let the black box settle for ``settle`` seconds
-    (connections, filter windows; not scored), then ``duration`` scored seconds with the
-    seeded faults injected from their offsets."""
+    (the harness's by default; connections, filter windows; not scored), then ``duration``
+    scored seconds with the seeded faults injected from their offsets."""
+    settle = harness.settle if settle is None else settle
     schedule = schedule_for(harness.topology(), duration=duration, tail=tail, seed=seed,
                             kinds=kinds, mean_gap=mean_gap, warmup=warmup,
                             separation=separation)

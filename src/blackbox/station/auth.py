@@ -171,6 +171,7 @@ class Auth:
                  hasher: PasswordHasher | None = None) -> None:
         self.policy = policy or AuthPolicy()
         self.clock = clock
+        self.path = str(path)
         self.hasher = hasher or PasswordHasher()  # argon2id, the library's default type
         self._lock = threading.Lock()
         self._db = sqlite3.connect(str(path), check_same_thread=False, timeout=10.0,

@@ -1287,6 +1287,18 @@ class StationStore:
         nxt = f"{events[-1].time!r}:{events[-1].id}" if len(rows) > limit and events else None
         return EventPage(events, nxt)
 
+    def events_after(self, after_id: int, limit: int = 500) -> list[Event]:
+        """Events stored after event ``after_id``, oldest first (at most ``limit``): how a
+        consumer that follows the timeline (the alert engine) reads what is new."""
+        with self._read() as db:
+            rows = db.execute(_EVENT_SELECT + " WHERE e.id > ? ORDER BY e.id LIMIT ?",
+                              (after_id, max(1, min(limit, MAX_PAGE)))).fetchall()
+        return [_event(r) for r in rows]
+
+    def last_event_id(self) -> int:
+        with self._read() as db:
+            return int(db.execute("SELECT coalesce(max(id), 0) FROM events").fetchone()[0])
+
     def count_events(self, robot: RobotRef | None = None,
                      kinds: Iterable[str] | None = None,
                      origin: str | None = None) -> int:

@@ -34,6 +34,7 @@ from blackbox.health.types import (
 from blackbox.model import BlackBoxEvent, Diagnosis, Observation
 from blackbox.sinks import SinkBase
 from blackbox.transport.auth import AccessPolicy, RequestVerifier, load_private_key
+from blackbox.transport.cdr_encoder import sample_writer
 from blackbox.transport.ibit import IbitService
 from blackbox.transport.logservice import DEFAULT_CHUNK, LogService, LogSource, open_store
 from blackbox.transport.participant import ALL_TOPICS, TOPIC_OF_TYPE, TransportSettings, open_bus
@@ -117,6 +118,10 @@ class DdsHealthSink(SinkBase):
             or name in ("BlackBox_Entity_Description", "BlackBox_Characteristic_Extension",
                         "BlackBox_Event_Extension")}
         self._signatures = self.bus.writer(SIGNATURE_TOPIC) if self.signer else None
+        # samples are encoded by precompiled encoders, not the per-sample IDL machinery
+        # (a Zenoh writer has none of Cyclone's internals: its own write is used)
+        self._write_sample: dict[type, Callable[[Any], None]] = {
+            t: sample_writer(w) for t, w in self._writers.items()}
         self._events: deque[tuple[Any, Any]] = deque()
         self._lock = threading.RLock()
         self.written = 0
@@ -204,7 +209,7 @@ class DdsHealthSink(SinkBase):
                     # arrives, so this order keeps that wait short
                     signature = self.signer.sign(topic, sample)
                     self._signatures.write(signature)
-                writer.write(sample)
+                self._write_sample[type(sample)](sample)
                 self.written += 1
             except DDSException as exc:
                 self.write_errors += 1

@@ -10,9 +10,11 @@ the robot never sees the black box in its graph.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+
+import psutil
 
 from blackbox.events import GraphSnapshot, NodeInfo, TopicInfo
 from blackbox.sources.ros1.callerid import is_black_box
@@ -24,7 +26,18 @@ from blackbox.sources.ros1.master import (
     host_of,
     probe_pid,
 )
+from blackbox.sources.ros1.resources import is_local_host
 from blackbox.sources.ros1.slave_probe import NodeReply, SlaveProbe
+
+HUNG_LIMIT = 5.0
+"""Seconds a node whose API does not answer the quick probe counts as running on the
+strength of a late answer or (a local node) of its running process; past that it is hung."""
+
+LATE_TIMEOUT = 5.0
+"""Seconds a second, patient probe waits for a node that did not answer the quick one."""
+
+_NOT_RUNNING = frozenset({psutil.STATUS_STOPPED, psutil.STATUS_TRACING_STOP,
+                          psutil.STATUS_ZOMBIE, psutil.STATUS_DEAD})
 
 
 @dataclass(slots=True)
@@ -40,6 +53,12 @@ class NodeState:
     unbatched_rounds: int = 0
     """Rounds left without extra calls: after ``system.multicall`` failed as a whole the
     node is asked for its pid alone for a while (``GraphPoller.batch_pause``)."""
+    unanswered_since: float | None = None
+    """Monotonic time of the first of the probes in a row that got no answer in time."""
+    late_answer: float | None = None
+    """Monotonic time of the latest answer to a patient probe (``LATE_TIMEOUT``)."""
+    late_probe: bool = False
+    """A patient probe of this node is under way."""
 
 
 class GraphPoller:
@@ -47,15 +66,35 @@ class GraphPoller:
 
     When the master is unreachable the last known topics are kept and the known nodes are
     still probed directly, so liveness keeps working through a master restart.
+
+    A node whose probe got no answer in time (a refused connection is death) is still
+    running, only slow to answer, when
+
+    * messages of its publications arrived after the probe was sent (``heard_from(node)``:
+      the wall-clock kernel time of its latest message; a stopped or dead process sends
+      nothing), or
+    * it answered a patient probe (sent beside the rounds, waiting ``LATE_TIMEOUT`` s)
+      within the last ``HUNG_LIMIT`` s: it answers, only late, or
+    * its process runs on this machine and is not stopped, for at most ``HUNG_LIMIT`` s of
+      unanswered probes (a machine so busy that the node's XML-RPC thread gets no CPU for
+      half a second is not a dead node; a process that stays silent longer is hung).
+
+    It then stays alive, and ``slow_api`` is reported once.
     """
 
     def __init__(self, master_uri: str, report: Report, probe_timeout: float = 0.5,
                  master_timeout: float = 1.0, max_workers: int = 8,
-                 master_period: float = 1.0) -> None:
+                 master_period: float = 1.0,
+                 heard_from: Callable[[str], float | None] | None = None) -> None:
         self.master = MasterClient(master_uri, master_timeout)
         self._report = report
+        self._heard_from = heard_from
+        self._slow: set[str] = set()
+        """Nodes currently alive by their messages while their API does not answer in time."""
         self._probe_timeout = probe_timeout
         self._slaves = SlaveProbe()
+        self._late_pool = ThreadPoolExecutor(max_workers=2,
+                                             thread_name_prefix="ros1-late-probe")
         self._pool = ThreadPoolExecutor(max_workers=max_workers,
                                         thread_name_prefix="ros1-probe")
         self.nodes: dict[str, NodeState] = {}
@@ -72,6 +111,7 @@ class GraphPoller:
 
     def close(self) -> None:
         self._pool.shutdown(wait=False, cancel_futures=True)
+        self._late_pool.shutdown(wait=False, cancel_futures=True)
         self._slaves.close()
 
     def uri_of(self, node: str) -> str | None:
@@ -151,6 +191,7 @@ class GraphPoller:
     def _probe(self, states: Iterable[NodeState],
                extra: Mapping[str, tuple[str, ...]]) -> None:
         states = list(states)
+        sent = time.time()
         batched = {n: m for n, m in extra.items()
                    if n in self.nodes and self.nodes[n].unbatched_rounds == 0}
         for st in states:
@@ -176,7 +217,13 @@ class GraphPoller:
             result = results[st.name]
             if isinstance(result, int):
                 st.pid, st.alive, st.reason = result, True, ""
-            else:
+                st.unanswered_since = None
+                if st.name in self._slow:
+                    self._slow.discard(st.name)
+                    self._report("api_answers", st.name, f"node {st.name} answers its "
+                                 f"slave API in time again (pid {st.pid})")
+            elif not self._running_by_messages(st, sent, result):
+                self._slow.discard(st.name)
                 st.alive = False
                 st.reason = (str(result) if isinstance(result, RosApiError)
                              else f"probe failed: {result!r}")
@@ -186,6 +233,79 @@ class GraphPoller:
             elif st.alive and not was_alive and old_reason != "not yet probed":
                 self._report("node_alive", st.name, f"node {st.name} answers again "
                              f"(pid {st.pid})")
+
+    def _running_by_messages(self, st: NodeState, sent: float,
+                             error: int | Exception) -> bool:
+        """A node whose probe failed but that is running all the same (see the class):
+        slow to answer (reported once until it answers in time again)."""
+        why = self._running_anyway(st, sent, error)
+        if why is None:
+            return False
+        st.alive, st.reason = True, f"slow to answer its slave API ({error}); {why}"
+        if st.name not in self._slow:
+            self._slow.add(st.name)
+            self._report("slow_api", st.name,
+                         f"node {st.name} does not answer its slave API within "
+                         f"{self._probe_timeout:g} s ({error}), but {why}: running, "
+                         "slow to answer")
+        return True
+
+    def _running_anyway(self, st: NodeState, sent: float, error: int | Exception
+                        ) -> str | None:
+        if "timed out" not in str(error):
+            st.unanswered_since = None
+            return None
+        now = time.monotonic()
+        if st.unanswered_since is None:
+            st.unanswered_since = now
+        self._probe_late(st)
+        status = self._local_status(st)
+        if status in _NOT_RUNNING:  # stopped or gone: nothing else makes it run
+            return None
+        heard = self._heard_from(st.name) if self._heard_from is not None else None
+        if heard is not None and heard > sent:
+            return "its messages keep arriving"
+        if st.late_answer is not None and now - st.late_answer <= HUNG_LIMIT:
+            return f"it answered {now - st.late_answer:.1f} s ago, late"
+        if status is not None and st.alive and now - st.unanswered_since <= HUNG_LIMIT:
+            return f"its process {st.pid} runs on this machine ({status})"
+        return None
+
+    @staticmethod
+    def _local_status(st: NodeState) -> str | None:
+        """The state of a local node's process (``psutil`` status; ``dead`` when it is
+        gone), ``None`` for a remote node or one whose pid is not known."""
+        if st.pid is None or not st.uri or not is_local_host(host_of(st.uri)):
+            return None
+        try:
+            return str(psutil.Process(st.pid).status())
+        except psutil.NoSuchProcess:
+            return str(psutil.STATUS_DEAD)
+        except psutil.AccessDenied:
+            return None
+
+    def _probe_late(self, st: NodeState) -> None:
+        """Ask ``st`` once more, patiently, beside the rounds (one such probe at a time)."""
+        if st.late_probe or not st.uri:
+            return
+        st.late_probe = True
+        uri = st.uri
+
+        def probe() -> None:
+            try:
+                pid = probe_pid(uri, LATE_TIMEOUT)
+                if st.uri == uri:
+                    st.late_answer = time.monotonic()
+                    st.pid = st.pid if st.pid is not None else pid
+            except Exception:  # no answer: nothing learnt
+                pass
+            finally:
+                st.late_probe = False
+
+        try:
+            self._late_pool.submit(probe)
+        except RuntimeError:  # shut down
+            st.late_probe = False
 
     def _probe_one(self, st: NodeState, first: int | RosApiError | None) -> int:
         """After a failed quick probe: look the node up again (it may have restarted)."""

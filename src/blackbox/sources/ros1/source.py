@@ -8,8 +8,11 @@ hands out what arrived. Source time is wall-clock seconds (``time.time()``).
 What the black box could not measure as it normally does is said with a
 :class:`~blackbox.events.MeasurementGap`: a topic's rate switching between the publishers'
 counters and a subscription (until the new path delivers, at most ``gap_limit`` s), the
-master unreachable (the graph is not followed), and the black box itself paused or its
-wall clock stepped (:class:`~blackbox.sources.clockwatch.ClockWatch`).
+black box's connection to a live publisher closing, and a publisher re-registering under a
+new URI (until the new connection delivers, at most ``reconnect_limit`` s), the master
+unreachable (the graph is not followed), and the black box itself paused or its wall clock
+stepped (:class:`~blackbox.sources.clockwatch.ClockWatch`). A gap whose publisher stops
+answering closes at once: from then on its silence is the robot's.
 
 Robot-side faults (master gone, node dead, garbage on a connection, ...) are logged with a
 reason and returned from ``poll`` as :class:`~blackbox.model.BlackBoxEvent` s; none of them
@@ -56,6 +59,8 @@ from blackbox.sources.ros1.subscriber import DEFAULT_MAX_MESSAGE_BYTES, TcprosSu
 log = logging.getLogger("blackbox.sources.ros1")
 
 MAX_READERS = 64
+BACKLOG_EPSILON = 1e-6
+"""Seconds past the last arrival of a gap's first read at which the gap ends."""
 
 
 def master_uri_from_spec(spec: str, environ: dict[str, str] | os._Environ[str] = os.environ
@@ -180,6 +185,14 @@ class Ros1Settings:
     """Seconds a topic switched from the publishers' counters to a subscription stays
     unmeasured at most while waiting for its first message: past that, its silence is the
     robot's again (a publisher that stopped meanwhile then times out)."""
+    reconnect_limit: float = 4.0
+    """Seconds a topic stays unmeasured at most after the black box's connection to a live
+    publisher closed or the publisher re-registered under a new URI, waiting for the first
+    message on the new connection: a graph round, the reconnection back-off (at most
+    ``backoff_max``) and the handshake."""
+    connect_timeout: float = 3.0
+    """Seconds a publisher may take to answer ``requestTopic`` and the TCPROS handshake: a
+    node that answers its XML-RPC API slowly (seconds) is still subscribed to."""
 
 
 class Ros1Source:
@@ -201,8 +214,12 @@ class Ros1Source:
         self._floor = 0.0
         self._held: list[Event | BlackBoxEvent] = []
         self._stop = threading.Event()
+        self._heard: dict[str, float] = {}
+        """Publisher node -> kernel receive time (wall clock, no ``clock_offset``) of its
+        latest message: a node whose API is slow but whose messages arrive is running."""
         self._poller = GraphPoller(master_uri, self._report,
-                                   probe_timeout=settings.probe_timeout)
+                                   probe_timeout=settings.probe_timeout,
+                                   heard_from=self._heard.get)
         self._backoff = (settings.backoff_min, settings.backoff_max)
         self._default_cap = settings.default_max_message_bytes
         self._resources = ResourceSampler()
@@ -224,6 +241,14 @@ class Ros1Source:
         """(topic, publisher) switched to a subscription -> its open gap, closed by the
         first message that arrives (or after ``gap_limit``)."""
         self._master_gap: MeasurementGap | None = None
+        self._limits: dict[tuple[str, str], float] = {}
+        """Open gaps with a limit other than ``gap_limit`` (reconnections)."""
+        self._connected: set[StreamKey] = set()
+        self._counted_until: dict[tuple[str, str], float] = {}
+        """(topic, publisher) -> the time of the last counted arrival queued: the next
+        round's arrivals continue from there (see :meth:`_push_counted`)."""
+        self._uris: dict[str, str] = {}
+        self._last_round = 0.0
 
     @classmethod
     def from_uri(cls, spec: str, settings: Ros1Settings | None = None) -> Ros1Source:
@@ -242,7 +267,7 @@ class Ros1Source:
             self._report, backoff_min=self._backoff[0], backoff_max=self._backoff[1],
             default_max_bytes=self._default_cap, caller_id=self.caller_id,
             on_batch=self._push_batch, readers=self.settings.readers,
-            coalesce=self.settings.coalesce)
+            coalesce=self.settings.coalesce, connect_timeout=self.settings.connect_timeout)
         self._subscriber.start()
         self._thread = threading.Thread(target=self._graph_loop, name="ros1-graph",
                                         daemon=True)
@@ -263,6 +288,8 @@ class Ros1Source:
         if back:
             assert gap is not None and gap.end is not None
             until = gap.end
+        if self._subscriber is not None:  # the native reader holds arrivals until asked
+            self._subscriber.reader.flush()
         queue = self._queue
         events = self._held
         self._held = []
@@ -315,6 +342,7 @@ class Ros1Source:
             batch = [a for item in batch for a in
                      (item.arrivals() if type(item) is ArrivalBatch else (item,))]
         offset = self.clock_offset
+        heard = self._heard
         with self._lock:
             floor = self._floor
             room = self._queue_limit - len(self._queue)
@@ -322,18 +350,28 @@ class Ros1Source:
                 self._dropped += len(batch) - max(0, room)
                 batch = batch[:max(0, room)]
             for msg in batch:
+                heard[msg.publisher] = msg.time
                 msg.time += offset
                 if msg.time < floor:
                     msg.time = floor
             if self._waiting:
+                # The first read on a new connection may hold a backlog (the reader started
+                # late) under one kernel stamp: it belongs to the gap, which ends just
+                # after it, so the backlog never reads as a burst of zero periods.
+                first: dict[tuple[str, str], float] = {}
                 for msg in batch:
-                    self._resume((msg.topic, msg.publisher), msg.time)
+                    key = (msg.topic, msg.publisher)
+                    if key in self._waiting:
+                        first[key] = max(first.get(key, msg.time), msg.time)
+                for key, last in first.items():
+                    self._resume(key, last + BACKLOG_EPSILON)
             self._queue.extend(batch)
 
     def _resume(self, key: tuple[str, str], end: float) -> None:
         """Close ``key``'s open gap at ``end`` (its first message on the new path); under
         ``_lock``."""
         gap = self._waiting.pop(key, None)
+        self._limits.pop(key, None)
         if gap is not None:
             self._queue.append(MeasurementGap(end, gap.start, end, gap.reason, gap.topic))
 
@@ -366,7 +404,7 @@ class Ros1Source:
         while not self._stop.is_set():
             started = time.time()
             try:
-                self._expire_waiting()
+                self._expire_waiting(dead)
                 interest = self._interest
                 self._poller.refresh(self._bus.calls(interest.topics | interest.decoded,
                                                      self._poller.state.publishers, dead))
@@ -374,6 +412,7 @@ class Ros1Source:
                 dead = {n for n, st in self._poller.nodes.items() if not st.alive}
                 publishers = self._poller.state.publishers
                 self._count_rates(started, publishers, dead)
+                self._follow_connections(publishers, dead)
                 if self.counted:
                     publishers = {t: tuple(n for n in nodes if (t, n) not in self.counted)
                                   for t, nodes in publishers.items()}
@@ -390,6 +429,7 @@ class Ros1Source:
             except Exception as exc:  # the graph thread must outlive any surprise
                 log.exception("graph round failed")
                 self._report("graph_error", self.master_uri, f"graph round failed: {exc!r}")
+            self._last_round = started
             self._stop.wait(max(0.0, self._graph_period - (time.time() - started)))
 
     def _count_rates(self, now: float, publishers: dict[str, tuple[str, ...]],
@@ -423,15 +463,18 @@ class Ros1Source:
                     # a late round (the black box stalled): its counts cover a stretch
                     # nobody measured live; replayed, they would overlap the next round's
                     self._open_gap(key, f"a late round of the publisher's counters "
-                                   f"({span:.3g} s)", start=now - span)
+                                   f"({span:.3g} s) for {key[1]}", start=now - span)
+                    self._counted_until.pop(key, None)
                     continue
+                if not r.arrivals:  # a silent round: the next counts start afresh
+                    self._counted_until.pop(key, None)
                 self._push_counted(now, r.arrivals, key if switched else None)
             else:
                 self._check_behind(now, r)
         for topic, node in self.counted - counted:
             if node not in dead:  # a dead publisher's silence is the robot's, not a gap
                 self._open_gap((topic, node), "switching from the publisher's counters to "
-                               "a subscription")
+                               f"a subscription for {node}")
             why = self._bus.unavailable.get(node)
             self._report("rate_from_subscription", topic,
                          f"{topic} from {node}: "
@@ -461,30 +504,69 @@ class Ros1Source:
             self.behind.discard(r.topic)
             self._report("keeping_up", r.topic, f"keeping up with {r.topic} again")
 
-    def _open_gap(self, key: tuple[str, str], reason: str, start: float | None = None) -> None:
+    def _follow_connections(self, publishers: dict[str, tuple[str, ...]],
+                            dead: set[str]) -> None:
+        """Gaps of the black box's own connections (under the graph thread): a connection
+        to a live publisher that closed since the last round (from that round until the
+        reconnection delivers), and a publisher that re-registered under a new URI (a
+        restarted node: from now until its new connection delivers). Released connections
+        (rates from the counters) and dead publishers are no gap."""
+        assert self._subscriber is not None
+        connected = self._subscriber.connected()
+        lost = self._connected - connected
+        self._connected = connected
+        uris = {n: st.uri for n, st in self._poller.nodes.items() if st.uri}
+        moved = sorted(n for n, uri in uris.items() if self._uris.get(n, uri) != uri)
+        self._uris = uris
+        limit = self.settings.reconnect_limit
+        for key in sorted(lost, key=lambda k: (k.topic, k.publisher)):
+            if (key.publisher in dead or (key.topic, key.publisher) in self.counted
+                    or key.publisher not in publishers.get(key.topic, ())):
+                continue
+            self._open_gap((key.topic, key.publisher), "reconnecting to "
+                           f"{key.publisher}: the black box's connection closed",
+                           start=self._last_round or None, limit=limit)
+        watched = self._interest.topics | self._interest.decoded
+        for node in moved:
+            if node in dead:
+                continue
+            for topic in sorted(t for t in watched if node in publishers.get(t, ())):
+                self._open_gap((topic, node), f"{node} re-registered (a new process at "
+                               f"{uris[node]}); connecting to it", limit=limit)
+
+    def _open_gap(self, key: tuple[str, str], reason: str, start: float | None = None,
+                  limit: float | None = None) -> None:
         """``key``'s rate is not measured from now (or ``start``, a round-start time) until
-        its next message, subscribed or counted."""
+        its next message, subscribed or counted, at most ``limit`` s (``gap_limit``)."""
         with self._lock:
             if key in self._waiting:
                 return
             now = self._wall()
             begin = now if start is None else start + self.clock_offset
-            gap = MeasurementGap(now, begin, None, f"{reason} for {key[1]}", topic=key[0])
+            gap = MeasurementGap(now, begin, None, reason, topic=key[0])
             self._waiting[key] = gap
+            if limit is not None:
+                self._limits[key] = limit
             self._queue.append(gap)
 
-    def _expire_waiting(self) -> None:
-        """Close the gaps whose topic has not delivered within ``gap_limit`` s: its
-        silence from then on is the robot's."""
+    def _expire_waiting(self, dead: set[str]) -> None:
+        """Close the gaps whose topic has not delivered within their limit (``gap_limit``
+        or ``reconnect_limit`` s), and those whose publisher stopped answering: its silence
+        from then on is the robot's."""
         with self._lock:
             now = self._wall()
             for key, gap in list(self._waiting.items()):
-                if now - gap.start >= self.settings.gap_limit:
-                    del self._waiting[key]
-                    self._queue.append(MeasurementGap(
-                        now, gap.start, now, f"{gap.reason}; no message within "
-                        f"{self.settings.gap_limit:g} s, judging its silence again",
-                        gap.topic))
+                limit = self._limits.get(key, self.settings.gap_limit)
+                if key[1] in dead:
+                    why = f"{key[1]} stopped answering, its silence is the robot's"
+                elif now - gap.start >= limit:
+                    why = f"no message within {limit:g} s, judging its silence again"
+                else:
+                    continue
+                del self._waiting[key]
+                self._limits.pop(key, None)
+                self._queue.append(MeasurementGap(now, gap.start, now, f"{gap.reason}; {why}",
+                                                  gap.topic))
 
     def _push_counted(self, round_start: float, arrivals: list[MessageArrival],
                       switched: tuple[str, str] | None = None) -> None:
@@ -493,12 +575,29 @@ class Ros1Source:
 
         ``switched``: the (topic, publisher) whose subscription was just released for these
         counts; the switch is a gap from now to the first counted arrival (the last
-        subscribed messages and the first counts cover the same round)."""
+        subscribed messages and the first counts cover the same round).
+
+        A round's counts cover the time since the previous round's, so they continue where
+        the previous round's arrivals ended (or at the last time ``poll`` handed out, if
+        that is later), unless that is more than two graph periods and a probe time-out
+        ahead of now. Queued at "now", a round that waited longer for its replies (a
+        stopped node's probe timing out, a busy machine) left a hole and a quick one after
+        it laid its arrivals over the previous ones: a doubled rate for a moment, the
+        false alarms of the real campaign on the other counted topic during a stall."""
         with self._lock:
             shift = self._wall() - round_start
+            key = (arrivals[0].topic, arrivals[0].publisher) if arrivals else None
+            if key is not None and switched is None:
+                last = self._counted_until.get(key)
+                start = round_start + shift  # where this round's interval begins: now
+                ahead = 2 * self._graph_period + self.settings.probe_timeout
+                if last is not None and last <= start + ahead:
+                    shift += max(last, self._floor) - start
+            if key is not None:
+                self._counted_until[key] = arrivals[-1].time + shift
             if switched is not None:
                 now = self._wall()
-                self._waiting.pop(switched, None)
+                self._resume(switched, now)  # a gap still open for the old path
                 end = arrivals[0].time + shift if arrivals else now
                 self._queue.append(MeasurementGap(
                     now, now, None, f"switching from a subscription to the publisher's "

@@ -15,6 +15,11 @@ used.
 
 An absurd length prefix (beyond a per-topic cap) or a dead peer closes that one connection
 with a reason; the subscriber decides what happens next.
+
+Where the native loop is built (:mod:`blackbox.sources.ros1.native`, ``_tcpros.c``), the
+waiting, reading and splitting above run in C with the interpreter lock released, and Python
+wakes once per hand-over with one record per receive (the same arrivals, times and reasons);
+the Python code here stays as the fallback and the reference that both are tested against.
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ from typing import Any, cast
 
 from blackbox.events import ArrivalBatch, MessageArrival
 from blackbox.sources.ros1.decoder import MessageDecoder
+from blackbox.sources.ros1.native import native_loop
 from blackbox.sources.ros1.wire import LENGTH
 
 log = logging.getLogger("blackbox.sources.ros1")
@@ -41,6 +47,13 @@ _SCRATCH_BYTES = 256 * 1024
 _SKIP_BYTES = 4 * 1024 * 1024
 _LOWAT_CAP = _SKIP_BYTES
 _READS_PER_WAKEUP = 16
+NATIVE_HAND_OVER = 0.25
+"""Seconds the native loop collects at most before it wakes the interpreter on its own;
+whoever takes the arrivals asks for them when it needs them (:meth:`TcprosReader.flush`,
+the source at every poll), so they are never late for the pipeline, and a camera's frames
+cost no interpreter wake-up each. Kernel times are unchanged."""
+FLUSH_TIMEOUT = 0.1
+"""At most this long :meth:`TcprosReader.flush` waits for the reader thread."""
 # Linux: SO_TIMESTAMPNS (== SCM_TIMESTAMPNS) delivers a struct timespec per recvmsg.
 SO_TIMESTAMPNS: int | None = getattr(socket, "SO_TIMESTAMPNS", 35 if hasattr(socket, "AF_NETLINK")
                                      else None)
@@ -59,11 +72,12 @@ class _Stream:
 
     __slots__ = ("body", "closed", "decode_as", "key", "last_rx", "lenbuf", "lenfill",
                  "lowat", "max_bytes", "messages", "pending", "pending_bytes", "publisher",
-                 "remaining", "size", "sock", "topic")
+                 "remaining", "sid", "size", "sock", "topic")
 
     def __init__(self, key: StreamKey, sock: socket.socket, max_bytes: int,
-                 decode_as: str | None) -> None:
+                 decode_as: str | None, sid: int = 0) -> None:
         self.key = key
+        self.sid = sid  # the native loop's name for the connection
         self.topic = key.topic
         self.publisher = key.publisher
         self.sock = sock
@@ -93,7 +107,7 @@ class TcprosReader:
                  on_closed: Callable[[StreamKey, str, int], None],
                  on_first: Callable[[StreamKey], None], decoder: MessageDecoder,
                  on_batch: Callable[[Arrivals], None] | None = None,
-                 compact: bool = False, hand_over: float = 0.0,
+                 compact: bool = False, hand_over: float | None = None,
                  coalesce: float = 0.0) -> None:
         """``on_batch`` receives the arrivals of one wake-up together (preferred, one
         call per wake-up); without it ``on_message`` is called per message.
@@ -103,7 +117,9 @@ class TcprosReader:
         one :class:`MessageArrival` each (``on_message`` always gets arrivals).
 
         ``hand_over``: hand on at most every this many seconds what the wake-ups since
-        read (fewer wake-ups of whoever takes them; arrival times are unchanged).
+        read (fewer wake-ups of whoever takes them; arrival times are unchanged). By
+        default :data:`NATIVE_HAND_OVER` with the native loop (the consumer calls
+        :meth:`flush` when it wants what has arrived), 0 in Python.
 
         ``coalesce``: at least this many seconds between two wake-ups (a quiet reader is
         woken at once, a busy one waits out the rest), so a fast topic's messages are
@@ -115,6 +131,9 @@ class TcprosReader:
         self._on_message = on_message
         self._on_batch = on_batch
         self._compact = compact
+        self._native = native_loop()
+        if hand_over is None:
+            hand_over = NATIVE_HAND_OVER if self._native is not None else 0.0
         self._hand_over_every = hand_over
         self._coalesce = coalesce
         self._held: Arrivals = []
@@ -125,7 +144,13 @@ class TcprosReader:
         self._selector = selectors.DefaultSelector()
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
-        self._selector.register(self._wake_r, selectors.EVENT_READ, None)
+        self._engine: Any = None
+        self._sids: dict[int, _Stream] = {}
+        self._next_sid = 1
+        if self._native is not None:
+            self._engine = self._native.Engine(self._wake_r.fileno(), compact)
+        else:
+            self._selector.register(self._wake_r, selectors.EVENT_READ, None)
         self._pending: list[_Stream] = []
         self._drop: list[tuple[StreamKey, str]] = []
         self._lock = threading.Lock()
@@ -135,8 +160,11 @@ class TcprosReader:
         # never written (MSG_TRUNC), so an anonymous mapping costs no memory
         self._skip_map = mmap.mmap(-1, _SKIP_BYTES)
         self._skip = memoryview(self._skip_map)
+        self._flushed = threading.Condition()
+        self._flush_asked = self._flush_done = 0
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="ros1-tcpros", daemon=True)
+        run = self._run if self._engine is None else self._run_native
+        self._thread = threading.Thread(target=run, name="ros1-tcpros", daemon=True)
 
     def start(self) -> None:
         self._thread.start()
@@ -151,13 +179,35 @@ class TcprosReader:
             self._pending.append(_Stream(key, sock, max_bytes, decode_as))
         self._wake()
 
+    def flush(self, timeout: float = FLUSH_TIMEOUT) -> None:
+        """Hand on now everything received so far (the native loop holds arrivals up to
+        ``hand_over``); returns once the reader thread has, or after ``timeout``. A no-op
+        for the Python reader, which hands on at once."""
+        if self._engine is None or self._hand_over_every <= 0 or not self._thread.is_alive():
+            return
+        with self._flushed:
+            self._flush_asked += 1
+            want = self._flush_asked
+        self._wake()
+        with self._flushed:
+            self._flushed.wait_for(lambda: self._flush_done >= want or self._stop.is_set(),
+                                   timeout)
+
     def drop(self, key: StreamKey, reason: str) -> None:
         """Close ``key``'s connection from another thread (half-open, lost interest)."""
         with self._lock:
             self._drop.append((key, reason))
         self._wake()
 
+    @property
+    def native(self) -> bool:
+        """Whether this reader runs the compiled loop."""
+        return self._engine is not None
+
     def idle_seconds(self) -> dict[StreamKey, float]:
+        if self._engine is not None:
+            idle = self._engine.idle()
+            return {s.key: idle[sid] for sid, s in list(self._sids.items()) if sid in idle}
         now = time.monotonic()
         return {k: now - s.last_rx for k, s in list(self._streams.items())}
 
@@ -169,6 +219,8 @@ class TcprosReader:
             with contextlib.suppress(OSError):
                 s.sock.close()
         self._streams.clear()
+        self._sids.clear()
+        self._engine = None  # its epoll descriptor goes with it
         self._selector.close()
         self._skip.release()
         self._skip_map.close()
@@ -215,6 +267,67 @@ class TcprosReader:
         if self._held:
             self._hand_over()
 
+    def _run_native(self) -> None:
+        """The loop of the compiled reader: one ``poll`` waits, reads and splits until a
+        hand-over is due; here its records become arrivals."""
+        native, engine = self._native, self._engine
+        assert native is not None and engine is not None
+        arrivals, body, first, closed = native.ARRIVALS, native.BODY, native.FIRST, \
+            native.CLOSED
+        sids = self._sids
+        held = self._held
+        compact = self._compact
+        stop = self._stop
+        while not stop.is_set():
+            try:
+                records, woken = engine.poll(1.0, self._hand_over_every, self._coalesce)
+            except OSError:
+                log.exception("TCPROS reader")
+                stop.wait(0.1)  # an epoll that fails must not spin
+                continue
+            ended: list[tuple[_Stream, str]] = []
+            for record in records:
+                kind = record[0]
+                s = sids.get(record[1])
+                if s is None:
+                    continue
+                if kind == arrivals:
+                    _, _, count, nbytes, t = record
+                    s.messages += count
+                    held.append(ArrivalBatch(t, s.topic, s.publisher, count, nbytes)
+                                if compact else MessageArrival(t, s.topic, s.publisher, nbytes))
+                elif kind == body:
+                    _, _, size, data, t = record
+                    s.messages += 1
+                    held.append(decodable_arrival(self._decoder, s, size, data, t))
+                elif kind == first:
+                    self._on_first(s.key)
+                elif kind == closed:  # closed once the receive's messages are counted
+                    reason = record[3]
+                    if reason.startswith("message length prefix"):
+                        reason += f" for {s.topic} (garbage or oversized message)"
+                    ended.append((s, reason))
+            for s, reason in ended:
+                self._close(s, reason)
+            if woken:
+                try:
+                    self._service_wakeup()
+                except Exception:  # one bad connection must not stop the reader
+                    log.exception("TCPROS reader")
+            if held:
+                self._hand_over()
+                held = self._held
+            while self._closed_notes:
+                self._on_closed(*self._closed_notes.pop(0))
+            if woken and self._flush_done < self._flush_asked:
+                with self._flushed:  # what was asked for before this poll returned is out
+                    self._flush_done = self._flush_asked
+                    self._flushed.notify_all()
+        if self._held:
+            self._hand_over()
+        with self._flushed:
+            self._flushed.notify_all()
+
     def _hand_over(self) -> None:
         batch, self._held = self._held, []
         if self._on_batch is not None:
@@ -239,7 +352,16 @@ class TcprosReader:
             if old is not None:
                 self._close(old, "replaced by a new connection", notify=False)
             self._streams[stream.key] = stream
-            self._selector.register(stream.sock, selectors.EVENT_READ, stream)
+            if self._engine is None:
+                self._selector.register(stream.sock, selectors.EVENT_READ, stream)
+                continue
+            stream.sid, self._next_sid = self._next_sid, self._next_sid + 1
+            self._sids[stream.sid] = stream
+            try:
+                self._engine.add(stream.sid, stream.sock.fileno(), stream.max_bytes,
+                                 stream.decode_as is not None)
+            except (OSError, ValueError) as exc:
+                self._close(stream, f"cannot read the connection: {exc}")
         for key, reason in drops:
             dropped = self._streams.get(key)
             if dropped is not None:
@@ -247,6 +369,10 @@ class TcprosReader:
 
     def _close(self, stream: _Stream, reason: str, notify: bool = True) -> None:
         stream.closed = True
+        if self._engine is not None and self._sids.pop(stream.sid, None) is not None:
+            messages = self._engine.remove(stream.sid)
+            if messages >= 0:
+                stream.messages = messages
         with contextlib.suppress(KeyError, ValueError, OSError):
             self._selector.unregister(stream.sock)
         with contextlib.suppress(OSError):
@@ -325,7 +451,8 @@ class TcprosReader:
         if s.messages == 1:
             self._on_first(s.key)
         if s.body is not None:
-            batch.append(self._decodable(s, now))
+            body, s.body = s.body, None
+            batch.append(decodable_arrival(self._decoder, s, s.size, body, now))
         elif self._compact:
             s.pending += 1
             s.pending_bytes += s.size
@@ -398,21 +525,22 @@ class TcprosReader:
                 self._on_first(s.key)
         return pos
 
-    def _decodable(self, s: _Stream, now: float) -> MessageArrival:
-        body = s.body
-        assert body is not None
-        s.body = None
-        decoder, name = self._decoder, s.decode_as
-        assert name is not None
 
-        def decode() -> Any:
-            try:
-                return decoder.decode(body, name)
-            except Exception:
-                return None
 
-        return MessageArrival(now, s.topic, s.publisher, s.size, decode=decode,
-                              raw=lambda: bytes(body))
+def decodable_arrival(decoder: MessageDecoder, s: _Stream, size: int,
+                      body: bytes | bytearray, now: float) -> MessageArrival:
+    """The arrival of a message whose value is observed: decoded when first asked for."""
+    name = s.decode_as
+    assert name is not None
+
+    def decode() -> Any:
+        try:
+            return decoder.decode(body, name)
+        except Exception:
+            return None
+
+    return MessageArrival(now, s.topic, s.publisher, size, decode=decode,
+                          raw=lambda: bytes(body))
 
 
 def kernel_time(ancillary: list[tuple[int, int, bytes]]) -> float:

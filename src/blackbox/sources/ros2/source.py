@@ -6,11 +6,25 @@ liveness, resources) and, in between, waits on the topic readers and takes their
 as raw CDR. Everything goes into one bounded queue; ``poll(until)`` sleeps until the wall
 clock reaches ``until`` and hands out what arrived. Source time is wall-clock seconds.
 
+A publisher whose DDS participant is new (a node started or restarted) cannot be named
+until that participant lists its nodes on ``ros_discovery_info``; its messages meanwhile are
+held back (never reported under a wrong name), so its topic is a
+:class:`~blackbox.events.MeasurementGap` from its first held-back message until the
+participant has named its nodes (at most ``node_info_grace`` s): a restarted node's rate is
+not judged on the messages the black box could not attribute. The black box itself paused
+or its clock stepped is a gap of everything
+(:class:`~blackbox.sources.clockwatch.ClockWatch`).
+
 Topic readers are created only for topics the observers ask for, once a publisher of the
 topic is known, with the reader type generated from the ``rosbags`` type store
 (:mod:`blackbox.sources.ros2.idl`) and a QoS every publisher of the topic can serve:
 reliable only if all of them are reliable, always volatile, never a deadline or a
 liveliness request. Messages decode lazily with ``rosbags`` from the raw CDR.
+
+A topic is unmeasured (a :class:`~blackbox.events.MeasurementGap`) from the start until its
+first message arrives, at most ``first_message_limit`` s: discovery, matching and the node
+names take seconds, and the messages held back meanwhile are not the robot's silence (as
+the ROS 1 source's gap while it connects).
 """
 
 from __future__ import annotations
@@ -50,6 +64,7 @@ from blackbox.events import (
     Event,
     GraphSnapshot,
     Interest,
+    MeasurementGap,
     MessageArrival,
     TopicSchema,
 )
@@ -124,6 +139,9 @@ class Ros2Settings:
     no_participant_grace: float = 3.0
     node_info_grace: float = 5.0
     discovery_settle: float = 1.0
+    first_message_limit: float = 10.0
+    """Seconds a topic stays unmeasured after the start at most, waiting for its first
+    message: past that, its silence is the robot's (a publisher dead at start times out)."""
     queue_limit: int = 200_000
     reader_depth: int = 100
     cyclone_config: str | None = None
@@ -195,6 +213,8 @@ class Ros2Source:
         self._clock = ClockWatch()
         self._thread: threading.Thread | None = None
         self._interest = Interest()
+        self._waiting: dict[str, MeasurementGap] = {}
+        """Topic -> its open start gap, closed by its first message (under ``_lock``)."""
         self._readers: dict[str, _TopicReader] = {}
         self._writer_of_handle: dict[int, str] = {}
         self._procs: dict[str, _Process] = {}
@@ -202,6 +222,11 @@ class Ros2Source:
         self._reported: set[tuple[str, ...]] = set()
         self._alive_nodes: dict[str, bool] = {}
         self._unattributed = 0
+        self._participant_of_handle: dict[int, tuple[str, float]] = {}
+        """Publication handle -> (its participant's guid, when this source first met it)."""
+        self._unnamed_gaps: dict[tuple[str, str], MeasurementGap] = {}
+        """(topic, participant guid) -> the open gap of a topic whose messages from a new
+        participant are held back until it names its nodes."""
         self._graph_ready = False
         self._handed_out = 0.0
         self._machine_id = _machine_id()
@@ -234,6 +259,12 @@ class Ros2Source:
         if self._thread is not None:
             raise RuntimeError("Ros2Source started twice")
         self._interest = interest
+        now = time.time()
+        for topic in sorted(interest.topics):
+            self._waiting[topic] = gap = MeasurementGap(
+                now, now, None, f"waiting for the first message of {topic} since the start "
+                "(DDS discovery and node names)", topic=topic)
+            self._queue.append(gap)
         self._thread = threading.Thread(target=self._run, name="ros2-dds", daemon=True)
         self._thread.start()
         self._ready.wait(10.0)
@@ -280,6 +311,19 @@ class Ros2Source:
                 self._queue.append(event)
             else:
                 self._dropped += 1
+
+    def _expire_waiting(self, now: float) -> None:
+        """Close the start gaps of topics silent for ``first_message_limit`` s: from then
+        on their silence is judged."""
+        limit = self.settings.first_message_limit
+        with self._lock:
+            for topic, gap in list(self._waiting.items()):
+                if now - gap.start >= limit:
+                    del self._waiting[topic]
+                    self._queue.append(MeasurementGap(
+                        max(now, self._handed_out), gap.start, now,
+                        f"{gap.reason}; no message within {limit:g} s, judging its silence",
+                        topic=topic))
 
     def _report(self, kind: str, component: str, message: str, *key: str,
                 level: int = logging.WARNING) -> None:
@@ -331,6 +375,7 @@ class Ros2Source:
                     except Exception as exc:  # the DDS thread must outlive any surprise
                         log.exception("graph round failed")
                         self._report("graph_error", self.name, f"graph round failed: {exc!r}")
+                self._expire_waiting(now)
                 wait = max(0.0, next_graph - time.time())
                 if self._readers:
                     self._waitset.wait(int(wait * _NS))
@@ -378,6 +423,7 @@ class Ros2Source:
             publisher = self._publisher_of(tr.reader, info.publication_handle, stamp)
             if publisher is None:
                 self._unattributed += 1
+                self._held_back(tr.topic, info.publication_handle, stamp)
                 continue
             raw = bytes(data)
             decode = partial(_decode, store, raw, tr.ros_type) if decoded else None
@@ -388,12 +434,22 @@ class Ros2Source:
         with self._lock:
             for a in arrivals:  # never before what poll already handed out
                 a.time = max(a.time, self._handed_out)
+            gap = self._waiting.pop(tr.topic, None) if arrivals else None
+            if gap is not None:  # measured from its first message on
+                first = min(a.time for a in arrivals)
+                self._queue.append(MeasurementGap(first, gap.start, first, gap.reason,
+                                                  topic=tr.topic))
             room = self.settings.queue_limit - len(self._queue)
             self._queue.extend(arrivals[:max(0, room)])
             self._dropped += max(0, len(arrivals) - max(0, room))
 
     def _publisher_of(self, reader: DataReader[Any], handle: int, now: float) -> str | None:
+        """The node of the writer behind ``handle``; ``None`` (held back) while it cannot be
+        named yet: its participant has not listed its nodes, or discovery has not yet told
+        this source of the writer or its participant (data can overtake the builtin
+        topics), for at most ``node_info_grace`` s."""
         guid = self._writer_of_handle.get(handle)
+        grace = self.settings.node_info_grace
         if guid is None:
             try:
                 match = reader.get_matched_publication_data(handle)
@@ -403,7 +459,45 @@ class Ros2Source:
                 return "dds:unknown"
             guid = str(match.key)
             self._writer_of_handle[handle] = guid
-        return self.graph.publisher_name(guid, now, self.settings.node_info_grace)
+            self._participant_of_handle[handle] = (str(match.participant_key), now)
+        name = self.graph.publisher_name(guid, now, grace)
+        if name is not None and name.startswith("dds:"):
+            participant, first = self._participant_of_handle.get(handle, ("", -grace))
+            if now - first < grace and (guid not in self.graph.endpoints
+                                        or participant not in self.graph.participants):
+                return None
+        return name
+
+    def _held_back(self, topic: str, handle: int, now: float) -> None:
+        """A message of ``topic`` from a participant that has not yet named its nodes was
+        held back: the topic is not measured until it has (:meth:`_close_unnamed_gaps`)."""
+        participant = self._participant_of_handle.get(handle, ("", 0.0))[0]
+        key = (topic, participant)
+        if key in self._unnamed_gaps:
+            return
+        p = self.graph.participants.get(participant)
+        pid = f" (pid {p.pid})" if p is not None and p.pid is not None else ""
+        gap = MeasurementGap(now, now, None, f"a new DDS participant{pid} publishes {topic}; "
+                             "its messages are held back until it names its nodes "
+                             "(ros_discovery_info)", topic=topic)
+        self._unnamed_gaps[key] = gap
+        self._push(gap)
+
+    def _close_unnamed_gaps(self, now: float) -> None:
+        """Close the held-back gaps whose participant named its nodes, left, or stayed
+        unnamed past ``node_info_grace`` (its messages are then reported as ``dds:...``)."""
+        grace = self.settings.node_info_grace
+        for key, gap in list(self._unnamed_gaps.items()):
+            p = self.graph.participants.get(key[1])
+            if p is None and now - gap.start < grace:
+                continue  # not yet discovered
+            if p is not None and p.alive and not p.nodes and now - p.first_seen < grace:
+                continue
+            del self._unnamed_gaps[key]
+            why = (f"named: {', '.join(p.nodes)}" if p is not None and p.nodes
+                   else "it left" if p is None or not p.alive
+                   else f"unnamed after {grace:g} s, reported as a DDS participant")
+            self._push(MeasurementGap(now, gap.start, now, f"{gap.reason}; {why}", gap.topic))
 
     def _ensure_readers(self) -> None:
         assert self._participant is not None
@@ -491,6 +585,7 @@ class Ros2Source:
                  [str(uuid.UUID(bytes=bytes(g.data))) for g in n.writer_gid_seq])
                 for n in info.node_entities_info_seq])
         self._check_processes()
+        self._close_unnamed_gaps(now)
         self._show_endpoints(now)
         self._ensure_readers()
         grace = self.settings.node_info_grace

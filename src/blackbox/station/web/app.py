@@ -37,6 +37,7 @@ from fastapi.templating import Jinja2Templates
 from starlette.middleware.base import BaseHTTPMiddleware
 
 from blackbox.errors import BlackBoxError
+from blackbox.station.alerts.service import AlertService
 from blackbox.station.auth import Auth, Role, Session, StationAuthError
 from blackbox.station.passwords import MAX_PASSWORD
 from blackbox.station.store import (
@@ -45,7 +46,11 @@ from blackbox.station.store import (
     StationStoreError,
     UnknownRobot,
 )
+from blackbox.station.tokens import ApiTokens
+from blackbox.station.web.alerts_pages import PageTools, mount_alert_pages
+from blackbox.station.web.api_v1 import create_api
 from blackbox.station.web.limits import RequestLimits
+from blackbox.station.web.metrics import metrics_router
 from blackbox.timestamps import parse_timestamp
 
 HERE = Path(__file__).resolve().parent
@@ -165,8 +170,10 @@ def robot_ref(robot_id: str, resource_id: int) -> str:
 
 def create_app(auth: Auth, store: StationStore, operations: Operations,
                settings: WebSettings | None = None,
-               stop: threading.Event | None = None) -> FastAPI:
-    """The web application. ``stop`` ends the live streams (set it before stopping uvicorn)."""
+               stop: threading.Event | None = None, alerts: AlertService | None = None,
+               metrics_token: str | None = None) -> FastAPI:
+    """The web application. ``stop`` ends the live streams (set it before stopping uvicorn).
+    ``alerts``: the alerting service (rules page, ``/api/v1``, ``/metrics``)."""
     settings = settings or WebSettings()
     stop = stop or threading.Event()
     app = FastAPI(title="Robot Black Box station", docs_url=None, redoc_url=None,
@@ -549,6 +556,12 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
             return page(request, "users.html", session, users=auth.users(), status=400,
                         audit=auth.audit_log(limit=100), nav="users", message=str(exc))
         return RedirectResponse("/users", status_code=303)
+
+    # ---- alerting, /api/v1, /metrics (their own modules) ------------------------------------
+    tokens = ApiTokens(auth.path, auth)
+    mount_alert_pages(app, PageTools(page, require, change, address), alerts, tokens)
+    app.mount("/api/v1", create_api(auth, tokens, store, operations, alerts))
+    app.include_router(metrics_router(store, alerts, metrics_token))
 
     # ---- live updates ---------------------------------------------------------------------
 

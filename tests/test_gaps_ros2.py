@@ -1,0 +1,149 @@
+"""The black box's own hiccups on the real ROS 2 thesis robot (rclpy, Fast DDS) are
+measurement gaps, never alarms or strangers: a node's DDS participant restarting (its
+messages are held back until the new participant is known and names its nodes) and the
+black box itself stopped for 3 s."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from blackbox.events import Interest, MeasurementGap
+from blackbox.model import Code
+from conftest import wait_for
+from isolation import fresh_domain
+from ros2_support import Watched, needs_rclpy, ros2_robot
+from test_gaps_ros1 import Seen
+
+pytestmark = [pytest.mark.ros2, pytest.mark.slow, needs_rclpy]
+
+CAMERA = "/usb_cam/image_raw"
+CONFIG = f"""
+version: 1
+robot: {{id: thesis-robot-ros2}}
+observers:
+  - {{type: activated, node: /audio_capture, start_up_time: 1.0}}
+  - type: hz
+    topic: {CAMERA}
+    filter: {{type: mean, window_size: 10, deviation: std_deviation}}
+    states:
+      - {{number: 1, name: ok,
+         period: {{value: {{type: gauss, mean: 0.0666667, std_deviation: 0.01}}}}}}
+  - type: hz
+    topic: /audio
+    filter: {{type: mean, window_size: 10, deviation: std_deviation}}
+    states:
+      - {{number: 1, name: ok, period: {{value: {{type: gauss, mean: 0.03, std_deviation: 0.01}}}}}}
+"""
+
+
+@pytest.fixture
+def robot(tmp_path: Path) -> Iterator[tuple[int, object, Path]]:
+    domain = fresh_domain()
+    config = tmp_path / "observers.yaml"
+    config.write_text(CONFIG, encoding="utf-8")
+    r = ros2_robot.ThesisRobot2(domain, log_dir=tmp_path / "logs").start(
+        ["/usb_cam", "/audio_capture"])
+    try:
+        yield domain, r, config
+    finally:
+        r.stop()
+
+
+def healthy(seen: Seen, since: float, count: int = 3) -> bool:
+    latest = {o.key(): o for o in list(seen.observations) if o.time >= since}
+    return len(latest) >= count and all(o.code == Code.GENERAL_OK for o in latest.values())
+
+
+def test_a_restarted_participant_is_named_or_a_gap_never_a_stranger(
+        robot: tuple[int, object, Path]) -> None:
+    """/usb_cam killed and started again three times: each time a new DDS participant whose
+    messages may arrive before discovery has told the source of its writer or before it has
+    named its nodes on ``ros_discovery_info`` (that takes from nothing to about 3 s). Such
+    messages are held back, never reported under a ``dds:...`` name (which an ``hz`` of the
+    whole topic would count, with the restart's silence as one long period), and the time
+    they were held back is a closed gap of the camera topic, ended by the node's name."""
+    domain, r, _config = robot
+    watched = Watched(domain, Interest(topics=frozenset({CAMERA})))
+    try:
+        assert watched.until(lambda: len(watched.arrivals(CAMERA)) >= 20, 40), \
+            "no camera messages"
+        for _ in range(3):
+            r.kill("/usb_cam")  # type: ignore[attr-defined]
+            count = len(watched.arrivals(CAMERA))
+            assert not watched.until(lambda c=count: len(watched.arrivals(CAMERA)) > c, 1.0)
+            r.start_node("/usb_cam")  # type: ignore[attr-defined]
+            assert watched.until(lambda c=count: len(watched.arrivals(CAMERA)) >= c + 20, 30), \
+                "the restarted camera never delivered"
+        publishers = {a.publisher for a in watched.arrivals(CAMERA)}
+        assert publishers == {"/usb_cam"}, publishers
+        gaps = [e for e in watched.events if isinstance(e, MeasurementGap)]
+        opened = {g.start for g in gaps if g.end is None}
+        closed = [g for g in gaps if g.end is not None]
+        assert opened == {g.start for g in closed}, "a held-back gap was never closed"
+        assert all(g.topic == CAMERA and g.reason.endswith("named: /usb_cam") for g in closed)
+        for g in closed:
+            assert g.end is not None
+            inside = [a for a in watched.arrivals(CAMERA) if g.start < a.time < g.end]
+            assert inside == [], f"{len(inside)} messages reported inside {g.reason}"
+    finally:
+        watched.close()
+
+
+def test_the_black_box_on_ros2_stopped_for_three_seconds_raises_no_alarm(
+        robot: tuple[int, object, Path], tmp_path: Path) -> None:
+    """A real ``blackbox run --source ros2:N`` process, SIGSTOPped for 3 s and continued:
+    the ROS 2 source's clock watch reports a gap of everything and nothing times out."""
+    domain, _r, config = robot
+    observations, events = tmp_path / "obs.jsonl", tmp_path / "events.jsonl"
+    blackbox = Path(sys.executable).parent / "blackbox"
+    proc = subprocess.Popen(
+        [str(blackbox), "run", "--source", f"ros2:{domain}", "--config", str(config),
+         "--observations", str(observations), "--events", str(events), "--quiet"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        env=ros2_robot.ros2_env(domain))
+
+    def records(path: Path) -> list[dict[str, object]]:
+        if not path.exists():
+            return []
+        text = path.read_text()
+        whole = text[:text.rfind("\n") + 1]  # a line still being written is left for later
+        return [json.loads(line) for line in whole.splitlines() if line]
+
+    def healthy_since(t: float) -> bool:
+        latest: dict[str, dict[str, object]] = {}
+        for rec in records(observations):
+            if float(rec["time"]) >= t:  # type: ignore[arg-type]
+                latest[json.dumps([rec["observer"], rec["resource"]])] = rec
+        return len(latest) >= 3 and all(rec["code"] == 0 for rec in latest.values())
+
+    try:
+        began = time.time()
+        assert wait_for(lambda: healthy_since(began + 2.0), 40), "never healthy"
+        settled = time.time()
+        proc.send_signal(signal.SIGSTOP)
+        stopped = time.time()
+        assert not wait_for(lambda: proc.poll() is not None, 3.0)  # 3 s stopped
+        proc.send_signal(signal.SIGCONT)
+        assert wait_for(lambda: any(
+            rec["kind"] == "measured_again" and "did not run" in str(rec["message"])
+            and float(rec["time"]) >= stopped for rec in records(events)), 10), "no pause gap"  # type: ignore[arg-type]
+        cont = time.time()
+        assert wait_for(lambda: healthy_since(cont + 2.0), 20), "not healthy after the pause"
+        alarms = [rec for rec in records(observations)
+                  if float(rec["time"]) >= settled and rec["code"] not in (0, -3)]  # type: ignore[arg-type]
+        assert alarms == [], json.dumps(alarms)[:2000]
+    finally:
+        proc.send_signal(signal.SIGCONT)
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
