@@ -4,7 +4,8 @@ through the real recorder when ``--store`` is given), driven line by line on std
 Commands: ``ok`` (one round of healthy observations of the thesis robot), ``fault`` (the
 camera's rate fails and the diagnosis names ``/usb_cam``), ``burst N`` (N faults and N
 recoveries at once), ``unpublished N`` (as many, lost on the network), ``quit``. Each
-command is answered with ``done <command>`` on stdout once written. Observation times are
+command is answered with ``done <command>`` on stdout once written. ``--zenoh ENDPOINT``
+publishes through a Zenoh router instead. Observation times are
 wall-clock so that log requests by time range work. ``--key`` signs what it publishes.
 """
 
@@ -17,6 +18,7 @@ import time
 from blackbox.health.identity import EventLedger
 from blackbox.model import Code, Diagnosis, Observation, Resource, State
 from blackbox.transport.publisher import DdsHealthSink
+from blackbox.transport.zenoh_bus import ZenohSettings
 
 CAMERA = Resource(topic="/usb_cam/image_raw", publishers=("/usb_cam",))
 AUDIO = Resource(topic="/audio", publishers=("/audio_capture",))
@@ -41,6 +43,12 @@ def faulty(t: float) -> list[Observation]:
     return out
 
 
+def zenoh_settings(args: argparse.Namespace) -> ZenohSettings | None:
+    if args.zenoh is None:
+        return None
+    return ZenohSettings((args.zenoh,), args.partition, root_ca=args.tls_ca)
+
+
 def main() -> int:
     p = argparse.ArgumentParser()
     p.add_argument("--robot", required=True)
@@ -52,6 +60,9 @@ def main() -> int:
     p.add_argument("--key", default=None,
                    help="the robot's private key: sign every sample and reply; accepted "
                         "request nonces are kept in KEY.nonces across restarts")
+    p.add_argument("--zenoh", default=None, metavar="ENDPOINT",
+                   help="publish over Zenoh through this router instead of DDS")
+    p.add_argument("--tls-ca", default=None, help="the CA of a tls/ router")
     args = p.parse_args()
     stations = []
     for item in args.allow:
@@ -76,7 +87,7 @@ def main() -> int:
     sink = DdsHealthSink(args.robot, domain_id=args.domain, partition=args.partition,
                          log_store_path=args.store, on_ibit=lambda: healthy(time.time()),
                          access=AccessPolicy.of(stations), ledger=ledger,
-                         signing_key_file=args.key)
+                         signing_key_file=args.key, zenoh=zenoh_settings(args))
     sinks = [s for s in (sink, recorder) if s is not None]  # the publisher assigns ids first
     print("ready", flush=True)
     for line in sys.stdin:

@@ -137,9 +137,14 @@ class DriverBlackBox:
 
     def __init__(self, robot: str, domain: int, store: Path | None = None,
                  partition: str = "blackbox", allow: Mapping[Path, str] | None = None,
-                 key: Path | None = None) -> None:
+                 key: Path | None = None, zenoh: str | None = None,
+                 tls_ca: Path | None = None) -> None:
         cmd = [sys.executable, str(DRIVER), "--robot", robot, "--domain", str(domain),
                "--partition", partition]
+        if zenoh is not None:
+            cmd += ["--zenoh", zenoh]
+        if tls_ca is not None:
+            cmd += ["--tls-ca", str(tls_ca)]
         if key is not None:
             cmd += ["--key", str(key)]
         if store is not None:
@@ -176,9 +181,11 @@ class ScriptedBlackBox(DriverBlackBox):
     """A :class:`DriverBlackBox` that answers one station's log requests and IBIT."""
 
     def __init__(self, robot: str, domain: int, store: Path | None = None,
-                 trust: Path | None = None, key: Path | None = None) -> None:
+                 trust: Path | None = None, key: Path | None = None,
+                 zenoh: str | None = None, tls_ca: Path | None = None) -> None:
         """``trust``: the public key file of a station this robot answers (logs, ibit);
         default: the tests' station key (:func:`station_key_for_tests`). ``key``: the
         robot's own key (it then signs what it publishes)."""
         trust = trust or station_key_for_tests().with_suffix(".key.pub")
-        super().__init__(robot, domain, store, allow={trust: "logs,ibit"}, key=key)
+        super().__init__(robot, domain, store, allow={trust: "logs,ibit"}, key=key,
+                         zenoh=zenoh, tls_ca=tls_ca)

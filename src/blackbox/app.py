@@ -41,6 +41,7 @@ from blackbox.validation import check_config_file
 
 if TYPE_CHECKING:
     from blackbox.sources.sim import Fault
+    from blackbox.transport.zenoh_bus import ZenohSettings
 
 DEFAULT_CONFIG = Path(__file__).parent / "configs" / "thesis.yaml"
 
@@ -71,6 +72,8 @@ class RunOptions:
     """Start a new log over a file at ``record`` that is not a health log (moved aside)."""
     dds: bool = False
     dds_domain: int | None = None
+    zenoh: ZenohSettings | None = None
+    """Publish over Zenoh through these routers instead of DDS (with ``dds``)."""
     engine: str | None = None
     """Diagnosis engine (``cbd``, ``sfdd``, ``hybrid``); ``None``: the configuration's."""
     publish_diagnostics: bool = False
@@ -143,7 +146,7 @@ def build(options: RunOptions) -> BlackBox:
     if options.publish_diagnostics:
         sinks.append(open_ros_diagnostics(options, config, source))
     recorder = None
-    publishes = options.dds or "transport" in config.sections
+    publishes = options.dds or options.zenoh is not None or "transport" in config.sections
     # One ledger for the health publisher and the recorder: a logged event carries the
     # identity it was published with (blackbox.health.identity).
     ledger = EventLedger() if publishes else None
@@ -210,6 +213,9 @@ def open_dds(options: RunOptions, config: LoadedConfig, recorder: Recorder | Non
         kwargs.setdefault("log_store_path", recorder.path)
     if options.signing_key is not None:
         kwargs["signing_key_file"] = options.signing_key
+    if options.zenoh is not None:
+        kwargs["zenoh"] = dataclasses.replace(
+            options.zenoh, partition=kwargs.get("partition", options.zenoh.partition))
     descriptions = [describe_observer(entry) for entry in config.observers]
     return DdsHealthSink(config.robot_id, descriptions=descriptions, on_ibit=on_ibit,
                          ledger=ledger, **kwargs)

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from blackbox.app import DEFAULT_CONFIG, RunOptions, build, graceful_interrupts
+from blackbox.cli.router import add_tls_arguments, zenoh_settings
 from blackbox.record.store import StorageError
 
 EXIT_USAGE = 2
@@ -76,6 +77,11 @@ def add_run_arguments(p: argparse.ArgumentParser, default_config: Path = DEFAULT
                    help="publish UCMS health over DDS (loopback unless configured; docs/health.md)")
     p.add_argument("--domain", type=domain_id, default=None, metavar="ID",
                    help="DDS domain id (default: transport.domain_id, else 0)")
+    p.add_argument("--zenoh", action="append", default=None, metavar="ENDPOINT",
+                   help="publish the same health over Zenoh through this router (e.g. "
+                        "tcp/router.example:7447; repeatable) instead of DDS: for a station "
+                        "on another network (docs/station.md, Fleet deployment)")
+    add_tls_arguments(p)
     p.add_argument("--key", type=Path, default=None, metavar="FILE",
                    help="the robot's private key (blackbox keygen --robot): sign every "
                         "health sample, log reply and IBIT result it publishes over DDS")
@@ -98,6 +104,7 @@ def options_from_args(args: argparse.Namespace) -> RunOptions:
         faults=args.faults, seed=args.seed, ground_truth=args.ground_truth,
         record=args.record, force_record=args.force, dds=args.dds, dds_domain=args.domain,
         publish_diagnostics=args.publish_diagnostics, signing_key=args.key,
+        zenoh=zenoh_settings(args),
     )
 
 

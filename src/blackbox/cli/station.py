@@ -1,14 +1,15 @@
 """``blackbox station``: the remote station, a web application for a fleet of black boxes.
 
-``blackbox station`` joins the DDS domain, follows every robot on it into its own database
-and serves the web pages (http://127.0.0.1:8080 unless ``--bind`` says otherwise; HTTPS with
-``--tls-cert``/``--tls-key``). ``blackbox station user add NAME --role ROLE`` makes an
-account; there is none until then.
+``blackbox station`` joins the DDS domain (or Zenoh routers, ``--zenoh``), follows every robot
+on it into its own database and serves the web pages (http://127.0.0.1:8080 unless
+``--bind`` says otherwise; HTTPS with ``--tls-cert``/``--tls-key``). ``blackbox station
+user add NAME --role ROLE`` makes an account; there is none until then.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import getpass
 import os
 import socket
@@ -18,6 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from blackbox.cli.router import add_tls_arguments, zenoh_settings
 from blackbox.station.auth import Auth, Role, StationAuthError
 
 EXIT_USAGE = 2
@@ -33,6 +35,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="address of the web server (default 127.0.0.1:8080; port 0 = any free)")
     p.add_argument("--domain", type=int, default=0, help="DDS domain id (default 0)")
     p.add_argument("--partition", default="blackbox", help="DDS partition (default blackbox)")
+    p.add_argument("--zenoh", action="append", default=None, metavar="ENDPOINT",
+                   help="follow the robots through this Zenoh router (e.g. "
+                        "tcp/router.example:7447; repeatable) instead of DDS "
+                        "(docs/station.md, Fleet deployment)")
+    add_tls_arguments(p)
     p.add_argument("--stale-after", type=float, default=10.0, metavar="S",
                    help="a robot silent this long is shown UNKNOWN (default 10 s)")
     p.add_argument("--tls-cert", type=Path, default=None, help="serve HTTPS with this certificate")
@@ -315,7 +322,11 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
     if not robot_keys.robots():
         print("station: no robot enrolled (--robots or blackbox station robots enrol): "
               "robot health is shown unauthenticated", file=sys.stderr)
-    follower = StationFollower(store, TransportSettings(args.domain, args.partition),
+    zenoh = zenoh_settings(args)
+    if zenoh is not None:
+        zenoh = dataclasses.replace(zenoh, partition=args.partition)
+    follower = StationFollower(store, TransportSettings(args.domain, args.partition,
+                                                        zenoh=zenoh),
                                signer=signer, robot_keys=robot_keys)
     follower.start()
     alerts = AlertService(store, args.db, alert_config or AlertConfig("<none>"),
@@ -343,7 +354,8 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
     server = uvicorn.Server(config)
     bound = sock.getsockname()
     url = f"{'https' if tls else 'http'}://{host if ':' not in host else f'[{host}]'}:{bound[1]}/"
-    print(f"station: serving {url} (DDS domain {args.domain}, database {args.db})",
+    bus = f"Zenoh via {', '.join(args.zenoh)}" if zenoh else f"DDS domain {args.domain}"
+    print(f"station: serving {url} ({bus}, database {args.db})",
           file=sys.stderr)
     if args.ready_file is not None:
         args.ready_file.write_text(url + "\n")

@@ -39,7 +39,6 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
 from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader
 from cyclonedds.util import duration
@@ -80,7 +79,7 @@ from blackbox.station.store import (
 from blackbox.station.trust import SampleGate, WriterWatch
 from blackbox.transport.auth import RequestSigner, public_key_text
 from blackbox.transport.logservice import LogAnswer, LogClient
-from blackbox.transport.participant import Bus, TransportSettings
+from blackbox.transport.participant import HealthBus, TransportSettings, Waiter, open_bus
 from blackbox.transport.provenance import SIGNATURE_TOPIC
 from blackbox.transport.qos import EVENT_TOPICS, qos_for
 
@@ -241,9 +240,9 @@ class StationFollower:
         self.writers = WriterWatch()
         self._participants: dict[tuple[int, Any], str] = {}
         self._signature_reader: DataReader[Any] | None = None
-        self.bus: Bus | None = None
+        self.bus: HealthBus | None = None
         self._readers: dict[str, Any] = {}
-        self._waitset: WaitSet | None = None
+        self._waitset: Waiter | None = None
         self._robots: dict[int, _Robot] = {}
         self._ext: dict[tuple[int, int], C_Event_Extension] = {}
         self._waiting: list[tuple[float, C_Threshold_Exceedence_Event | C_Failure_Event]] = []
@@ -263,17 +262,14 @@ class StationFollower:
         if self.bus is not None:
             return
         self._load_known()
-        self.bus = Bus.open(self.settings)
+        self.bus = open_bus(self.settings, self.station_id)
         self._readers = {name: self._reader(name) for name in FOLLOWED}
         self._signature_reader = self._reader(SIGNATURE_TOPIC)
-        self._waitset = WaitSet(self.bus.participant)
-        mask = SampleState.NotRead | ViewState.Any | InstanceState.Any
-        for reader in (*self._readers.values(), self._signature_reader):
-            self._waitset.attach(ReadCondition(reader, mask))
+        self._waitset = self.bus.waiter([*self._readers.values(), self._signature_reader])
         for lane in (self._requests, self._backfills):
             lane.client = LogClient(self.bus, self.station_id, signer=self.signer)
 
-    def _reader(self, name: str) -> DataReader[Any]:
+    def _reader(self, name: str) -> Any:
         """A reader with the topic's QoS, but a deeper history for state topics: the
         writers keep only the latest sample per instance, and a station that takes
         samples every fraction of a second must still see a failure and its
@@ -283,7 +279,7 @@ class StationFollower:
         if name not in EVENT_TOPICS:
             qos = Qos(Policy.Durability.TransientLocal, Policy.History.KeepLast(STATE_DEPTH),
                       Policy.Reliability.Reliable(duration(seconds=1)))
-        return DataReader(self.bus.subscriber, self.bus.topic(name), qos)
+        return self.bus.reader(name, qos)
 
     def start(self) -> None:
         """Open, then follow on a background thread until :meth:`stop`."""
@@ -347,7 +343,7 @@ class StationFollower:
         """Wait up to ``timeout`` s for samples, handle all, flush the store; returns the
         number of samples taken."""
         assert self._waitset is not None, "open() first"
-        self._waitset.wait(duration(seconds=timeout))
+        self._waitset.wait(timeout)
         now = self.clock()
         self._take_signatures()
         taken: list[tuple[str, Any]] = []

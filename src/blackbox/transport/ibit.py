@@ -42,7 +42,7 @@ from blackbox.transport.auth import (
     from_wire,
     to_wire,
 )
-from blackbox.transport.participant import Bus, matched_both_ways
+from blackbox.transport.participant import HealthBus, matched_both_ways
 from blackbox.transport.provenance import SampleSigner, reply_signed_by
 
 RESULT_TOPIC = "BlackBox_IBIT_Result"
@@ -62,7 +62,7 @@ def ibit_fields(command: C_Monitored_Entity_run_IBIT | C_IBIT_Request) -> dict[s
 class IbitService:
     """Takes run_IBIT commands addressed to one robot and answers them."""
 
-    def __init__(self, bus: Bus, robot_id: str,
+    def __init__(self, bus: HealthBus, robot_id: str,
                  run: Callable[[C_Monitored_Entity_run_IBIT], C_IBIT_Result],
                  verifier: RequestVerifier | None = None,
                  signer: SampleSigner | None = None) -> None:
@@ -115,7 +115,7 @@ class IbitService:
                              A_report=[f"refused: {reason}"])
 
 
-def request_ibit(bus: Bus, robot_id: str, *, entity: str = "", timeout: float = 10.0,
+def request_ibit(bus: HealthBus, robot_id: str, *, entity: str = "", timeout: float = 10.0,
                  signer: RequestSigner | None = None,
                  robot_key: Ed25519PublicKey | None = None,
                  on_forged: Callable[[C_IBIT_Result], None] | None = None,

@@ -29,8 +29,6 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
-from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
-from cyclonedds.util import duration
 
 from blackbox.health.ids import robot_resource_id, stable_int
 from blackbox.health.types import (
@@ -48,7 +46,7 @@ from blackbox.transport.auth import (
     from_wire,
     to_wire,
 )
-from blackbox.transport.participant import Bus, matched_both_ways
+from blackbox.transport.participant import HealthBus, matched_both_ways
 from blackbox.transport.provenance import SampleSigner, reply_signed_by
 
 REPLY_TOPIC = "BlackBox_Log_Reply"
@@ -120,7 +118,7 @@ def check_request(request: C_Log_Request) -> str | None:
 class LogService:
     """Answers log requests addressed to one robot."""
 
-    def __init__(self, bus: Bus, robot_id: str, open_source: Callable[[], LogSource],
+    def __init__(self, bus: HealthBus, robot_id: str, open_source: Callable[[], LogSource],
                  chunk_size: int = DEFAULT_CHUNK, verifier: RequestVerifier | None = None,
                  signer: SampleSigner | None = None) -> None:
         self.robot = T_IdentifierType(robot_resource_id(robot_id), 0)
@@ -202,7 +200,7 @@ class LogAnswer:
 class LogClient:
     """Asks robots for their logs (``blackbox request-logs``, the listener's backfill)."""
 
-    def __init__(self, bus: Bus, station: str | None = None,
+    def __init__(self, bus: HealthBus, station: str | None = None,
                  signer: RequestSigner | None = None) -> None:
         """``signer`` signs the requests; without one the key named by
         ``$BLACKBOX_STATION_KEY`` is used if set, else requests go unsigned."""
@@ -213,9 +211,7 @@ class LogClient:
         self.writer = bus.writer("BlackBox_Log_Request")
         self.reader = bus.reader("BlackBox_Log_Reply")
         self._numbers = itertools.count(secrets.randbits(20))
-        self._waitset = WaitSet(bus.participant)
-        self._waitset.attach(ReadCondition(self.reader, SampleState.Any | ViewState.Any
-                                           | InstanceState.Any))
+        self._waiter = bus.waiter([self.reader])
 
     def wait_for_robot(self, timeout: float) -> bool:
         """Wait until some black box is matched both ways (requests and replies)."""
@@ -267,7 +263,7 @@ class LogClient:
                     last = reply.A_chunkIndex
             if last is not None and all(i in chunks for i in range(last + 1)):
                 break
-            self._waitset.wait(duration(milliseconds=100))
+            self._waiter.wait(0.1)
         complete = last is not None and all(i in chunks for i in range(last + 1))
         entries: list[dict[str, Any]] = []
         status = "timeout: no complete answer" if not complete else "ok"

@@ -12,21 +12,32 @@ log output is filtered so that a flood of malformed datagrams cannot flood the l
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol
 
-from cyclonedds.core import DDSException
+from cyclonedds.core import (
+    DDSException,
+    InstanceState,
+    ReadCondition,
+    SampleState,
+    ViewState,
+    WaitSet,
+)
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter, Publisher
 from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
+from cyclonedds.util import duration
 
 from blackbox.health.extension import EXTENSION_TOPICS
 from blackbox.health.types import REMOTE_TOPICS, UCMS_TOPICS
 from blackbox.transport.cyclone_log import limit_malformed_packet_logging
 from blackbox.transport.qos import partition, qos_for
 from blackbox.transport.sockets import configured_interface, pin_new_sockets, udp_wildcard_sockets
+
+if TYPE_CHECKING:
+    from blackbox.transport.zenoh_bus import ZenohSettings
 
 LOOPBACK_CONFIG = (
     '<General><Interfaces><NetworkInterface name="lo"/></Interfaces>'
@@ -46,12 +57,52 @@ class TransportSettings:
     domain_id: int = 0
     partition: str = "blackbox"
     cyclone_config: str | None = None
+    zenoh: ZenohSettings | None = None
+    """Carry everything over Zenoh through these routers instead of DDS."""
 
     def __post_init__(self) -> None:
         if not 0 <= self.domain_id <= 232:
             raise ValueError(f"domain id must be 0..232, got {self.domain_id}")
         if not self.partition:
             raise ValueError("partition must not be empty")
+
+
+class Waiter(Protocol):
+    def wait(self, seconds: float) -> None:
+        """Return when some of the readers has samples, or after ``seconds``."""
+
+
+class HealthBus(Protocol):
+    """What the sink, the log and IBIT services and the station follower need of a bus:
+    DDS (:class:`Bus`) on one network, Zenoh (:class:`~blackbox.transport.zenoh_bus.ZenohBus`)
+    across networks. Readers have ``take(N=...)``, writers ``write(sample)``."""
+
+    def writer(self, name: str) -> Any: ...
+
+    def reader(self, name: str, qos: Any = None) -> Any: ...
+
+    def waiter(self, readers: Iterable[Any]) -> Waiter: ...
+
+    def close(self) -> None: ...
+
+
+def open_bus(settings: TransportSettings, origin: str | None = None) -> HealthBus:
+    """The bus ``settings`` name: Zenoh when it has endpoints, else DDS. ``origin`` (the
+    robot id, or a station's name) is what Zenoh writers publish under."""
+    if settings.zenoh is not None:
+        from blackbox.transport.zenoh_bus import ZenohBus
+        return ZenohBus.open(settings.zenoh, origin)
+    return Bus.open(settings)
+
+
+@dataclass
+class DdsWaiter:
+    """A Cyclone wait set on the readers' unread samples."""
+
+    waitset: WaitSet
+
+    def wait(self, seconds: float) -> None:
+        self.waitset.wait(duration(seconds=seconds))
 
 
 @dataclass
@@ -98,8 +149,15 @@ class Bus:
     def writer(self, name: str) -> DataWriter[Any]:
         return DataWriter(self.publisher, self.topic(name), qos_for(name))
 
-    def reader(self, name: str) -> DataReader[Any]:
-        return DataReader(self.subscriber, self.topic(name), qos_for(name))
+    def reader(self, name: str, qos: Any = None) -> DataReader[Any]:
+        return DataReader(self.subscriber, self.topic(name), qos or qos_for(name))
+
+    def waiter(self, readers: Iterable[Any]) -> DdsWaiter:
+        waitset = WaitSet(self.participant)
+        mask = SampleState.NotRead | ViewState.Any | InstanceState.Any
+        for reader in readers:
+            waitset.attach(ReadCondition(reader, mask))
+        return DdsWaiter(waitset)
 
     def writers(self, names: Mapping[str, Any]) -> dict[type, DataWriter[Any]]:
         return {ALL_TOPICS[n]: self.writer(n) for n in names}

@@ -15,16 +15,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from cyclonedds.core import (
-    DDSException,
-    InstanceState,
-    ReadCondition,
-    SampleState,
-    ViewState,
-    WaitSet,
-)
-from cyclonedds.pub import DataWriter
-from cyclonedds.util import duration
+from cyclonedds.core import DDSException
 
 from blackbox.config.node import ConfigNode
 from blackbox.health.describe import ObserverDescription, describe_observers
@@ -46,9 +37,10 @@ from blackbox.transport.auth import AccessPolicy, RequestVerifier, load_private_
 from blackbox.transport.cdr_encoder import sample_writer
 from blackbox.transport.ibit import IbitService
 from blackbox.transport.logservice import DEFAULT_CHUNK, LogService, LogSource, open_store
-from blackbox.transport.participant import ALL_TOPICS, TOPIC_OF_TYPE, Bus, TransportSettings
+from blackbox.transport.participant import ALL_TOPICS, TOPIC_OF_TYPE, TransportSettings, open_bus
 from blackbox.transport.provenance import SIGNATURE_TOPIC, SampleSigner
 from blackbox.transport.qos import EVENT_TOPICS
+from blackbox.transport.zenoh_bus import ZenohSettings
 
 EVENT_INSTANCES_KEPT = 256
 OFF = T_Monitored_Entity_StateType.L_Monitored_Entity_StateType_OFF
@@ -103,6 +95,7 @@ class DdsHealthSink(SinkBase):
         ledger: EventLedger | None = None,
         signing_key_file: str | Path | None = None,
         replay_file: str | Path | None = None,
+        zenoh: ZenohSettings | None = None,
     ) -> None:
         if not robot_id:
             raise ValueError("robot id must not be empty")
@@ -113,22 +106,23 @@ class DdsHealthSink(SinkBase):
             self.signer = SampleSigner(load_private_key(Path(signing_key_file)), robot_id,
                                        clock=clock)
         self.on_ibit = on_ibit
-        self.settings = TransportSettings(domain_id, partition, cyclone_config)
+        self.settings = TransportSettings(domain_id, partition, cyclone_config, zenoh)
         self.mapper = HealthMapper(robot_id, descriptions=descriptions, owners=owners,
                                    failure_actions=failure_actions, hysteresis=hysteresis,
                                    logging_interval=logging_interval, ledger=ledger)
         self.ledger = self.mapper.ledger
-        self.bus = Bus.open(self.settings)
-        self._writers: dict[type, DataWriter[Any]] = {
+        self.bus = open_bus(self.settings, robot_id)
+        self._writers: dict[type, Any] = {
             t: self.bus.writer(name) for name, t in ALL_TOPICS.items()
             if (name.startswith("C_") and name != "C_Monitored_Entity_run_IBIT")
             or name in ("BlackBox_Entity_Description", "BlackBox_Characteristic_Extension",
                         "BlackBox_Event_Extension")}
         self._signatures = self.bus.writer(SIGNATURE_TOPIC) if self.signer else None
         # samples are encoded by precompiled encoders, not the per-sample IDL machinery
+        # (a Zenoh writer has none of Cyclone's internals: its own write is used)
         self._write_sample: dict[type, Callable[[Any], None]] = {
             t: sample_writer(w) for t, w in self._writers.items()}
-        self._events: deque[tuple[DataWriter[Any], Any]] = deque()
+        self._events: deque[tuple[Any, Any]] = deque()
         self._lock = threading.RLock()
         self.written = 0
         self.write_errors = 0
@@ -261,13 +255,10 @@ class DdsHealthSink(SinkBase):
                              A_report=report)
 
     def _serve(self) -> None:
-        waitset = WaitSet(self.bus.participant)
-        mask = SampleState.NotRead | ViewState.Any | InstanceState.Any
-        for service in self._services:
-            for reader in getattr(service, "readers", (service.reader,)):
-                waitset.attach(ReadCondition(reader, mask))
+        waiter = self.bus.waiter(reader for service in self._services
+                                 for reader in getattr(service, "readers", (service.reader,)))
         while not self._stop.is_set():
-            waitset.wait(duration(milliseconds=200))
+            waiter.wait(0.2)
             for service in self._services:
                 try:
                     service.poll()
