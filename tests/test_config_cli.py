@@ -6,13 +6,16 @@ print exactly one line ``error: FILE:LINE:COL: at KEY.PATH: message``, never a t
 
 from __future__ import annotations
 
+import contextlib
+import io
 import re
 import subprocess
 import sys
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
+
+from blackbox.cli import main
 
 pytestmark = pytest.mark.xdist_group("test_config_cli")  # its module fixture: one worker
 
@@ -29,12 +32,22 @@ def check_config(path: Path) -> subprocess.CompletedProcess[str]:
                           capture_output=True, text=True, timeout=60, check=False)
 
 
+def check_config_here(path: Path) -> subprocess.CompletedProcess[str]:
+    """``check-config`` through the same entry point in this process: what it prints and
+    returns (a crash would raise here and fail the test). Each subprocess costs a second
+    or more of imports; a few tests below keep the real process."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(["check-config", str(path)])
+    return subprocess.CompletedProcess(["blackbox", "check-config", str(path)], code,
+                                       out.getvalue(), err.getvalue())
+
+
 @pytest.fixture(scope="module")
 def bad_results() -> dict[str, subprocess.CompletedProcess[str]]:
-    """``check-config`` on every bad file, run two at a time to keep this file fast."""
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        names = sorted(p.name for p in BAD.glob("*.yaml"))
-        return dict(zip(names, pool.map(lambda n: check_config(BAD / n), names), strict=True))
+    """``check-config`` on every bad file."""
+    names = sorted(p.name for p in BAD.glob("*.yaml"))
+    return {n: check_config_here(BAD / n) for n in names}
 
 
 def located_error(path: Path,
