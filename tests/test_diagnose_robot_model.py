@@ -81,8 +81,9 @@ def test_hardware_behind_a_driver_is_a_component():
            Observation(1.0, "timeout", Resource(topic="/img"), Code.TIMEOUT)]
     d = engine.update(1.0, obs)
     assert d is not None
-    assert [set(c) for c in d.candidates] == [{"/usb_cam"}, {"camera"}, {"/img"}]
-    assert "hardware camera" in engine.explain(d.candidates[1:], d.failed, True)
+    # The camera first: its driver answers (a passing observation), the hardware has none.
+    assert [set(c) for c in d.candidates] == [{"camera"}, {"/usb_cam"}, {"/img"}]
+    assert "hardware camera" in engine.explain(d.candidates, d.failed, True)
 
 
 def test_feedback_loop_of_healthy_nodes_explains_nothing_by_itself():

@@ -306,8 +306,16 @@ def test_entity_ibit_and_events_pages(browser: object, fleet: Fleet) -> None:
     assert page.locator("#ibit-report li").count() >= 1
     assert "/usb_cam/image_raw" in page.locator("#ibit-report").inner_text()
     fleet.shot(page, "ibit")
-    page.goto("/events?robot=thesis-robot&kind=failure")
-    assert "/usb_cam" in page.locator("table.events").inner_text()
+    # The camera's failure reaches the station's database a moment after its state (its
+    # identity and signature travel on their own topics): look again until it is there.
+    deadline = time.monotonic() + 30
+    while True:
+        page.goto("/events?robot=thesis-robot&kind=failure")
+        shown = page.locator("table.events").inner_text()
+        if "/usb_cam" in shown or time.monotonic() > deadline:
+            break
+        page.wait_for_timeout(500)
+    assert "/usb_cam" in shown, f"waited 30 s for the camera's failure on the events page: {shown}"
     fleet.shot(page, "events")
     page.set_viewport_size({"width": 768, "height": 1024})
     fleet.shot(page, "events-768")

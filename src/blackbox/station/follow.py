@@ -78,8 +78,9 @@ from blackbox.station.store import (
 )
 from blackbox.station.trust import SampleGate, WriterWatch
 from blackbox.transport.auth import RequestSigner, public_key_text
+from blackbox.transport.buses import open_bus
 from blackbox.transport.logservice import LogAnswer, LogClient
-from blackbox.transport.participant import HealthBus, TransportSettings, Waiter, open_bus
+from blackbox.transport.participant import HealthBus, TransportSettings, Waiter
 from blackbox.transport.provenance import SIGNATURE_TOPIC
 from blackbox.transport.qos import EVENT_TOPICS, qos_for
 

@@ -30,11 +30,11 @@ from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
-from blackbox.health.extension import EXTENSION_TOPICS
-from blackbox.health.types import REMOTE_TOPICS, UCMS_TOPICS
 from blackbox.transport.cyclone_log import limit_malformed_packet_logging
 from blackbox.transport.qos import partition, qos_for
 from blackbox.transport.sockets import configured_interface, pin_new_sockets, udp_wildcard_sockets
+from blackbox.transport.topics import ALL_TOPICS as ALL_TOPICS  # re-exported
+from blackbox.transport.topics import TOPIC_OF_TYPE as TOPIC_OF_TYPE
 
 if TYPE_CHECKING:
     from blackbox.transport.zenoh_bus import ZenohSettings
@@ -48,8 +48,7 @@ LOOPBACK_CONFIG = (
 )
 """Loopback only, unicast discovery: what tests and the default demo use."""
 
-ALL_TOPICS: dict[str, type] = {**UCMS_TOPICS, **EXTENSION_TOPICS, **REMOTE_TOPICS}
-TOPIC_OF_TYPE: dict[type, str] = {t: name for name, t in ALL_TOPICS.items()}
+
 
 
 @dataclass(frozen=True, slots=True)
@@ -84,15 +83,6 @@ class HealthBus(Protocol):
     def waiter(self, readers: Iterable[Any]) -> Waiter: ...
 
     def close(self) -> None: ...
-
-
-def open_bus(settings: TransportSettings, origin: str | None = None) -> HealthBus:
-    """The bus ``settings`` name: Zenoh when it has endpoints, else DDS. ``origin`` (the
-    robot id, or a station's name) is what Zenoh writers publish under."""
-    if settings.zenoh is not None:
-        from blackbox.transport.zenoh_bus import ZenohBus
-        return ZenohBus.open(settings.zenoh, origin)
-    return Bus.open(settings)
 
 
 @dataclass

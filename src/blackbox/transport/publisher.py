@@ -34,10 +34,11 @@ from blackbox.health.types import (
 from blackbox.model import BlackBoxEvent, Diagnosis, Observation
 from blackbox.sinks import SinkBase
 from blackbox.transport.auth import AccessPolicy, RequestVerifier, load_private_key
+from blackbox.transport.buses import open_bus
 from blackbox.transport.cdr_encoder import sample_writer
 from blackbox.transport.ibit import IbitService
 from blackbox.transport.logservice import DEFAULT_CHUNK, LogService, LogSource, open_store
-from blackbox.transport.participant import ALL_TOPICS, TOPIC_OF_TYPE, TransportSettings, open_bus
+from blackbox.transport.participant import ALL_TOPICS, TOPIC_OF_TYPE, TransportSettings
 from blackbox.transport.provenance import SIGNATURE_TOPIC, SampleSigner
 from blackbox.transport.qos import EVENT_TOPICS
 from blackbox.transport.zenoh_bus import ZenohSettings

@@ -30,7 +30,7 @@ import zenoh
 import zenoh.ext as zext
 
 from blackbox.errors import BlackBoxError
-from blackbox.transport.participant import ALL_TOPICS
+from blackbox.transport.topics import ALL_TOPICS
 
 CACHED_SAMPLES = 4096
 """Samples each published topic keeps for late or reconnecting stations (per robot)."""

@@ -458,11 +458,11 @@ def relation_from_config(node: ConfigNode) -> RelationObserver:
 OBSERVERS.add("relation", ObserverKind("relation", relation_from_config, Subject.TOPIC_PAIR,
                                        (), judges=Mode.RIGHT, relation=True), example={
     "type": "relation", "topic": "/cmd_vel", "topic_b": "/odom", "step": 0.05, "block": 10,
-    "window": 1.0, "fresh": 0.5,
+    "window": 1.0, "fresh": 2.0,
     "relations": [{"name": "odom_twist_twist_linear_x",
                    "target": {"topic": "/odom", "field": "twist.twist.linear.x"},
                    "target_lag": 0.05,
                    "inputs": [{"topic": "/cmd_vel", "field": "linear.x",
                                "lags": [0.0, 0.05, 0.1], "gains": [0.31, 0.354, 0.337]}],
                    "intercept": 0.0, "bias": 0.0, "block_noise": 0.0069, "still": None,
-                   "cusum": {"k": 0.5, "h": 12.6}, "excitation": 0.001, "span": [-10.0, 10.0]}]})
+                   "cusum": {"k": 0.5, "h": 12.6}, "excitation": 1e-6, "span": [-10.0, 10.0]}]})
