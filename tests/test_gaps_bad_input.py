@@ -126,12 +126,16 @@ def test_a_topic_whose_only_publisher_keeps_restarting_is_a_gap_at_each_return(
         restarts = 4
         for i in range(restarts):
             time.sleep(3.0)  # the restart cadence is the input under test, not a wait
+            killed = time.time()
             os.kill(master.pid("/steady_node"), signal.SIGKILL)
             master.nodes["/steady_node"].wait(timeout=5)
             master.start_awkward("steady")
-            back = time.time()
-            assert wait_for(lambda b=back: any(
-                e.component == "/flaky" and "re-registered" in e.message and e.time >= b
+            # A gap of /flaky from this restart: the new registration or, when the lost
+            # connection is noticed first, the reconnection (which of the two depends on
+            # timing on a loaded machine; either way not a verdict).
+            assert wait_for(lambda k=killed: any(
+                e.component == "/flaky" and e.time >= k
+                and ("re-registered" in e.message or "reconnect" in e.message)
                 for e in seen.gaps()), 15), (i, latest(seen))
         last = time.time()
         assert wait_for(lambda: healthy(seen, last, 1), 15), "not healthy after the restarts"

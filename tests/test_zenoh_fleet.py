@@ -241,7 +241,7 @@ def test_a_robot_and_a_station_at_two_sites_meet_through_two_routers(
                    "the camera's state across two routers", timeout=30)
         box.send("burst 100")
         wait_until(lambda: event_counts(tmp_path / "station.db").get("distinct") == 200,
-                   "100 failures and 100 rectifications across two routers", timeout=30)
+                   "100 failures and 100 rectifications across two routers", timeout=60)
         assert event_counts(tmp_path / "station.db") == {
             "failure": 100, "rectification": 100, "distinct": 200}
     finally:
