@@ -10,7 +10,7 @@ workers=${PYTEST_WORKERS:-4}
 mypy_log=$(mktemp)
 "$bin/mypy" >"$mypy_log" 2>&1 &
 mypy_pid=$!
-"$bin/python" -m pytest -q -n "$workers" --dist loadgroup "$@"
+"$bin/python" -m pytest -q -n "$workers" --dist loadgroup --durations=20 "$@"
 tests=$?
 wait "$mypy_pid"
 typed=$?
