@@ -63,10 +63,31 @@ def registrations(state: list) -> list[dict[str, list[str]]]:
     return [{name: sorted(nodes) for name, nodes in group} for group in state[2]]
 
 
+def settled_state(robot: ThesisRobot, timeout: float = 20.0) -> list:
+    """The master's state once the robot's nodes have all registered: every topic of the
+    thesis robot published, and the same registrations for a whole second (rospy nodes
+    register their topics one by one after the master answers their first call)."""
+    deadline = time.monotonic() + timeout
+    last: list | None = None
+    stable_since = time.monotonic()
+    while True:
+        state = robot.master().getSystemState("/test")
+        published = {name for name, _ in state[2][0]}
+        if registrations(state) != (registrations(last) if last is not None else None):
+            last, stable_since = state, time.monotonic()
+        elif {IMAGE, "/audio", "/signal"} <= published and \
+                time.monotonic() - stable_since >= 1.0:
+            return state
+        if time.monotonic() > deadline:
+            raise AssertionError(f"waited {timeout:g} s for the robot's registrations to "
+                                 f"settle: {registrations(state)}")
+        time.sleep(0.1)
+
+
 @pytest.fixture(scope="module")
 def watched(robot: ThesisRobot) -> Iterator[Watch]:
     """A source watching the thesis robot for three seconds, then kept open."""
-    state_before = robot.master().getSystemState("/test")
+    state_before = settled_state(robot)
     # Subscriptions for every topic: these tests are about the TCPROS path (the counter
     # path is tests/test_ros1_bus_stats.py).
     source = Ros1Source.from_uri(f"ros1://127.0.0.1:{robot.port}",
