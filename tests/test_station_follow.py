@@ -234,7 +234,8 @@ def test_a_built_in_test_runs_and_its_result_is_stored(
     with following(tmp_path / "station.db", domain, backfill=0) as (store, follower):
         wait(lambda: health(store, "thesis").get("/usb_cam"))
         run = follower.run_ibit("thesis", requested_by="olga")
-        result = wait(lambda: (r := store.ibit_run(run)) and r.status != "pending" and r)
+        result = wait(lambda: (r := store.ibit_run(run)) and r.status != "pending" and r,
+                      timeout=45)  # the robot's reply waits for matching both ways
         assert (result.status, result.observations, result.failed) == ("done", 5, 0)
         assert result.report[0] == "OK hz /usb_cam/image_raw [/usb_cam] GENERAL_OK"
         [event] = store.events("thesis", kinds=["ibit"]).events
