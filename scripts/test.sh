@@ -5,7 +5,7 @@
 set -uo pipefail
 cd "$(dirname "$0")/.."
 bin=${VENV:-.venv}/bin
-workers=${PYTEST_WORKERS:-4}
+workers=${PYTEST_WORKERS:-3}
 "$bin/ruff" check src tests benchmarks || exit 1
 mypy_log=$(mktemp)
 "$bin/mypy" >"$mypy_log" 2>&1 &
