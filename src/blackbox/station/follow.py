@@ -660,11 +660,12 @@ class StationFollower:
                              text=text, origin=origin,
                              details={"components": sorted(components)})
 
-    def _identity(self, robot: _Robot, ext: C_Event_Extension | None, legacy: str, t: float,
+    def _identity(self, robot: _Robot, event_id: object, legacy: str, t: float,
                   now: float) -> str:
-        """The dedup key of an event: its identity when the robot named it (and the station
-        notes the number as received), else the legacy key from kind, time and entity."""
-        ident = EventId.parse(ext.A_eventId) if ext is not None and ext.A_eventId else None
+        """The dedup key of an event, live or from the log: its identity when the robot named
+        it (and the station notes the number as received), else the legacy key from kind,
+        time and entity. ``event_id`` comes from the network or a log: parsed strictly."""
+        ident = EventId.parse(event_id) if isinstance(event_id, str) else None
         if ident is None:
             return legacy
         with self._sequence_lock:
@@ -677,7 +678,7 @@ class StationFollower:
         e = robot.entities.get(int(ent.A_instanceId)) if int(ent.A_resourceId) == rid else None
         name = e.name if e is not None else f"#{int(ent.A_instanceId)}"
         t = seconds_of(s.A_timeOfDataGeneration)
-        dedup = self._identity(robot, s, f"rectification|{_stamp(t)}|{name}", t, now)
+        dedup = self._identity(robot, s.A_eventId, f"rectification|{_stamp(t)}|{name}", t, now)
         self.store.add_event(rid, t, "rectification", dedup=dedup, entity=name,
                              text=f"{name} is no longer diagnosed faulty",
                              details={"event_id": s.A_eventId[:40]})
@@ -695,7 +696,8 @@ class StationFollower:
         if e is not None:
             e.cause = cause
             self.store.put_entity(rid, int(ent.A_instanceId), cause=cause, actions=action)
-        dedup = self._identity(robot, ext, f"failure|{_stamp(t)}|{name}", t, now)
+        dedup = self._identity(robot, ext.A_eventId if ext is not None else None,
+                               f"failure|{_stamp(t)}|{name}", t, now)
         self.store.add_event(
             rid, t, "failure", dedup=dedup, entity=name,
             text=description + (f": {cause}" if cause else ""),
@@ -801,7 +803,7 @@ class StationFollower:
             dedup = f"{kind}|{_stamp(t)}|{c.observer}|{_primary(c.resource)}"
         else:
             dedup = f"{kind}|{_stamp(t)}|#{cid}"
-        dedup = self._identity(robot, ext, dedup, t, now)
+        dedup = self._identity(robot, ext.A_eventId if ext is not None else None, dedup, t, now)
         if ext is not None and ext.A_eventId:
             details["event_id"] = ext.A_eventId[:40]
         self.store.add_event(rid, t, kind, dedup=dedup,
@@ -865,8 +867,8 @@ class StationFollower:
             observer = str(entry.characteristic or "")
             message = str(payload.get("message") or payload.get("code_name") or "")
             owner = self._owner_of(robot, observer, entity)
-            dedup = self._logged_identity(robot, payload.get("event_id"),
-                                          f"exceedance|{_stamp(t)}|{observer}|{entity}", t)
+            dedup = self._identity(robot, payload.get("event_id"),
+                                   f"exceedance|{_stamp(t)}|{observer}|{entity}", t, self.clock())
             self.store.add_event(rid, t, "exceedance", dedup=dedup,
                                  entity=owner or entity, characteristic=f"{observer} {entity}",
                                  text=f"{observer} {entity}: {message}".strip(), origin="log",
@@ -910,14 +912,6 @@ class StationFollower:
             return n + 1
         return 0
 
-    def _logged_identity(self, robot: _Robot, event_id: Any, legacy: str, t: float) -> str:
-        ident = EventId.parse(event_id) if isinstance(event_id, str) else None
-        if ident is None:
-            return legacy
-        with self._sequence_lock:
-            robot.sequences.see(ident, t, self.clock())
-        return f"id:{ident}"
-
     def _logged_diagnosis_events(self, robot: _Robot, named: list[Any], t: float,
                                  explanation: str, log_id: int, snapshot: Any) -> int:
         """Failures and rectifications a logged diagnosis row names with their identities."""
@@ -928,7 +922,8 @@ class StationFollower:
                 continue
             comp = str(item.get("entity") or "")[:200]
             kind = str(item["kind"])
-            dedup = self._logged_identity(robot, item.get("id"), f"{kind}|{_stamp(t)}|{comp}", t)
+            dedup = self._identity(robot, item.get("id"), f"{kind}|{_stamp(t)}|{comp}", t,
+                                   self.clock())
             text = f"{comp} is no longer diagnosed faulty" if kind == "rectification" else \
                 f"{comp} diagnosed faulty" + (f": {explanation}" if explanation else "")
             details: dict[str, Any] = {"log_id": log_id, "event_id": str(item.get("id"))[:40]}
