@@ -169,6 +169,10 @@ def test_a_restarted_station_rereads_state_and_backfills_exactly_what_it_missed(
         wait(lambda: health(store, "thesis")["/usb_cam"] == "NOT_OPERATIONAL")
         wait(lambda: store.diagnosis("thesis").components == ("/usb_cam",))
         assert follower.stats.backfilled >= 3
+        logged = sorted((e.time, e.details.get("components"))
+                        for e in store.events("thesis", kinds=["diagnosis"]).events
+                        if e.origin == "log")
+        assert [components for _, components in logged] == [[], ["/usb_cam"]]
 
 
 def test_log_requests_page_through_the_robots_own_log_and_download_it(

@@ -126,6 +126,13 @@ def _stamp(t: float) -> str:
     return f"{t:.3f}"
 
 
+def _diagnosis_key(t: float, components: frozenset[str]) -> str:
+    """The dedup key of a diagnosis the station derives itself (no robot event id names
+    it): its time and its components, so two different diagnoses within one millisecond
+    both stay, while the live and the logged copy of one diagnosis meet."""
+    return f"diagnosis|{_stamp(t)}|{','.join(sorted(components))}"
+
+
 def _primary(resource_label: str) -> str:
     """The recorder's entity of a resource label (``Resource.label()``): node, topic or
     interface, as ``blackbox.record.policy.entity_of`` names it."""
@@ -656,7 +663,7 @@ class StationFollower:
         text = explain(robot.name, sorted(components), causes, {})
         if explanation:
             text += f" Explanation: {explanation}"
-        self.store.add_event(rid, t, "diagnosis", dedup=f"diagnosis|{_stamp(t)}",
+        self.store.add_event(rid, t, "diagnosis", dedup=_diagnosis_key(t, components),
                              text=text, origin=origin,
                              details={"components": sorted(components)})
 
@@ -885,8 +892,8 @@ class StationFollower:
             if isinstance(named, list):
                 n = self._logged_diagnosis_events(robot, named, t, explanation, entry.id,
                                                   payload.get("snapshot"))
-                components = []  # the events name each failure and rectification exactly
-            for comp in components:
+            # Named events stand for each failure and rectification exactly.
+            for comp in [] if isinstance(named, list) else components:
                 if category == "rectification":
                     self.store.add_event(rid, t, "rectification",
                                          dedup=f"rectification|{_stamp(t)}|{comp}",
@@ -906,7 +913,8 @@ class StationFollower:
             text = explain(robot.name, sorted(now_components), {}, {})
             if explanation and now_components:
                 text += f" Explanation: {explanation}"
-            self.store.add_event(rid, t, "diagnosis", dedup=f"diagnosis|{_stamp(t)}",
+            self.store.add_event(rid, t, "diagnosis",
+                                 dedup=_diagnosis_key(t, now_components),
                                  text=text, origin="log",
                                  details={"components": sorted(now_components)})
             return n + 1
