@@ -66,6 +66,7 @@ class EventLedger:
         self.memory = max(16, memory)
         self._next = 1
         self._known: OrderedDict[tuple[str, str, int], EventId] = OrderedDict()
+        self._at: dict[int, list[tuple[str, str, int]]] = {}
         self._lock = threading.Lock()
 
     @property
@@ -83,8 +84,13 @@ class EventLedger:
             ident = EventId(self.boot, self._next)
             self._next += 1
             self._known[k] = ident
+            self._at.setdefault(k[2], []).append(k)
             while len(self._known) > self.memory:
-                self._known.popitem(last=False)
+                old, _ = self._known.popitem(last=False)
+                same_time = self._at[old[2]]
+                same_time.remove(old)
+                if not same_time:
+                    del self._at[old[2]]
             return ident
 
     def lookup(self, kind: str, key: str, time: float) -> EventId | None:
@@ -97,8 +103,8 @@ class EventLedger:
         the order assigned (the failures and recoveries one diagnosis caused)."""
         ns = _nanoseconds(time)
         with self._lock:
-            return [(k, key, ident) for (k, key, t), ident in self._known.items()
-                    if t == ns and k in kinds]
+            return [(k, key, self._known[(k, key, t)]) for k, key, t in self._at.get(ns, ())
+                    if k in kinds]
 
 
 def _nanoseconds(t: float) -> int:
