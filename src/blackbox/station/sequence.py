@@ -108,11 +108,11 @@ class EventSequences:
         if b is None:
             return
         while b.above and b.contiguous < gap.last:
-            self.given_up += 1
             b.contiguous += 1
             if b.contiguous in b.above:
-                self.given_up -= 1
                 b.time_of_contiguous = b.above.pop(b.contiguous)
+            else:
+                self.given_up += 1
         while b.contiguous + 1 in b.above:
             b.contiguous += 1
             b.time_of_contiguous = b.above.pop(b.contiguous)
