@@ -48,6 +48,7 @@ from blackbox.station.web.routes import (
     ibit,
     login,
     logs,
+    moment,
     robot,
     stream,
 )
@@ -62,7 +63,7 @@ HSTS = "max-age=31536000"
 
 PAGES: tuple[Callable[[WebContext], APIRouter], ...] = (
     login.router, fleet.router, robot.router, entity.router, events.router, logs.router,
-    ibit.router, admin.router)
+    ibit.router, admin.router, moment.router)
 """The page groups, in the order their routes are matched: a new page is one line here."""
 
 
