@@ -100,6 +100,7 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
     add_error_pages(app, web)
     for page_group in PAGES:
         app.include_router(page_group(web))
+    app.state.live = web.live  # the one table of live views (tests read it)
     tokens = ApiTokens(auth.path, auth)
     mount_alert_pages(app, PageTools(web.page, web.require, web.change, web.address),
                       alerts, tokens)
