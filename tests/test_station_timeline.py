@@ -164,7 +164,7 @@ def test_timeline_export_refuses_other_formats_in_one_line(
     assert "--timeline writes SVG or PNG, not txt" in err and "Traceback" not in err
     assert main(["log", "export", "--db", str(path), "--timeline", "--format", "png", "-o",
                  str(tmp_path / "x.svg")]) == 2
-    assert "not png" in capsys.readouterr().err
+    assert "--format png does not match the output x.svg" in capsys.readouterr().err
     assert main(["log", "export", "--db", str(path), "--format", "png", "-o",
                  str(tmp_path / "x.png")]) == 2
     assert "add --timeline" in capsys.readouterr().err

@@ -251,9 +251,12 @@ def _export_timeline(args: argparse.Namespace) -> int:
 
     suffix = args.output.suffix.lstrip(".").lower() if args.output else ""
     fmt = args.format or (suffix if suffix in TIMELINE_FORMATS else "svg")
-    if fmt not in TIMELINE_FORMATS or (suffix and suffix != fmt):
+    if fmt not in TIMELINE_FORMATS or (suffix and suffix not in TIMELINE_FORMATS):
         return _fail(f"--timeline writes SVG or PNG, not {fmt if fmt != 'svg' else suffix} "
                      "(--format svg|png, or an output ending .svg or .png)", EXIT_USAGE)
+    if suffix and suffix != fmt:
+        return _fail(f"--format {fmt} does not match the output {args.output.name}",
+                     EXIT_USAGE)
     store = _source(args)
     if isinstance(store, int):
         return store
