@@ -265,6 +265,8 @@ def test_the_timeline_draws_the_fault_schedule_and_a_span_opens_its_events_and_c
         page.locator(f"#timeline g.lane[data-entity='/odom'] rect.span[fill='{RED}']"
                      ).wait_for()
         cam = page.locator("#timeline g.lane[data-entity='/usb_cam'] rect.span")
+        errors: list[str] = []
+        page.on("pageerror", lambda error: errors.append(str(error)))
         cam.last.click()  # the red span: the events and charts of that entity and moment
         page.wait_for_url("**/moment?**")
         assert "entity=%2Fusb_cam" in page.url, page.url
@@ -278,6 +280,13 @@ def test_the_timeline_draws_the_fault_schedule_and_a_span_opens_its_events_and_c
           return {n: data[0].length, first: data[1][0], last: data[1][data[1].length - 1]};
         }""")
         assert drawn["n"] >= 10 and drawn["first"] == 15.0 and drawn["last"] == 0.0, drawn
+        shaded = page.evaluate("""() => {  // the clicked span is shaded on the chart
+          const c = document.querySelector("#moment-charts figure.chart canvas");
+          const x = c.width - 20, y = Math.round(c.height / 2);
+          return Array.from(c.getContext("2d").getImageData(x, y, 1, 1).data);
+        }""")
+        assert shaded[3] > 0 and shaded[0] > shaded[2], shaded  # reddish, not blank
+        assert errors == [], errors
         page.locator("#moment-events").click()  # the filterable events page of that moment
         page.wait_for_url("**/events?**")
         assert "entity=%2Fusb_cam" in page.url
