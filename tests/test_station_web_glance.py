@@ -51,6 +51,8 @@ FAILURE: dict[str, Any] = {
     "complementary": "candidates: {/usb_cam} | {/usb_cam/image_raw}; engine hybrid",
 }
 VIEWPORTS = [(1280, 860), (768, 1024)]
+MOMENT = f"/moment?r={ROBOT}&entity=%2Fusb_cam&since=1&until=4000000000&status=NOT_OPERATIONAL"
+"""The page a timeline span opens, over all time (epoch seconds)."""
 
 
 @pytest.fixture
@@ -82,20 +84,38 @@ def served(tmp_path: Path) -> Iterator[tuple[str, StationStore]]:
         store.close()
 
 
+GREY, GREEN, YELLOW, RED = "#8c959f", "#2da44e", "#d4a72c", "#cf222e"
+"""The timeline's colours for UNKNOWN, OPERATIONAL, DEGRADED and NOT_OPERATIONAL."""
+
+
 def fill(store: StationStore) -> None:
-    """/usb_cam killed 40 s ago, as the follower records it: the robot entity reports the
-    UCMS robot health (DEGRADED: one node down), 60 older events of long prose, 35 log
-    requests."""
+    """A known fault schedule, as the follower records it (statuses at the robot's times):
+    every entity heard OPERATIONAL 280 s ago, /odom DEGRADED from 100 to 70 s ago,
+    /usb_cam killed 40 s ago (its rate drops from 15 Hz to 0), when the robot entity
+    reports the UCMS robot health DEGRADED (one node down); 60 older events of long prose,
+    35 log requests."""
     rid = robot_resource_id(ROBOT)
     now = time.time()
     store.heard(rid, now)
     store.put_robot_id(rid, ROBOT)
-    store.put_entity(rid, 1, name=ROBOT, kind="robot", status="DEGRADED")
-    store.put_entity(rid, 2, name="/usb_cam", kind="node", parent=1, status="NOT_OPERATIONAL",
-                     failures=1, cause=CAUSE, actions=FAILURE["operator_action"])
+    first = now - 280
+    store.put_entity(rid, 1, name=ROBOT, kind="robot", status="OPERATIONAL", updated=first)
+    store.put_entity(rid, 2, name="/usb_cam", kind="node", parent=1, status="OPERATIONAL",
+                     updated=first)
     store.put_entity(rid, 3, name="/usb_cam/image_raw", kind="topic", parent=1,
-                     status="OPERATIONAL")
-    store.put_entity(rid, 4, name="/odom", kind="topic", parent=1, status="OPERATIONAL")
+                     status="OPERATIONAL", updated=first)
+    store.put_entity(rid, 4, name="/odom", kind="topic", parent=1, status="OPERATIONAL",
+                     updated=first)
+    store.put_entity(rid, 4, status="DEGRADED", updated=now - 100)
+    store.put_entity(rid, 4, status="OPERATIONAL", updated=now - 70)
+    store.put_entity(rid, 2, status="NOT_OPERATIONAL", failures=1, cause=CAUSE,
+                     actions=FAILURE["operator_action"], updated=now - 40)
+    store.put_entity(rid, 1, status="DEGRADED", updated=now - 40)
+    store.put_characteristic(rid, 20, entity=2, name="rate /usb_cam/image_raw", unit="Hz",
+                             observer="hz")
+    for k in range(57):
+        t = first + 5 * k
+        store.put_value(rid, 20, t, 15.0 if t < now - 40 else 0.0, entity=2)
     for i in range(60):
         store.add_event(rid, now - 3600 + i, "exceedance", dedup=f"x{i}", entity="/odom",
                         text=f"rate /odom: {'a very long message about the rate ' * 12} {i}")
@@ -210,7 +230,7 @@ def test_badge_tree_and_fleet_row_show_one_status_also_after_a_live_update(
         browser.close()
 
 
-def test_the_timeline_draws_one_lane_per_entity_and_a_span_opens_its_events(
+def test_the_timeline_draws_the_fault_schedule_and_a_span_opens_its_events_and_charts(
         served: tuple[str, StationStore]) -> None:
     url, store = served
     with playwright_api.sync_playwright() as p:
@@ -220,22 +240,56 @@ def test_the_timeline_draws_one_lane_per_entity_and_a_span_opens_its_events(
         lanes = page.locator("#timeline svg g.lane")
         names = [lanes.nth(i).get_attribute("data-entity") for i in range(lanes.count())]
         assert names == [ROBOT, "/usb_cam", "/odom", "/usb_cam/image_raw"], names  # tree order
-        for lane, red in ((ROBOT, True), ("/usb_cam", True), ("/odom", False)):
+        def fills(lane: str) -> list[str | None]:
             spans = page.locator(f"#timeline g.lane[data-entity='{lane}'] rect.span")
-            fills = [spans.nth(i).get_attribute("fill") for i in range(spans.count())]
-            assert fills[-1] == ("#cf222e" if red else "#2da44e"), (lane, fills)
+            return [spans.nth(i).get_attribute("fill") for i in range(spans.count())]
+
+        # the schedule's statuses in order, grey before the station first heard them
+        assert fills("/usb_cam") == [GREY, GREEN, RED]
+        assert fills("/odom") == [GREY, GREEN, YELLOW, GREEN]
+        assert fills("/usb_cam/image_raw") == [GREY, GREEN]
+        assert fills(ROBOT) == [GREY, GREEN, YELLOW, GREEN, YELLOW]  # its badge's rule
+        assert page.locator("#robot-status").inner_text() == "DEGRADED"  # = the lane's end
         cam = page.locator("#timeline g.lane[data-entity='/usb_cam'] rect.span")
         widths = [float(cam.nth(i).get_attribute("width") or 0) for i in range(cam.count())]
         assert 0.10 < widths[-1] / sum(widths) < 0.17, widths  # 40 s of the last 5 min
+        odom = page.locator("#timeline g.lane[data-entity='/odom'] rect.span")
+        yellow = float(odom.nth(2).get_attribute("width") or 0) / sum(widths)
+        assert 0.08 < yellow < 0.12, yellow  # DEGRADED for 30 s of the 5 min
         page.locator("body[data-live=open]").wait_for()  # live: a new failure is drawn
-        store.add_event(robot_resource_id(ROBOT), time.time() - 20, "failure", dedup="f2",
-                        entity="/odom", text="/odom diagnosed faulty")
+        rid = robot_resource_id(ROBOT)
+        store.put_entity(rid, 4, status="NOT_OPERATIONAL", updated=time.time() - 20)
+        store.add_event(rid, time.time() - 20, "failure", dedup="f2", entity="/odom",
+                        text="/odom diagnosed faulty")
         assert store.flush(force=True)
-        page.locator("#timeline g.lane[data-entity='/odom'] rect.span[fill='#cf222e']"
+        page.locator(f"#timeline g.lane[data-entity='/odom'] rect.span[fill='{RED}']"
                      ).wait_for()
-        cam.last.click()  # the red span: the events of that entity and moment
-        page.wait_for_load_state()
-        assert "/events?" in page.url and "entity=%2Fusb_cam" in page.url, page.url
+        cam = page.locator("#timeline g.lane[data-entity='/usb_cam'] rect.span")
+        errors: list[str] = []
+        page.on("pageerror", lambda error: errors.append(str(error)))
+        cam.last.click()  # the red span: the events and charts of that entity and moment
+        page.wait_for_url("**/moment?**")
+        assert "entity=%2Fusb_cam" in page.url, page.url
+        assert page.locator("#moment-status").inner_text() == "NOT_OPERATIONAL"
+        assert page.locator("table.events tbody tr.ev-failure").count() == 1
+        chart = page.locator("#moment-charts figure.chart[data-char='20']")
+        assert "rate /usb_cam/image_raw" in chart.locator("figcaption").inner_text()
+        chart.locator("canvas").first.wait_for()  # drawn by uPlot
+        drawn = page.evaluate("""() => {
+          const data = JSON.parse(document.getElementById('series').dataset.series)['20'];
+          return {n: data[0].length, first: data[1][0], last: data[1][data[1].length - 1]};
+        }""")
+        assert drawn["n"] >= 10 and drawn["first"] == 15.0 and drawn["last"] == 0.0, drawn
+        shaded = page.evaluate("""() => {  // the clicked span is shaded on the chart
+          const c = document.querySelector("#moment-charts figure.chart canvas");
+          const x = c.width - 20, y = Math.round(c.height / 2);
+          return Array.from(c.getContext("2d").getImageData(x, y, 1, 1).data);
+        }""")
+        assert shaded[3] > 0 and shaded[0] > shaded[2], shaded  # reddish, not blank
+        assert errors == [], errors
+        page.locator("#moment-events").click()  # the filterable events page of that moment
+        page.wait_for_url("**/events?**")
+        assert "entity=%2Fusb_cam" in page.url
         assert page.locator("table.events tbody tr.ev-failure").count() == 1
         browser.close()
 
@@ -285,7 +339,7 @@ def test_tables_keep_their_columns_and_no_page_is_wider_than_the_viewport(
         browser = p.chromium.launch(executable_path=str(CHROMIUM))
         page = open_page(browser, url, width, height)
         for path in ("/", f"/robot?r={ROBOT}", "/events", "/logs", f"/entity?r={ROBOT}&id=2",
-                     "/alerts", "/tokens"):
+                     "/alerts", "/tokens", MOMENT):
             page.goto(path)
             assert_fits(page, f"{path} at {width} px")
         page.goto("/events")
@@ -325,7 +379,7 @@ AXE_RUN = """async () => {
     .join(' | '));
 }"""
 PAGES = ["/", f"/robot?r={ROBOT}", f"/entity?r={ROBOT}&id=2", "/events", "/logs", "/logs/1",
-         "/ibit/1", "/users", "/alerts", "/tokens", "/logs/999999"]
+         "/ibit/1", "/users", "/alerts", "/tokens", "/logs/999999", MOMENT]
 
 
 @pytest.mark.parametrize(("width", "height"), VIEWPORTS)

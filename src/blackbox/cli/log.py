@@ -30,6 +30,9 @@ from blackbox.record.store import KINDS, LogEntry, StorageError, Store, StoreCor
 from blackbox.safetext import TerminalStream, terminal_text
 from blackbox.timestamps import parse_timestamp
 
+TIMELINE_FORMATS = ("svg", "png")
+"""What ``log export --timeline`` draws (``--format`` or the output file's suffix)."""
+
 EXIT_ERROR = 1
 EXIT_USAGE = 2
 
@@ -68,10 +71,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     e = sub.add_parser("export", help="write entries as JSON lines, CSV or MCAP")
     with_db(e)
     with_filters(e)
-    e.add_argument("--format", choices=FORMATS, help="default: from the output file's suffix")
+    e.add_argument("--format", choices=[*FORMATS, *TIMELINE_FORMATS],
+                   help="default: from the output file's suffix (svg and png: --timeline)")
     e.add_argument("-o", "--output", type=Path, help="output file (default: standard output)")
     e.add_argument("--timeline", action="store_true",
-                   help="write the health timeline (one lane per entity) as SVG instead")
+                   help="write the health timeline (one lane per entity) instead, as SVG "
+                        "or PNG (--format or the output's suffix; default SVG)")
     with_salvage(e)
     e.set_defaults(func=_export)
 
@@ -214,6 +219,8 @@ def _export(args: argparse.Namespace) -> int:
     if args.timeline:
         return _export_timeline(args)
     fmt = args.format
+    if fmt in TIMELINE_FORMATS:
+        return _fail(f"--format {fmt} draws the health timeline: add --timeline", EXIT_USAGE)
     if fmt is None:
         suffix = args.output.suffix.lstrip(".") if args.output else "jsonl"
         fmt = {"json": "jsonl", "ndjson": "jsonl"}.get(suffix, suffix)
@@ -239,13 +246,17 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _export_timeline(args: argparse.Namespace) -> int:
-    """The station's health timeline drawn from the robot's own log, as an SVG file."""
+    """The station's health timeline drawn from the robot's own log, as SVG or PNG."""
     from blackbox.station.timeline import build, from_log, svg
 
-    if args.format not in (None, "svg") or (args.output and args.output.suffix not in
-                                            ("", ".svg")):
-        return _fail("--timeline writes SVG only (open it in a browser to print or save "
-                     "as PNG)", EXIT_USAGE)
+    suffix = args.output.suffix.lstrip(".").lower() if args.output else ""
+    fmt = args.format or (suffix if suffix in TIMELINE_FORMATS else "svg")
+    if fmt not in TIMELINE_FORMATS or (suffix and suffix not in TIMELINE_FORMATS):
+        return _fail(f"--timeline writes SVG or PNG, not {fmt if fmt != 'svg' else suffix} "
+                     "(--format svg|png, or an output ending .svg or .png)", EXIT_USAGE)
+    if suffix and suffix != fmt:
+        return _fail(f"--format {fmt} does not match the output {args.output.name}",
+                     EXIT_USAGE)
     store = _source(args)
     if isinstance(store, int):
         return store
@@ -261,17 +272,26 @@ def _export_timeline(args: argparse.Namespace) -> int:
     end = parse_time(args.until) or max(e.time for e in entries)
     if end <= start:
         end = start + 1.0
-    picture = svg(build(robot_id or "robot", names, happenings, start, end), start, end)
+    lanes = build(robot_id or "robot", names, happenings, start, end)
     try:
-        if args.output:
-            args.output.write_text(picture + "\n", encoding="utf-8")
+        if fmt == "png":
+            from blackbox.station.timeline_png import png
+            picture = png(lanes, start, end)
+            if args.output:
+                args.output.write_bytes(picture)
+            elif sys.stdout.isatty():
+                return _fail("a PNG is not for the terminal: give -o FILE.png", EXIT_USAGE)
+            else:
+                sys.stdout.buffer.write(picture)
+        elif args.output:
+            args.output.write_text(svg(lanes, start, end) + "\n", encoding="utf-8")
         else:
-            sys.stdout.write(picture + "\n")
+            sys.stdout.write(svg(lanes, start, end) + "\n")
     except OSError as exc:
         return _fail(str(exc))
     if args.output:
-        print(f"drew {len(names) + 1} lanes from {len(entries)} entries to {args.output}",
-              file=sys.stderr)
+        print(f"drew {len(names) + 1} lanes from {len(entries)} entries to {args.output} "
+              f"({fmt})", file=sys.stderr)
     return 0
 
 

@@ -43,9 +43,11 @@ from typing import IO, Any
 from blackbox.errors import BlackBoxError
 from blackbox.health.ids import robot_resource_id
 from blackbox.record.store import LogEntry
+from blackbox.station import status_history
 from blackbox.station.status import robot_status
+from blackbox.station.status_history import StatusTrack
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 APPLICATION = "blackbox-station"
 
 STATUSES = ("OPERATIONAL", "DEGRADED", "NOT_OPERATIONAL", "UNKNOWN")
@@ -605,6 +607,7 @@ class StationStore:
             for statement in _SCHEMA_V1.split(";"):
                 if statement.strip():
                     db.execute(statement)
+            status_history.create(db)
             db.execute("INSERT INTO meta VALUES ('application', ?), ('schema_version', ?), "
                        "('created', ?)", (APPLICATION, str(SCHEMA_VERSION), repr(self.clock())))
             db.execute("COMMIT")
@@ -619,6 +622,12 @@ class StationStore:
             raise StationStoreError(f"{self.path}: schema version {version} is newer than "
                                     f"this program's ({SCHEMA_VERSION})")
         self._use_wal()
+        if version < 2:  # version 2 added the status history (station/status_history.py)
+            db.execute("BEGIN IMMEDIATE")
+            status_history.create(db)
+            db.execute("UPDATE meta SET value = ? WHERE key = 'schema_version'",
+                       (str(SCHEMA_VERSION),))
+            db.execute("COMMIT")
 
     def close(self) -> None:
         """Write what is queued (if the disk allows) and close every connection."""
@@ -861,6 +870,9 @@ class StationStore:
                        f"{', ' + marks if marks else ''}) ON CONFLICT (resource_id, "
                        f"instance_id) DO UPDATE SET {update}",
                        (resource_id, instance_id, *values.values()))
+            if status is not None:
+                status_history.note(db, resource_id, instance_id, values["status"],
+                                    self.clock() if updated is None else updated)
         self._queue(op, resource_id, "entities")
 
     def put_robot_online(self, resource_id: int, online: bool) -> None:
@@ -1166,6 +1178,12 @@ class StationStore:
 
     def entity_by_name(self, robot: RobotRef, name: str) -> EntityNode | None:
         return next((e for e in self.entities(robot) if e.name == name), None)
+
+    def status_track(self, robot: RobotRef, since: float, until: float) -> StatusTrack:
+        """The robot's kept status changes in ``[since, until]`` (station/status_history.py)."""
+        rid = self.resource_of(robot)
+        with self._read() as db:
+            return status_history.read(db, rid, since, until)
 
     def diagnosis(self, robot: RobotRef) -> Diagnosis:
         """The current diagnosis with an explanation an operator can read."""

@@ -1,12 +1,15 @@
 """A robot's health history as a picture: one lane per entity, coloured by status over time.
 
 What a person reconstructing an incident looks at first: which entity was red when, for how
-long, in what order. The station keeps no status history table, so the lanes are rebuilt
-from the events it stores: an entity is NOT_OPERATIONAL from a ``failure`` naming it until
+long, in what order. On the station the lanes come from the status history it keeps
+(:mod:`blackbox.station.status_history`): every status an entity had, DEGRADED and UNKNOWN
+included, and the robot lane is the robot's own derived status (the rule of its badge).
+Where no history was kept (a robot's own log, a station database from before it), the lanes
+are rebuilt from events: an entity is NOT_OPERATIONAL from a ``failure`` naming it until
 the ``rectification`` that clears it (or the window's end), the robot lane is red while any
-of its entities is; ``exceedance`` events are yellow ticks (they have no end), and
-acknowledgements are marked. Before the first event of an entity in the window its state is
-the one its last earlier failure or rectification left (OPERATIONAL when none).
+of its entities is; before the first event of an entity in the window its state is the one
+its last earlier failure or rectification left (OPERATIONAL when none). Either way,
+``exceedance`` events are yellow ticks (they have no end), and acknowledgements are marked.
 
 Pure: :func:`build` takes plain records, :func:`svg` returns markup (escaped), so the web
 page and an export draw the same picture.
@@ -25,6 +28,8 @@ from blackbox.record.store import LogEntry
 
 COLOURS = {"OPERATIONAL": "#2da44e", "DEGRADED": "#d4a72c", "NOT_OPERATIONAL": "#cf222e",
            "UNKNOWN": "#8c959f"}
+WIDTH, LANE_HEIGHT, LABEL_WIDTH, TOP = 1000, 20, 190, 22
+"""The picture's geometry in pixels (SVG user units): the SVG and the PNG share it."""
 ZOOMS = {"5m": 300.0, "1h": 3600.0, "1d": 86400.0, "7d": 7 * 86400.0}
 """The windows an operator picks, from the last five minutes to a week."""
 
@@ -76,27 +81,48 @@ def _spans(changes: Sequence[tuple[float, str]], start: float, end: float,
     return tuple(out)
 
 
+@dataclass(frozen=True, slots=True)
+class Recorded:
+    """The statuses kept for one lane: the one at the window's start and the changes in it."""
+
+    initial: str
+    changes: Sequence[tuple[float, str]]
+
+
 def build(robot: str, entities: Sequence[str], happenings: Sequence[Happening],
-          start: float, end: float, before: Mapping[str, str] | None = None) -> list[Lane]:
+          start: float, end: float, before: Mapping[str, str] | None = None,
+          recorded: Mapping[str, Recorded] | None = None,
+          robot_recorded: Recorded | None = None) -> list[Lane]:
     """The lanes, robot first then ``entities`` in order. ``happenings`` are the events in
-    ``[start, end]``; ``before[name]`` the status an entity had at ``start``."""
+    ``[start, end]``; ``before[name]`` the status an entity had at ``start``. An entity in
+    ``recorded`` (the robot lane with ``robot_recorded``) is drawn from its kept statuses,
+    the others from their failures and rectifications."""
     before = before or {}
-    changes: dict[str, list[tuple[float, str]]] = {name: [] for name in entities}
+    recorded = recorded or {}
+    changes: dict[str, list[tuple[float, str]]] = {
+        name: list(recorded[name].changes) if name in recorded else [] for name in entities}
     marks: dict[str, list[Mark]] = {name: [] for name in entities}
     for h in happenings:
         if h.entity not in changes:
             continue
-        if h.kind == "failure":
+        if h.kind == "failure" and h.entity not in recorded:
             changes[h.entity].append((h.time, "NOT_OPERATIONAL"))
-        elif h.kind == "rectification":
+        elif h.kind == "rectification" and h.entity not in recorded:
             changes[h.entity].append((h.time, "OPERATIONAL"))
         elif h.kind == "exceedance":
             marks[h.entity].append(Mark(h.time, "exceedance"))
         if h.acknowledged_at is not None and start <= h.acknowledged_at <= end:
             marks[h.entity].append(Mark(h.acknowledged_at, "acknowledged"))
-    lanes = [Lane(name, _spans(changes[name], start, end, before.get(name, "OPERATIONAL")),
+    lanes = [Lane(name, _spans(changes[name], start, end,
+                               recorded[name].initial if name in recorded
+                               else before.get(name, "OPERATIONAL")),
                   tuple(sorted(marks[name], key=lambda m: m.time))) for name in entities]
-    return [_robot_lane(robot, lanes, start, end), *lanes]
+    if robot_recorded is None:
+        return [_robot_lane(robot, lanes, start, end), *lanes]
+    marks_all = tuple(sorted((m for lane in lanes for m in lane.marks), key=lambda m: m.time))
+    own = Lane(robot, _spans(robot_recorded.changes, start, end, robot_recorded.initial),
+               marks_all)
+    return [own, *lanes]
 
 
 def _robot_lane(robot: str, lanes: Sequence[Lane], start: float, end: float) -> Lane:
@@ -113,18 +139,21 @@ def _robot_lane(robot: str, lanes: Sequence[Lane], start: float, end: float) -> 
     return Lane(robot, _spans(changes, start, end, "OPERATIONAL"), marks)
 
 
-def _clock(t: float, window: float) -> str:
+def clock(t: float, window: float) -> str:
+    """A time on the picture's axis: the clock, with the date once the window is long."""
     at = datetime.fromtimestamp(t, UTC)
     return at.strftime("%H:%M:%S" if window <= 3600 else "%m-%d %H:%M")
 
 
 def svg(lanes: Sequence[Lane], start: float, end: float, *, robot_ref: str = "",
-        width: int = 1000, lane_height: int = 20, label_width: int = 190) -> str:
-    """The timeline as an SVG document; with ``robot_ref`` each span links to the events
-    page for that entity and moment (the web page), without it the picture stands alone."""
+        width: int = WIDTH, lane_height: int = LANE_HEIGHT,
+        label_width: int = LABEL_WIDTH) -> str:
+    """The timeline as an SVG document; with ``robot_ref`` each span links to the page of
+    that entity and moment, its events and charts (the web page), without it the picture
+    stands alone."""
     window = max(end - start, 1e-9)
     plot = width - label_width - 10
-    top = 22
+    top = TOP
     height = top + lane_height * len(lanes) + 6
 
     def x(t: float) -> float:
@@ -134,14 +163,14 @@ def svg(lanes: Sequence[Lane], start: float, end: float, *, robot_ref: str = "",
     out = [f'<svg xmlns="http://www.w3.org/2000/svg" class="timeline" {role} '
            f'viewBox="0 0 {width} {height}" width="{width}" height="{height}" '
            f'font-family="system-ui, sans-serif" font-size="12">',
-           f"<title>Health timeline {escape(_clock(start, window))} - "
-           f"{escape(_clock(end, window))} UTC</title>",
+           f"<title>Health timeline {escape(clock(start, window))} - "
+           f"{escape(clock(end, window))} UTC</title>",
            f'<rect x="0" y="0" width="{width}" height="{height}" fill="#fff"/>']
     for i in range(5):
         t = start + window * i / 4
         anchor = "start" if i == 0 else ("end" if i == 4 else "middle")
         out.append(f'<text x="{x(t):.1f}" y="14" text-anchor="{anchor}" fill="#656d76">'
-                   f"{escape(_clock(t, window))}</text>")
+                   f"{escape(clock(t, window))}</text>")
     for row, lane in enumerate(lanes):
         y = top + row * lane_height
         label = lane.entity if len(lane.entity) <= 28 else "…" + lane.entity[-27:]
@@ -154,14 +183,14 @@ def svg(lanes: Sequence[Lane], start: float, end: float, *, robot_ref: str = "",
                     f'width="{max(x(span.end) - x(span.start), 0.5):.2f}" '
                     f'height="{lane_height - 6}" fill="{COLOURS.get(span.status, "#8c959f")}">'
                     f"<title>{escape(lane.entity)}: {span.status} "
-                    f"{escape(_clock(span.start, window))} - {escape(_clock(span.end, window))}"
+                    f"{escape(clock(span.start, window))} - {escape(clock(span.end, window))}"
                     f"</title></rect>")
             if robot_ref:
-                query = {"robot": robot_ref, "since": _iso(span.start),
-                         "until": _iso(span.end + 1)}
+                query = {"r": robot_ref, "since": _iso(span.start),
+                         "until": _iso(span.end + 1), "status": span.status}
                 if row > 0:
                     query["entity"] = lane.entity
-                rect = f'<a href="/events?{escape(urlencode(query))}">{rect}</a>'
+                rect = f'<a href="/moment?{escape(urlencode(query))}">{rect}</a>'
             out.append(rect)
         for mark in lane.marks:
             colour = "#1f2328" if mark.kind == "acknowledged" else COLOURS["DEGRADED"]
@@ -170,7 +199,7 @@ def svg(lanes: Sequence[Lane], start: float, end: float, *, robot_ref: str = "",
                      if mark.kind == "acknowledged" else
                      f'<rect x="{mx - 1:.1f}" y="{y}" width="2" height="{lane_height}" ')
             out.append(f'{shape}class="mark m-{mark.kind}" fill="{colour}">'
-                       f"<title>{mark.kind} {escape(_clock(mark.time, window))}</title>"
+                       f"<title>{mark.kind} {escape(clock(mark.time, window))}</title>"
                        + ("</path>" if mark.kind == "acknowledged" else "</rect>"))
         out.append("</g>")
     out.append("</svg>")

@@ -2,7 +2,17 @@
 // (vendored), extended in place by station.js as values arrive.
 "use strict";
 (function () {
-  const data = JSON.parse(document.getElementById("series").dataset.series || "{}");
+  const holder = document.getElementById("series");
+  const data = JSON.parse(holder.dataset.series || "{}");
+  // A moment's page (moment.html) shades the span that was clicked on the timeline.
+  const from = Number(holder.dataset.from), to = Number(holder.dataset.to);
+  const shade = isFinite(from) && isFinite(to) && holder.dataset.from ? [function (u) {
+    const left = u.valToPos(from, "x", true), right = u.valToPos(to, "x", true);
+    u.ctx.save();
+    u.ctx.fillStyle = "rgba(207, 34, 46, 0.10)";
+    u.ctx.fillRect(left, u.bbox.top, Math.max(right - left, 1), u.bbox.height);
+    u.ctx.restore();
+  }] : [];
   const charts = {};
   const windowSeconds = 300;
   document.querySelectorAll("figure.chart").forEach(function (fig) {
@@ -17,6 +27,7 @@
         limits.map(function (t) { return { label: "threshold " + t, stroke: "#d29922", dash: [6, 4], width: 1 }; })),
       axes: [{}, { label: fig.dataset.unit || "" }],
       legend: { show: true },
+      hooks: { drawClear: shade },
     };
     charts[id] = { plot: new uPlot(opts, cols, fig), cols: cols, limits: limits };
   });

@@ -130,13 +130,18 @@
     if (!reloading) { reloading = true; window.location.reload(); }
   }
 
-  const views = {
-    fleet: function (root, s) {
-      Object.keys(s.robots || {}).forEach(function (ref) {
-        const row = Array.from(root.querySelectorAll("tr[data-robot]"))
+  // How each structured field of a snapshot is drawn, whatever page it came from. Scalar
+  // fields need nothing here: every element with data-bind="FIELD" shows the field's value
+  // (data-empty when there is none) and every data-paint="FIELD" takes its health colour.
+  // Which snapshot a page listens to is the server's business (web/live.py): the page's
+  // data-live attribute is its stream's URL.
+  const parts = {
+    robots: function (robots) {
+      Object.keys(robots || {}).forEach(function (ref) {
+        const row = Array.from(document.querySelectorAll("tr[data-robot]"))
           .find(function (r) { return r.dataset.robot === ref; });
         if (!row) { reloadOnce(); return; }  // a new robot: the list changed
-        const r = s.robots[ref];
+        const r = robots[ref];
         const badge = row.querySelector('[data-field="status"]');
         setText(badge, r.status); paint(badge, r.status);
         ["entities", "failing", "unacknowledged", "last_heard", "silent", "diagnosis"].forEach(function (f) {
@@ -144,28 +149,25 @@
         });
       });
     },
-    robot: function (root, s) {
-      const badge = document.getElementById("robot-status");
-      setText(badge, s.status); paint(badge, s.status);
-      setText(document.getElementById("robot-heard"), s.last_heard);
+    diagnosis: function (components) {
       const comp = document.getElementById("diagnosis-components");
-      setText(comp, s.diagnosis || "none");
-      comp.className = s.diagnosis ? "bad" : "good";
-      setText(document.getElementById("diagnosis-explanation"), s.explanation);
-      renderHeadlines(document.getElementById("headlines"), s.headlines);
-      if (s.events) renderEvents(root.ownerDocument.querySelector("table.events"), s.events);
-      Object.keys(s.entities || {}).forEach(function (id) {
+      if (!comp) return;
+      setText(comp, components || "none");
+      comp.className = components ? "bad" : "good";
+    },
+    headlines: function (headlines) { renderHeadlines(document.getElementById("headlines"), headlines); },
+    events: function (events) { renderEvents(document.querySelector("table.events"), events || []); },
+    entities: function (entities) {
+      Object.keys(entities || {}).forEach(function (id) {
         const li = document.querySelector('li[data-entity="' + CSS.escape(id) + '"]');
         if (!li) { reloadOnce(); return; }  // the robot described a new entity
-        paint(li, s.entities[id]);
-        setText(li.querySelector('[data-field="status"]'), s.entities[id]);
+        paint(li, entities[id]);
+        setText(li.querySelector('[data-field="status"]'), entities[id]);
       });
     },
-    entity: function (root, s) {
-      const badge = document.getElementById("entity-status");
-      setText(badge, s.status); paint(badge, s.status);
-      Object.keys(s.values || {}).forEach(function (id) {
-        const v = s.values[id];
+    values: function (values) {
+      Object.keys(values || {}).forEach(function (id) {
+        const v = values[id];
         const row = document.querySelector('tr[data-char="' + CSS.escape(id) + '"]');
         if (row) {
           setText(row.querySelector('[data-field="value"]'),
@@ -175,21 +177,17 @@
         if (window.stationCharts && v[0] != null && v[1] != null) window.stationCharts.add(id, v[0], v[1]);
       });
     },
-    ibit: function (root, s) {
-      setText(document.getElementById("ibit-status"), s.status);
-      const h = document.getElementById("ibit-health");
-      setText(h, s.health || "-"); paint(h, s.health || "UNKNOWN");
-      setText(document.getElementById("ibit-counts"), s.observations + " observations, " + s.failed + " failed");
+    report: function (report) {
       const ul = document.getElementById("ibit-report");
-      ul.replaceChildren.apply(ul, (s.report || []).map(function (line) {
+      if (!ul) return;
+      ul.replaceChildren.apply(ul, (report || []).map(function (line) {
         const li = document.createElement("li"); li.textContent = line; return li;
       }));
     },
-    log: function (root, s) {
-      setText(document.getElementById("log-status"), s.status);
-      setText(document.getElementById("log-rows"), s.rows);
-      setText(document.getElementById("log-message"), s.message);
-      document.getElementById("log-progress").value = s.progress || 0;
+    progress: function (progress, s) {
+      const bar = document.getElementById("log-progress");
+      if (!bar) return;
+      bar.value = progress || 0;
       const done = s.status !== "pending" && s.status !== "running";
       const downloads = document.getElementById("log-downloads");
       if (done && downloads.classList.contains("hidden") && s.rows > 0 &&
@@ -197,17 +195,25 @@
       downloads.classList.toggle("hidden", !done);
     },
   };
+  function apply(s) {
+    Object.keys(s).forEach(function (field) {
+      const value = s[field];
+      if (parts[field]) { parts[field](value, s); return; }
+      document.querySelectorAll('[data-bind="' + field + '"]').forEach(function (node) {
+        setText(node, value == null || value === "" ? (node.dataset.empty || "") : value);
+      });
+      document.querySelectorAll('[data-paint="' + field + '"]').forEach(function (node) {
+        paint(node, value || "UNKNOWN");
+      });
+    });
+  }
 
-  const root = document.querySelector("[data-live]");
+  const root = document.querySelector("[data-live^='/api/stream']");
   if (!root || !window.EventSource) return;
-  const view = root.dataset.live;
-  const params = new URLSearchParams({ view: view });
-  if (root.dataset.ref) params.set("r", root.dataset.ref);
-  if (root.dataset.id) params.set("id", root.dataset.id);
-  const source = new EventSource("/api/stream?" + params.toString());
+  const source = new EventSource(root.dataset.live);
   source.addEventListener("state", function (e) {
     const state = JSON.parse(e.data);
-    if (views[view] && Object.keys(state).length) views[view](root, state);
+    if (Object.keys(state).length) apply(state);
     document.dispatchEvent(new CustomEvent("station:state"));  // e.g. the timeline redraws
     document.body.dataset.updated = String(Date.now());
   });

@@ -1,0 +1,94 @@
+"""Each entity's and each robot's status over time, as the station saw it change.
+
+The timeline draws what an operator saw: an entity DEGRADED for ten minutes is a yellow
+span, which the failure and rectification events alone cannot tell (they only know red).
+The station's store calls :func:`note` in the same transaction that writes an entity's
+status, so a status change and its history commit together; a row is added only when the
+status differs from the last one kept. The robot's own row (``instance_id`` :data:`ROBOT`)
+is its derived status (:func:`blackbox.station.status.robot_status`, the one rule of the
+badge), written whenever that changes.
+
+The SQL lives here, beside nothing else, so a storage backend carries it as one unit.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+from blackbox.station.status import robot_status
+
+ROBOT = -1
+"""The ``instance_id`` under which a robot's derived status is kept."""
+
+SCHEMA = (
+    "CREATE TABLE IF NOT EXISTS status_changes ("
+    "resource_id INTEGER NOT NULL, instance_id INTEGER NOT NULL, time REAL NOT NULL, "
+    "status TEXT NOT NULL)",
+    "CREATE INDEX IF NOT EXISTS status_changes_time ON status_changes "
+    "(resource_id, time)",
+    "CREATE INDEX IF NOT EXISTS status_changes_entity ON status_changes "
+    "(resource_id, instance_id, time)",
+)
+
+
+@dataclass(frozen=True, slots=True)
+class StatusTrack:
+    """A robot's status changes in a window: ``before[iid]`` the status each entity had at
+    the window's start (absent when none was kept yet), ``changes`` those inside it as
+    ``(time, instance_id, status)``, oldest first."""
+
+    before: Mapping[int, str]
+    changes: Sequence[tuple[float, int, str]]
+
+    def known(self) -> set[int]:
+        """The entities (and :data:`ROBOT`) with any kept history up to the window's end."""
+        return set(self.before) | {iid for _, iid, _ in self.changes}
+
+
+def create(db: sqlite3.Connection) -> None:
+    for statement in SCHEMA:
+        db.execute(statement)
+
+
+def _last(db: sqlite3.Connection, resource_id: int, instance_id: int) -> str | None:
+    row = db.execute("SELECT status FROM status_changes WHERE resource_id = ? AND "
+                     "instance_id = ? ORDER BY rowid DESC LIMIT 1",
+                     (resource_id, instance_id)).fetchone()
+    return None if row is None else str(row[0])
+
+
+def _keep(db: sqlite3.Connection, resource_id: int, instance_id: int, status: str,
+          t: float) -> bool:
+    if _last(db, resource_id, instance_id) == status:
+        return False
+    db.execute("INSERT INTO status_changes VALUES (?, ?, ?, ?)",
+               (resource_id, instance_id, t, status))
+    return True
+
+
+def note(db: sqlite3.Connection, resource_id: int, instance_id: int, status: str,
+         t: float) -> None:
+    """Keep ``status`` of an entity at ``t`` if it changed, and the robot's derived status
+    over its entities (as stored, this one included) if that changed: it can only change
+    when an entity's does, so an unchanged status (most samples) costs one indexed read."""
+    if not _keep(db, resource_id, instance_id, status, t):
+        return
+    statuses = [str(r[0]) for r in db.execute(
+        "SELECT status FROM entities WHERE resource_id = ?", (resource_id,))]
+    _keep(db, resource_id, ROBOT, robot_status(statuses, stale=False, online=True), t)
+
+
+def read(db: sqlite3.Connection, resource_id: int, since: float, until: float) -> StatusTrack:
+    before: dict[int, str] = {}
+    for (iid,) in db.execute("SELECT DISTINCT instance_id FROM status_changes WHERE "
+                             "resource_id = ? AND time < ?", (resource_id, since)).fetchall():
+        row = db.execute("SELECT status FROM status_changes WHERE resource_id = ? AND "
+                         "instance_id = ? AND time < ? ORDER BY time DESC, rowid DESC LIMIT 1",
+                         (resource_id, iid, since)).fetchone()
+        before[int(iid)] = str(row[0])
+    changes = [(float(t), int(iid), str(status)) for t, iid, status in db.execute(
+        "SELECT time, instance_id, status FROM status_changes WHERE resource_id = ? AND "
+        "time >= ? AND time <= ? ORDER BY time, rowid", (resource_id, since, until))]
+    return StatusTrack(before, changes)

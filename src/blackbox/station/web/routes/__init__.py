@@ -1,0 +1,1 @@
+"""The station's pages, one router module per page group; ``web/app.py`` lists them."""
