@@ -16,6 +16,7 @@ Engine failures (disk full, server gone, constraint refused) surface as :class:`
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import re
 import sqlite3
@@ -29,8 +30,13 @@ from blackbox.errors import BlackBoxError
 POSTGRES_SCHEMES = ("postgresql://", "postgres://")
 
 
-class DatabaseError(BlackBoxError):
-    """The database engine refused or failed a statement (the message says why)."""
+class StationStoreError(BlackBoxError):
+    """The station database cannot be opened or used; the message says what and where."""
+
+
+class DatabaseError(StationStoreError):
+    """The database engine refused or failed a statement (the message says why): a station
+    store error, so the web pages answer 503 and the command line one line."""
 
 
 class DuplicateRow(DatabaseError):
@@ -285,6 +291,70 @@ class PostgresDatabase:
 
     def describe(self) -> str:
         return re.sub(r"://([^:@/]*):[^@/]*@", r"://\1:***@", self.url)
+
+
+class ReconnectingConnection:
+    """A :class:`Connection` that replaces a PostgreSQL connection the server dropped.
+
+    The accounts, tokens, robot keys and alerts each keep one connection under their own
+    lock; after the database went away and came back, the next statement reconnects instead
+    of failing forever. SQLite connections are kept (a full disk does not break them, and a
+    ``:memory:`` database lives only as long as its one connection)."""
+
+    def __init__(self, database: Database) -> None:
+        self.database = database
+        self._db: Connection | None = database.connect()
+
+    def _connection(self) -> Connection:
+        if self._db is None:
+            self._db = self.database.connect()
+        return self._db
+
+    def _lost(self) -> None:
+        if self._db is not None and self.database.dialect != "sqlite":
+            with contextlib.suppress(Exception):
+                self._db.close()
+            self._db = None
+
+    def execute(self, sql: str, args: Sequence[Any] = ()) -> Cursor:
+        try:
+            return self._connection().execute(sql, args)
+        except DuplicateRow:
+            raise
+        except DatabaseError:
+            self._lost()
+            raise
+
+    def executemany(self, sql: str, rows: Sequence[Sequence[Any]]) -> None:
+        try:
+            self._connection().executemany(sql, rows)
+        except DuplicateRow:
+            raise
+        except DatabaseError:
+            self._lost()
+            raise
+
+    def insert(self, sql: str, args: Sequence[Any] = ()) -> int:
+        return int(self.execute(sql + " RETURNING id", args).fetchone()[0])
+
+    def begin(self) -> None:
+        self._connection().begin()
+
+    def commit(self) -> None:
+        self.execute("COMMIT")
+
+    def rollback(self) -> None:
+        if self._db is not None:
+            try:
+                self._db.rollback()
+            except DatabaseError:
+                self._lost()
+                raise
+
+    def close(self) -> None:
+        if self._db is not None:
+            self._db.close()
+            self._db = None
 
 
 def open_database(location: str | Path | Database) -> Database:

@@ -14,6 +14,7 @@ from typing import Any
 
 from blackbox.errors import BlackBoxError
 from blackbox.health.ids import robot_resource_id
+from blackbox.station.database import StationStoreError as StationStoreError  # re-export
 
 STATUSES = ("OPERATIONAL", "DEGRADED", "NOT_OPERATIONAL", "UNKNOWN")
 """UCMS health statuses, in the order of their enum values."""
@@ -45,10 +46,6 @@ MAX_NAME = 200
 
 RobotRef = int | str
 """A robot: its robot id (``"thesis-robot"``), or its UCMS resource id (``123`` or ``"#123"``)."""
-
-
-class StationStoreError(BlackBoxError):
-    """The station database cannot be opened or used; the message says what and where."""
 
 
 class UnknownRobot(BlackBoxError, LookupError):
