@@ -22,13 +22,14 @@ from blackbox.station.alerts.db import AlertDB
 from blackbox.station.alerts.engine import AlertEngine, Audit, _nobody
 from blackbox.station.alerts.outbox import Outbox, OutboxEntry
 from blackbox.station.alerts.rules import AlertConfig
+from blackbox.station.database import Database
 from blackbox.station.store import StationStore
 
 log = logging.getLogger("blackbox.station.alerts")
 
 
 class AlertService:
-    def __init__(self, store: StationStore, path: str | Path, config: AlertConfig,
+    def __init__(self, store: StationStore, path: str | Path | Database, config: AlertConfig,
                  audit: Audit = _nobody, channels: Mapping[str, Channel] | None = None,
                  clock: Callable[[], float] = time.time, tick: float = 0.5,
                  workers: int = 4) -> None:
