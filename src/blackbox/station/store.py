@@ -36,7 +36,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from blackbox.record.store import LogEntry
 from blackbox.station import schema
@@ -952,3 +952,11 @@ def _log_request(r: Sequence[Any]) -> LogRequest:
 def _ibit(r: Sequence[Any]) -> IbitRun:
     return IbitRun(r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10],
                    tuple(loads(r[11], [])))
+
+
+if TYPE_CHECKING:
+    from blackbox.station.protocols import StationDatabase
+
+    def _implements_every_protocol(store: StationStore) -> StationDatabase:
+        """Checked by mypy: the store is a complete station database."""
+        return store
