@@ -236,6 +236,11 @@ class _PostgresConnection:
         row = self.execute(sql + " RETURNING id", args).fetchone()
         return int(row[0])
 
+    @property
+    def lost(self) -> bool:
+        """The server closed this connection (it stopped or restarted)."""
+        return bool(self.raw.closed or self.raw.broken)
+
     def begin(self) -> None:
         self.execute("BEGIN")
 
@@ -294,27 +299,37 @@ class PostgresDatabase:
 
 
 class ReconnectingConnection:
-    """A :class:`Connection` that replaces a PostgreSQL connection the server dropped.
+    """A :class:`Connection` that outlives a PostgreSQL server going away and coming back.
 
-    The accounts, tokens, robot keys and alerts each keep one connection under their own
-    lock; after the database went away and came back, the next statement reconnects instead
-    of failing forever. SQLite connections are kept (a full disk does not break them, and a
-    ``:memory:`` database lives only as long as its one connection)."""
+    The accounts, tokens, robot keys, alerts and the store's readers each keep one
+    connection. When a statement outside a transaction fails because the connection was
+    lost (the server restarted), it is run once more on a new connection, so the first
+    request after the database returns succeeds; any other failure is raised, after
+    dropping a lost connection so the next statement reconnects. SQLite connections are
+    kept (a full disk does not break them, and a ``:memory:`` database lives only as long
+    as its one connection)."""
 
-    def __init__(self, database: Database) -> None:
+    def __init__(self, database: Database, *, read_only: bool = False) -> None:
         self.database = database
-        self._db: Connection | None = database.connect()
+        self.read_only = read_only
+        self._db: Connection | None = database.connect(read_only=read_only)
+        self._in_transaction = False
 
     def _connection(self) -> Connection:
         if self._db is None:
-            self._db = self.database.connect()
+            self._db = self.database.connect(read_only=self.read_only)
         return self._db
 
-    def _lost(self) -> None:
-        if self._db is not None and self.database.dialect != "sqlite":
-            with contextlib.suppress(Exception):
-                self._db.close()
-            self._db = None
+    def _lost(self) -> bool:
+        """Forget the connection if the server dropped it; whether it did."""
+        if self._db is None or self.database.dialect == "sqlite":
+            return False
+        if not getattr(self._db, "lost", False):
+            return False
+        with contextlib.suppress(Exception):
+            self._db.close()
+        self._db = None
+        return True
 
     def execute(self, sql: str, args: Sequence[Any] = ()) -> Cursor:
         try:
@@ -322,8 +337,10 @@ class ReconnectingConnection:
         except DuplicateRow:
             raise
         except DatabaseError:
-            self._lost()
-            raise
+            if not self._lost() or self._in_transaction:
+                self._in_transaction = False
+                raise
+        return self._connection().execute(sql, args)  # once more, on a new connection
 
     def executemany(self, sql: str, rows: Sequence[Sequence[Any]]) -> None:
         try:
@@ -332,18 +349,27 @@ class ReconnectingConnection:
             raise
         except DatabaseError:
             self._lost()
+            self._in_transaction = False
             raise
 
     def insert(self, sql: str, args: Sequence[Any] = ()) -> int:
         return int(self.execute(sql + " RETURNING id", args).fetchone()[0])
 
     def begin(self) -> None:
-        self._connection().begin()
+        if self.database.dialect == "sqlite":
+            self._connection().begin()  # BEGIN IMMEDIATE
+        else:
+            self.execute("BEGIN")  # on a new connection if the server dropped the old one
+        self._in_transaction = True
 
     def commit(self) -> None:
-        self.execute("COMMIT")
+        try:
+            self.execute("COMMIT")
+        finally:
+            self._in_transaction = False
 
     def rollback(self) -> None:
+        self._in_transaction = False
         if self._db is not None:
             try:
                 self._db.rollback()

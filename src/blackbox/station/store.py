@@ -45,6 +45,7 @@ from blackbox.station.database import (
     Connection,
     Database,
     DatabaseError,
+    ReconnectingConnection,
     open_database,
 )
 from blackbox.station.logexport import export_log, iter_log_entries
@@ -180,7 +181,7 @@ class StationStore:
         db: Connection | None = getattr(self._local, "db", None)
         if db is None:
             try:
-                db = self.database.connect(read_only=True)
+                db = ReconnectingConnection(self.database, read_only=True)
             except DatabaseError as exc:
                 raise StationStoreError(f"{self.path}: cannot read: {exc}") from None
             self._local.db = db

@@ -297,7 +297,11 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
         if request.url.path.startswith("/api/"):
             return Response(json.dumps({"error": exc.detail}), status_code=exc.status_code,
                             media_type="application/json")
-        return page(request, "error.html", session_of(request), status=exc.status_code,
+        try:
+            session = session_of(request)
+        except StationStoreError:  # the database is away: say so without the session
+            session = None
+        return page(request, "error.html", session, status=exc.status_code,
                     code=exc.status_code, message=str(exc.detail))
 
     @app.exception_handler(UnknownRobot)
