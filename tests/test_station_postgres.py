@@ -9,10 +9,13 @@ Debian's package started for each test by ``scripts/postgres-cluster.sh``.
 from __future__ import annotations
 
 import re
+import shutil
 import signal
 import subprocess
 import sys
+import uuid
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import httpx
@@ -21,7 +24,7 @@ import pytest
 from blackbox.station.store import StationStore, UnknownRobot
 from conftest import wait_until
 from isolation import fresh_domain
-from postgres_support import own_cluster
+from postgres_support import Cluster, is_root, own_cluster
 from station_support import ScriptedBlackBox, dds_env, station_key_for_tests
 
 pytestmark = [pytest.mark.dds, pytest.mark.slow]
@@ -221,3 +224,68 @@ def test_the_database_going_away_and_coming_back_loses_nothing_and_is_reported(
             store.close()
             browser.close()
         assert station.proc.poll() is None
+
+
+@contextmanager
+def small_tablespace(cluster: Cluster, directory: Path) -> Iterator[tuple[str, Path]]:
+    """A 32 MiB tmpfs holding a PostgreSQL tablespace (its name and mount point). The
+    cluster's own files and write-ahead log stay on the big disk, as a careful deployment
+    would have them; only the station's tables can run out of room."""
+    if not is_root():
+        pytest.skip("mounting a small tmpfs needs root (as in CI)")
+    mount = directory / "small"
+    mount.mkdir()
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=32m",
+                           f"pg-{uuid.uuid4().hex[:8]}", str(mount)],
+                          capture_output=True, text=True, timeout=30)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
+    try:
+        (mount / "pg").mkdir()
+        shutil.chown(mount / "pg", "postgres")
+        name = f"small_{uuid.uuid4().hex[:8]}"
+        cluster.sql(f"CREATE TABLESPACE {name} LOCATION '{mount / 'pg'}'")
+        yield name, mount
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], capture_output=True, timeout=30)
+
+
+def fill(mount: Path) -> Path:
+    """Fill the file system at ``mount`` to the last byte; the filler's path."""
+    filler = mount / "filler"
+    with filler.open("wb", buffering=0) as fh, pytest.raises(OSError):
+        while True:
+            fh.write(b"\0" * 65536)
+    return filler
+
+
+def test_a_full_postgresql_disk_is_reported_and_nothing_stored_or_heard_is_lost() -> None:
+    with own_cluster() as cluster, small_tablespace(cluster, cluster.directory) as (
+            tablespace, mount):
+        database = cluster.create_database(tablespace)
+        store = StationStore(database)
+        try:
+            rid = 4711
+            store.put_robot_id(rid, "tug-9")
+            store.heard(rid, 1.0)
+            for i in range(200):
+                store.add_event(rid, 1.0 + i, "failure", dedup=f"id:b-{i}", entity="/x")
+            assert store.flush()
+            filler = fill(mount)
+            for i in range(200, 5_200):  # more than the pages left can hold
+                store.add_event(rid, 1.0 + i, "failure", dedup=f"id:b-{i}", entity="/x",
+                                text="a long enough text to need new pages " * 40)
+            assert not store.flush(force=True)
+            [problem] = [p for p in store.problems() if p.source == "store"]
+            assert "No space left on device" in problem.message \
+                or "could not extend" in problem.message
+            assert "kept in memory, retried" in problem.message
+            assert store.count_events(rid) == 200  # what was stored is still there, readable
+            assert store.pending > 0
+            filler.unlink()  # room again
+            wait_until(lambda: store.flush(force=True), "the queued events to be written",
+                       timeout=60)
+            assert store.count_events(rid) == 5_200
+            assert [p.source for p in store.problems()][:1] == ["store-recovered"]
+        finally:
+            store.close()
