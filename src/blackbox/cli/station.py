@@ -170,8 +170,10 @@ def user_add_command(args: argparse.Namespace) -> int:
     code = _with_accounts(args, lambda auth: auth.add_user(
         args.name, read_password(args.name), Role.parse(args.role)))
     if code == 0:
-        print(f"station: user {args.name} ({args.role}) added to {_db(args)}",
-              file=sys.stderr)
+        from blackbox.station.database import open_database
+
+        print(f"station: user {args.name} ({args.role}) added to "
+              f"{open_database(_db(args)).describe()}", file=sys.stderr)
     return code
 
 
