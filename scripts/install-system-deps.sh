@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # Install the Debian packages the tests need (real ROS 1, Chromium for the web station's
-# browser tests) when they are missing.
+# browser tests, PostgreSQL for the shared station database) when they are missing.
 # Runs as root in CI; elsewhere it uses sudo if it can and otherwise says what is missing.
 set -euo pipefail
 ros_pkgs=(ros-core python3-rospy python3-std-msgs python3-sensor-msgs python3-diagnostic-msgs
-          ros-diagnostic-msgs python3-rosbag topic-tools chromium)
+          ros-diagnostic-msgs python3-rosbag topic-tools chromium postgresql)
 missing=()
 for p in "${ros_pkgs[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

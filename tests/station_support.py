@@ -44,14 +44,14 @@ class FullDisk:
                     fh.write(b"\0" * 65536)
                     fh.flush()
         else:
-            pages = store._db.execute("PRAGMA page_count").fetchone()[0]
-            store._db.execute(f"PRAGMA max_page_count = {pages}")
+            pages = store._writes.connection().execute("PRAGMA page_count").fetchone()[0]
+            store._writes.connection().execute(f"PRAGMA max_page_count = {pages}")
 
     def free(self, store: StationStore) -> None:
         if self.variant == "tmpfs":
             self._filler.unlink()
         else:
-            store._db.execute("PRAGMA max_page_count = 1073741823")
+            store._writes.connection().execute("PRAGMA max_page_count = 1073741823")
 
 
 FULL_DISK_VARIANTS = ["tmpfs", "page_limit"]

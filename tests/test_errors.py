@@ -61,7 +61,7 @@ def test_no_two_exception_classes_share_a_name() -> None:
     assert not twins, f"exception classes with the same name: {twins}"
 
 
-@pytest.mark.parametrize("qualified", ["blackbox.station.store.UnknownRobot",
+@pytest.mark.parametrize("qualified", ["blackbox.station.records.UnknownRobot",
                                        "blackbox.sources.ros2.idl.UnknownRos2Type"])
 def test_a_not_found_error_is_also_a_lookup_error(qualified: str) -> None:
     """Callers that catch ``LookupError`` for "no such thing" keep working."""

@@ -22,8 +22,7 @@ from blackbox.health.identity import EventId
 from blackbox.model import Code, Observation, Resource, State
 from blackbox.record import Store
 from blackbox.record.policy import LoggingPolicy, PolicyTracker, observation_payload
-from blackbox.record.retention import Retention
-from blackbox.record.store import FRAME_MIN, THINNED, Row, RowTuple
+from blackbox.record.store import FRAME_MIN, KINDS, THINNED, Row, RowTuple
 from crash_support import sigkill_after
 
 T0 = 1.7e9
@@ -153,7 +152,7 @@ def test_retention_thins_and_drops_framed_samples_like_rows(tmp_path: Path) -> N
                           for i in range(20) for k, r in enumerate(rs)])
         store.append([Row(T0, "failure", None, None, {"components": ["/s1"]})])
         assert store.execute("SELECT count(*) FROM frames").fetchone()[0] == 40
-        removed = Retention._thin_samples(store)
+        removed = store.thin_samples(KINDS["sample"])
         assert removed == 4 * 100 * 3 // 4  # the older half, three in four per channel
         for k in range(4):
             kept = list(store.query(entity=f"/s{k}"))
@@ -164,7 +163,7 @@ def test_retention_thins_and_drops_framed_samples_like_rows(tmp_path: Path) -> N
                 list(range(100, 200))
             assert all("thinned" not in e.payload for e in kept if e.time >= T0 + 100)
         before = store.count("sample")
-        dropped = Retention._drop_oldest(store)
+        dropped = store.drop_least_valuable(((KINDS["sample"],),))
         assert 0 < dropped <= before // 10 + 20 and store.count("sample") == before - dropped
         oldest = min(e.time for e in store.query(kinds=["sample"]))
         assert all(e.time >= oldest for e in store.query(kinds=["sample"]))

@@ -58,12 +58,12 @@ def test_a_status_is_kept_when_it_changes_and_the_robot_by_its_badges_rule(
     assert later.known() == {1, 2, ROBOT}
 
 
-def test_a_version_1_database_gains_the_history_when_opened(tmp_path: Path) -> None:
+def test_an_older_database_gains_the_history_when_opened(tmp_path: Path) -> None:
     path = tmp_path / "station.db"
     StationStore.open(path).close()
-    db = sqlite3.connect(path)  # as version 1 left it: no status_changes table
+    db = sqlite3.connect(path)  # as version 2 left it: no status_changes table
     db.execute("DROP TABLE status_changes")
-    db.execute("UPDATE meta SET value = '1' WHERE key = 'schema_version'")
+    db.execute("UPDATE meta SET value = '2' WHERE key = 'schema_version'")
     db.commit()
     db.close()
     store = StationStore.open(path, clock=lambda: T0)
@@ -78,5 +78,5 @@ def test_a_version_1_database_gains_the_history_when_opened(tmp_path: Path) -> N
         store.close()
     db = sqlite3.connect(path)
     assert db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0] \
-        == str(SCHEMA_VERSION) == "2"
+        == str(SCHEMA_VERSION) == "3"
     db.close()

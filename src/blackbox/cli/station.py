@@ -29,8 +29,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("station", help="the remote station: follow a fleet, serve its web GUI",
                        description="Follow every black box on a DDS domain, keep what they say "
                        "in a database and serve the station's web pages.")
-    p.add_argument("--db", type=Path, default=Path("station.db"),
-                   help="the station's SQLite database (default station.db)")
+    p.add_argument("--db", default="station.db", metavar="DATABASE",
+                   help="the station's database: an SQLite file (default station.db, also "
+                        "sqlite:///FILE) or postgresql://USER@HOST:PORT/NAME, which several "
+                        "station processes can share (docs/station.md, Fleet deployment)")
     p.add_argument("--bind", default="127.0.0.1:8080", metavar="HOST:PORT",
                    help="address of the web server (default 127.0.0.1:8080; port 0 = any free)")
     p.add_argument("--domain", type=int, default=0, help="DDS domain id (default 0)")
@@ -73,19 +75,19 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                              "from stdin when it is not a terminal)")
     add.add_argument("name")
     add.add_argument("--role", required=True, choices=["viewer", "operator", "admin"])
-    add.add_argument("--db", dest="user_db", type=Path, default=None,
+    add.add_argument("--db", dest="user_db", default=None,
                      help="the station database (default: the station's --db)")
     add.set_defaults(func=user_add_command)
     passwd = actions.add_parser("passwd", help="set a new password (ends the user's sessions)")
     passwd.add_argument("name")
-    passwd.add_argument("--db", dest="user_db", type=Path, default=None)
+    passwd.add_argument("--db", dest="user_db", default=None)
     passwd.set_defaults(func=user_passwd_command)
     listing = actions.add_parser("list", help="list the accounts")
-    listing.add_argument("--db", dest="user_db", type=Path, default=None)
+    listing.add_argument("--db", dest="user_db", default=None)
     listing.set_defaults(func=user_list_command)
     remove = actions.add_parser("remove", help="remove an account")
     remove.add_argument("name")
-    remove.add_argument("--db", dest="user_db", type=Path, default=None)
+    remove.add_argument("--db", dest="user_db", default=None)
     remove.set_defaults(func=user_remove_command)
 
     robots = users.add_parser("robots", help="the robots this station trusts (their keys)")
@@ -97,25 +99,25 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     how = enrol.add_mutually_exclusive_group(required=True)
     how.add_argument("--key", dest="robot_key", type=Path, metavar="FILE.pub")
     how.add_argument("--seen", action="store_true")
-    enrol.add_argument("--db", dest="user_db", type=Path, default=None)
+    enrol.add_argument("--db", dest="user_db", default=None)
     enrol.set_defaults(func=robots_enrol_command)
     rlist = robot_actions.add_parser("list", help="trusted robots, then keys seen but not "
                                                   "trusted")
-    rlist.add_argument("--db", dest="user_db", type=Path, default=None)
+    rlist.add_argument("--db", dest="user_db", default=None)
     rlist.set_defaults(func=robots_list_command)
     rremove = robot_actions.add_parser("remove", help="stop trusting a robot's key")
     rremove.add_argument("robot")
-    rremove.add_argument("--db", dest="user_db", type=Path, default=None)
+    rremove.add_argument("--db", dest="user_db", default=None)
     rremove.set_defaults(func=robots_remove_command)
 
 
-def open_databases(path: Path, stale_after: float = 10.0) -> tuple[Any, Auth]:
-    """The station store, then the accounts in the same file (the store must create the
-    file: it refuses one that already has other tables)."""
+def open_databases(path: str | Path, stale_after: float = 10.0) -> tuple[Any, Auth]:
+    """The station store, then the accounts in the same database (the store must create
+    it: it refuses a file that already has other tables)."""
     from blackbox.station.store import StationStore
 
     store = StationStore.open(path, stale_after=stale_after)
-    return store, Auth(path)
+    return store, Auth(store.database)
 
 
 def read_password(name: str) -> str:
@@ -128,8 +130,8 @@ def read_password(name: str) -> str:
     return sys.stdin.readline().rstrip("\r\n")
 
 
-def _db(args: argparse.Namespace) -> Path:
-    return Path(args.user_db or args.db)
+def _db(args: argparse.Namespace) -> str:
+    return str(args.user_db or args.db)
 
 
 def _usage_error(message: object) -> int:
@@ -137,7 +139,7 @@ def _usage_error(message: object) -> int:
     return EXIT_USAGE
 
 
-def _open_or_say(path: Path, stale_after: float = 10.0) -> tuple[Any, Auth] | None:
+def _open_or_say(path: str | Path, stale_after: float = 10.0) -> tuple[Any, Auth] | None:
     """:func:`open_databases`, or ``None`` after saying why the file cannot be opened."""
     from blackbox.station.store import StationStoreError
 
@@ -168,8 +170,10 @@ def user_add_command(args: argparse.Namespace) -> int:
     code = _with_accounts(args, lambda auth: auth.add_user(
         args.name, read_password(args.name), Role.parse(args.role)))
     if code == 0:
-        print(f"station: user {args.name} ({args.role}) added to {_db(args)}",
-              file=sys.stderr)
+        from blackbox.station.database import open_database
+
+        print(f"station: user {args.name} ({args.role}) added to "
+              f"{open_database(_db(args)).describe()}", file=sys.stderr)
     return code
 
 
@@ -202,7 +206,7 @@ def _with_robot_keys(args: argparse.Namespace, action: Callable[[Any], int]) -> 
     store, auth = opened
     auth.close()
     try:
-        keys = RobotKeys(_db(args))
+        keys = RobotKeys(store.database)
         try:
             return action(keys)
         finally:
@@ -314,7 +318,7 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
         print("station: no station key (--key or $BLACKBOX_STATION_KEY): robots will refuse "
               "its log requests and IBIT commands", file=sys.stderr)
     try:
-        robot_keys = RobotKeys(args.db)
+        robot_keys = RobotKeys(store.database)
         for robot_id, key in read_robots_file(args.robots) if args.robots else []:
             robot_keys.enrol(robot_id, key, "file")
     except EnrolmentError as exc:
@@ -329,7 +333,7 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
                                                         zenoh=zenoh),
                                signer=signer, robot_keys=robot_keys)
     follower.start()
-    alerts = AlertService(store, args.db, alert_config or AlertConfig("<none>"),
+    alerts = AlertService(store, store.database, alert_config or AlertConfig("<none>"),
                           audit=lambda u, a, t, o, d: auth.audit(u, a, t, o, "station", d))
     alerts.start()
     stop = threading.Event()
@@ -355,7 +359,7 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
     bound = sock.getsockname()
     url = f"{'https' if tls else 'http'}://{host if ':' not in host else f'[{host}]'}:{bound[1]}/"
     bus = f"Zenoh via {', '.join(args.zenoh)}" if zenoh else f"DDS domain {args.domain}"
-    print(f"station: serving {url} ({bus}, database {args.db})",
+    print(f"station: serving {url} ({bus}, database {store.path})",
           file=sys.stderr)
     if args.ready_file is not None:
         args.ready_file.write_text(url + "\n")

@@ -14,6 +14,7 @@ import stat
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 from blackbox.record.store import KINDS, Store
 
@@ -22,6 +23,20 @@ SNAPSHOT_SUFFIXES = (".bag", ".mcap")
 _SAMPLE = KINDS["sample"]
 _CHANGES = (KINDS["observation"], KINDS["exceedance"], KINDS["diagnosis"], KINDS["snapshot"])
 _LAST = (KINDS["failure"], KINDS["blackbox_event"])
+_BY_VALUE = ((_SAMPLE,), _CHANGES, _LAST, (KINDS["config"],))
+"""Kinds of entries, least valuable first: what retention drops first."""
+
+
+class RetentionStore(Protocol):
+    """What retention needs of the recorder's store; its SQL stays inside the store."""
+
+    def used_bytes(self) -> int: ...
+
+    def reclaim(self) -> None: ...
+
+    def thin_samples(self, kind: int) -> int: ...
+
+    def drop_least_valuable(self, kinds_by_value: Sequence[Sequence[int]]) -> int: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,10 +60,10 @@ class Retention:
     low: float = 0.85
     max_steps: int = 200
 
-    def over(self, store: Store) -> bool:
+    def over(self, store: RetentionStore) -> bool:
         return store.used_bytes() > self.budget_bytes * self.high
 
-    def enforce(self, store: Store) -> RetentionReport:
+    def enforce(self, store: RetentionStore) -> RetentionReport:
         before = store.used_bytes()
         if before <= self.budget_bytes * self.high:
             return RetentionReport(before, before)
@@ -58,75 +73,17 @@ class Retention:
         for _ in range(self.max_steps):
             if used <= target:
                 break
-            n = self._thin_samples(store)
+            n = store.thin_samples(_SAMPLE)
             if n:
                 thinned += n
             else:
-                n = self._drop_oldest(store)
+                n = store.drop_least_valuable(_BY_VALUE)
                 if not n:
                     break
                 dropped += n
             store.reclaim()
             used = store.used_bytes()
         return RetentionReport(before, used, thinned, dropped)
-
-    @staticmethod
-    def _thin_samples(store: Store) -> int:
-        """Thin the older half of not yet thinned samples to one in four per channel."""
-        count, t0, t1 = store.execute(
-            "SELECT count(*), min(time), max(time) FROM entries "
-            "WHERE kind = ? AND json_extract(payload, '$.thinned') IS NULL", (_SAMPLE,)
-        ).fetchone()
-        framed, f0, f1 = store.execute(
-            "SELECT coalesce(sum(count), 0), min(t_min), max(t_max) FROM frames "
-            "WHERE kind = ? AND thinned = 0", (_SAMPLE,)).fetchone()
-        count += framed
-        if count < 8:
-            return 0
-        t0 = min(t for t in (t0, f0) if t is not None)
-        t1 = max(t for t in (t1, f1) if t is not None)
-        cut = t0 + (t1 - t0) / 2
-        store.execute("BEGIN IMMEDIATE")
-        try:
-            removed = store.delete_where(
-                "id IN (SELECT id FROM (SELECT id, row_number() OVER "
-                "(PARTITION BY channel ORDER BY time) AS n FROM entries "
-                "WHERE kind = ? AND time < ? AND json_extract(payload, '$.thinned') IS NULL) "
-                "WHERE n % 4 != 1)", (_SAMPLE, cut))
-            store.execute(
-                "UPDATE entries SET payload = json_set(payload, '$.thinned', 4) "
-                "WHERE kind = ? AND time < ? AND json_extract(payload, '$.thinned') IS NULL",
-                (_SAMPLE, cut))
-            removed += store.thin_frames(_SAMPLE, cut)
-            store.execute("COMMIT")
-        except BaseException:
-            store.execute("ROLLBACK")
-            raise
-        return removed
-
-    @staticmethod
-    def _drop_oldest(store: Store) -> int:
-        """Delete the oldest tenth of the least valuable kind that still has entries."""
-        latest_config = store.execute("SELECT max(id) FROM entries WHERE kind = ?",
-                                      (KINDS["config"],)).fetchone()[0]
-        for kinds in ((_SAMPLE,), _CHANGES, _LAST, (KINDS["config"],)):
-            marks = ",".join("?" * len(kinds))
-            n = store.execute(f"SELECT count(*) FROM entries WHERE kind IN ({marks}) "
-                              "AND id IS NOT ?", (*kinds, latest_config)).fetchone()[0]
-            n += store.execute(f"SELECT coalesce(sum(count), 0) FROM frames "
-                               f"WHERE kind IN ({marks})", kinds).fetchone()[0]
-            if not n:
-                continue
-            store.execute("BEGIN IMMEDIATE")
-            try:
-                removed = store.drop_oldest(kinds, max(1, n // 10), latest_config)
-                store.execute("COMMIT")
-            except BaseException:
-                store.execute("ROLLBACK")
-                raise
-            return removed
-        return 0
-
 
 def enforce_directory(directory: Path, budget_bytes: int, ours: Sequence[str]) -> list[str]:
     """Delete the oldest of *our* snapshot files until they fit ``budget_bytes``.
@@ -248,7 +205,7 @@ def estimate_capacity(observers: list[ObservedCharacteristic], budget_bytes: int
     ok = (State(1, "ok"),)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         store = Store.open(Path(tmp) / "capacity.db", durability="normal", check=False)
-        store.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        store.checkpoint()
         empty = store.used_bytes()
         rows: list[Row] = []
         entries = 0
@@ -285,7 +242,7 @@ def estimate_capacity(observers: list[ObservedCharacteristic], budget_bytes: int
                 rows = []
         entries += len(rows)
         store.append(rows)
-        store.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        store.checkpoint()
         used = store.used_bytes() - empty
         store.close()
     return CapacityEstimate(len(observers), used / simulated_hours, entries / simulated_hours,

@@ -651,6 +651,68 @@ class Store:
                         fid))
         return removed
 
+    def thin_samples(self, kind: int) -> int:
+        """Thin the older half of the not yet thinned entries of ``kind`` (periodic samples)
+        to one in four per channel, in one transaction (retention). Returns how many went."""
+        count, t0, t1 = self._db.execute(
+            "SELECT count(*), min(time), max(time) FROM entries "
+            "WHERE kind = ? AND json_extract(payload, '$.thinned') IS NULL", (kind,)
+        ).fetchone()
+        framed, f0, f1 = self._db.execute(
+            "SELECT coalesce(sum(count), 0), min(t_min), max(t_max) FROM frames "
+            "WHERE kind = ? AND thinned = 0", (kind,)).fetchone()
+        count += framed
+        if count < 8:
+            return 0
+        t0 = min(t for t in (t0, f0) if t is not None)
+        t1 = max(t for t in (t1, f1) if t is not None)
+        cut = t0 + (t1 - t0) / 2
+        self._db.execute("BEGIN IMMEDIATE")
+        try:
+            removed = self.delete_where(
+                "id IN (SELECT id FROM (SELECT id, row_number() OVER "
+                "(PARTITION BY channel ORDER BY time) AS n FROM entries "
+                "WHERE kind = ? AND time < ? AND json_extract(payload, '$.thinned') IS NULL) "
+                "WHERE n % 4 != 1)", (kind, cut))
+            self._db.execute(
+                "UPDATE entries SET payload = json_set(payload, '$.thinned', 4) "
+                "WHERE kind = ? AND time < ? AND json_extract(payload, '$.thinned') IS NULL",
+                (kind, cut))
+            removed += self.thin_frames(kind, cut)
+            self._db.execute("COMMIT")
+        except BaseException:
+            self._db.execute("ROLLBACK")
+            raise
+        return removed
+
+    def drop_least_valuable(self, kinds_by_value: Sequence[Sequence[int]]) -> int:
+        """Delete the oldest tenth of the first group of kinds (least valuable first) that
+        still has entries, never the latest configuration, in one transaction (retention).
+        Returns how many went."""
+        latest_config = self._db.execute("SELECT max(id) FROM entries WHERE kind = ?",
+                                         (KINDS["config"],)).fetchone()[0]
+        for kinds in kinds_by_value:
+            marks = ",".join("?" * len(kinds))
+            n = self._db.execute(f"SELECT count(*) FROM entries WHERE kind IN ({marks}) "
+                                 "AND id IS NOT ?", (*kinds, latest_config)).fetchone()[0]
+            n += self._db.execute(f"SELECT coalesce(sum(count), 0) FROM frames "
+                                  f"WHERE kind IN ({marks})", tuple(kinds)).fetchone()[0]
+            if not n:
+                continue
+            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                removed = self.drop_oldest(kinds, max(1, n // 10), latest_config)
+                self._db.execute("COMMIT")
+            except BaseException:
+                self._db.execute("ROLLBACK")
+                raise
+            return removed
+        return 0
+
+    def checkpoint(self) -> None:
+        """Move the write-ahead log into the file (before measuring its size)."""
+        self._db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+
     def drop_oldest(self, kinds: Sequence[int], take: int, keep_id: int | None) -> int:
         """Delete about the ``take`` oldest entries of ``kinds`` (whole frames at a time),
         never ``keep_id`` (retention, inside its transaction). Returns how many."""

@@ -20,9 +20,11 @@ built-in test, send their logs), so it is treated as a security boundary:
   demoted nor removed;
 * every state-changing action, refused ones included, is a row of the ``web_audit`` table.
 
-Tables live in the station's SQLite file next to the fleet data, under their own names
-(``web_users``, ``web_sessions``, ``web_login_failures``, ``web_audit``). Open the
-:class:`~blackbox.station.store.StationStore` on the file first: it refuses a file that
+Tables live in the station's database next to the fleet data, under their own names
+(``web_users``, ``web_sessions``, ``web_login_failures``, ``web_audit``; part of the one
+versioned schema, :mod:`blackbox.station.schema`), so every station process on one
+PostgreSQL shares the accounts and sessions. Open the
+:class:`~blackbox.station.store.StationStore` on the database first: it refuses a file that
 already has tables but not its own.
 """
 
@@ -32,7 +34,6 @@ import hashlib
 import hmac
 import re
 import secrets
-import sqlite3
 import threading
 import time
 from collections.abc import Callable
@@ -45,6 +46,13 @@ from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError, VerifyMismatchError
 
 from blackbox.errors import BlackBoxError
+from blackbox.station import schema
+from blackbox.station.database import (
+    Database,
+    DuplicateRow,
+    ReconnectingConnection,
+    open_database,
+)
 from blackbox.station.passwords import password_problem
 
 
@@ -126,62 +134,27 @@ class AuditEntry:
     detail: str
 
 
-SCHEMA = """
-CREATE TABLE IF NOT EXISTS web_users (
-    name TEXT PRIMARY KEY,
-    role INTEGER NOT NULL,
-    hash TEXT NOT NULL,
-    created REAL NOT NULL
-);
-CREATE TABLE IF NOT EXISTS web_sessions (
-    token_hash TEXT PRIMARY KEY,
-    user TEXT NOT NULL REFERENCES web_users(name) ON DELETE CASCADE,
-    csrf TEXT NOT NULL,
-    created REAL NOT NULL,
-    last_seen REAL NOT NULL
-);
-CREATE TABLE IF NOT EXISTS web_login_failures (
-    key TEXT PRIMARY KEY,
-    count INTEGER NOT NULL,
-    last REAL NOT NULL
-);
-CREATE TABLE IF NOT EXISTS web_audit (
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    time REAL NOT NULL,
-    user TEXT NOT NULL,
-    action TEXT NOT NULL,
-    target TEXT NOT NULL,
-    outcome TEXT NOT NULL,
-    address TEXT NOT NULL,
-    detail TEXT NOT NULL
-);
-CREATE INDEX IF NOT EXISTS web_audit_time ON web_audit (time)
-"""
-
-
 def _digest(token: str) -> str:
     return hashlib.sha256(token.encode()).hexdigest()
 
 
 class Auth:
-    """The station's accounts and sessions in one SQLite file (thread-safe)."""
+    """The station's accounts and sessions in the station database (thread-safe)."""
 
-    def __init__(self, path: str | Path, policy: AuthPolicy | None = None,
+    def __init__(self, path: str | Path | Database, policy: AuthPolicy | None = None,
                  clock: Callable[[], float] = time.time,
                  hasher: PasswordHasher | None = None) -> None:
         self.policy = policy or AuthPolicy()
         self.clock = clock
-        self.path = str(path)
+        self.database = open_database(path)
+        self.path = self.database.url
         self.hasher = hasher or PasswordHasher()  # argon2id, the library's default type
         self._lock = threading.Lock()
-        self._db = sqlite3.connect(str(path), check_same_thread=False, timeout=10.0,
-                                   isolation_level=None)
-        self._db.execute("PRAGMA journal_mode=WAL")
-        self._db.execute("PRAGMA foreign_keys=ON")
+        self._db = ReconnectingConnection(self.database)
         with self._lock:
-            for statement in SCHEMA.split(";"):
-                if statement.strip():
-                    self._db.execute(statement)
+            if self.database.dialect == "sqlite" and not self.database.memory:
+                self._db.execute("PRAGMA journal_mode=WAL")
+            schema.ensure_part(self.database, self._db, "accounts")
         self._dummy_hash = self.hasher.hash(secrets.token_hex(16))
 
     def close(self) -> None:
@@ -202,7 +175,7 @@ class Auth:
             try:
                 self._db.execute("INSERT INTO web_users VALUES (?, ?, ?, ?)",
                                  (name, int(role), hashed, now))
-            except sqlite3.IntegrityError:
+            except DuplicateRow:
                 raise StationAuthError(f"user {name!r} exists already") from None
         self.audit(by, "user.add", name, "ok", address, f"role={role.label}")
         return User(name, role, now)
@@ -236,7 +209,7 @@ class Auth:
         with self._lock:
             changed = self._db.execute("UPDATE web_users SET hash = ? WHERE name = ?",
                                        (hashed, name)).rowcount
-            self._db.execute("DELETE FROM web_sessions WHERE user = ?", (name,))
+            self._db.execute('DELETE FROM web_sessions WHERE "user" = ?', (name,))
         if not changed:
             raise StationAuthError(f"no user {name!r}")
         self.audit(by, "user.password", name, "ok", address, "")
@@ -244,7 +217,7 @@ class Auth:
     def remove_user(self, name: str, *, by: str, address: str) -> None:
         with self._lock:
             self._refuse_last_admin(name, "removed")
-            self._db.execute("DELETE FROM web_sessions WHERE user = ?", (name,))
+            self._db.execute('DELETE FROM web_sessions WHERE "user" = ?', (name,))
             removed = self._db.execute("DELETE FROM web_users WHERE name = ?",
                                        (name,)).rowcount
         if not removed:
@@ -293,7 +266,8 @@ class Auth:
                                    (key,)).fetchone()
             count = 1 if row is None or now - row[1] > self.policy.failure_window \
                 else row[0] + 1
-            self._db.execute("INSERT OR REPLACE INTO web_login_failures VALUES (?, ?, ?)",
+            self._db.execute("INSERT INTO web_login_failures VALUES (?, ?, ?) ON CONFLICT (key) "
+                             "DO UPDATE SET count = excluded.count, last = excluded.last",
                              (key, count, now))
             self._db.execute("DELETE FROM web_login_failures WHERE last < ?",
                              (now - self.policy.failure_window,))
@@ -347,7 +321,7 @@ class Auth:
         with self._lock:
             row = self._db.execute(
                 "SELECT s.csrf, s.created, s.last_seen, u.name, u.role, u.created "
-                "FROM web_sessions s JOIN web_users u ON u.name = s.user "
+                "FROM web_sessions s JOIN web_users u ON u.name = s.\"user\" "
                 "WHERE s.token_hash = ?", (digest,)).fetchone()
             if row is None:
                 return None
@@ -380,13 +354,14 @@ class Auth:
               detail: str = "") -> None:
         with self._lock:
             self._db.execute(
-                "INSERT INTO web_audit (time, user, action, target, outcome, address, detail) "
+                "INSERT INTO web_audit (time, \"user\", action, target, outcome, address, detail) "
                 "VALUES (?, ?, ?, ?, ?, ?, ?)",
                 (self.clock(), user, action, target[:500], outcome, address, detail[:2000]))
 
     def audit_log(self, limit: int = 200, **match: Any) -> list[AuditEntry]:
-        where = " AND ".join(f"{k} = ?" for k in match if k in ("user", "action", "outcome"))
-        sql = "SELECT * FROM web_audit" + (f" WHERE {where}" if where else "") + \
+        where = " AND ".join(f'"{k}" = ?' for k in match if k in ("user", "action", "outcome"))
+        sql = ("SELECT id, time, \"user\", action, target, outcome, address, detail "
+               "FROM web_audit") + (f" WHERE {where}" if where else "") + \
             " ORDER BY id DESC LIMIT ?"
         with self._lock:
             rows = self._db.execute(sql, (*[v for k, v in match.items()

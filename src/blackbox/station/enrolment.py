@@ -17,7 +17,7 @@ A robot that is not enrolled is followed as before, its data marked unauthentica
 
 from __future__ import annotations
 
-import sqlite3
+import contextlib
 import threading
 import time
 from collections.abc import Callable
@@ -28,23 +28,15 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
 from blackbox.errors import BlackBoxError
 from blackbox.health.ids import robot_resource_id
+from blackbox.station import schema
+from blackbox.station.database import (
+    Database,
+    DatabaseError,
+    ReconnectingConnection,
+    open_database,
+)
 from blackbox.transport.auth import RequestAuthError, parse_public_key, public_key_text
 
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS trusted_robots (
-    robot_id TEXT PRIMARY KEY,
-    public_key TEXT NOT NULL,
-    source TEXT NOT NULL,
-    enrolled REAL NOT NULL
-);
-CREATE TABLE IF NOT EXISTS seen_robot_keys (
-    robot_id TEXT NOT NULL,
-    public_key TEXT NOT NULL,
-    first_seen REAL NOT NULL,
-    last_seen REAL NOT NULL,
-    PRIMARY KEY (robot_id, public_key)
-)
-"""
 MAX_ROBOT_ID = 200
 MAX_SEEN_PER_ROBOT = 8
 SEEN_UPDATE = 30.0
@@ -131,15 +123,16 @@ class RobotKeys:
 
     refresh = 2.0
 
-    def __init__(self, path: str | Path, clock: Callable[[], float] = time.time) -> None:
-        self.path = str(path)
+    def __init__(self, path: str | Path | Database,
+                 clock: Callable[[], float] = time.time) -> None:
+        self.database = open_database(path)
+        self.path = self.database.describe()
         self.clock = clock
         self._lock = threading.Lock()
         try:
-            self._db = sqlite3.connect(self.path, timeout=10.0, check_same_thread=False,
-                                       isolation_level=None)
-            self._db.executescript(_SCHEMA)
-        except sqlite3.Error as exc:
+            self._db = ReconnectingConnection(self.database)
+            schema.ensure_part(self.database, self._db, "robot_keys")
+        except DatabaseError as exc:
             raise EnrolmentError(f"{self.path}: cannot keep trusted robots: {exc}") from None
         self._cache: dict[int, tuple[str, Ed25519PublicKey]] = {}
         self._cached_at = -float("inf")
@@ -159,7 +152,9 @@ class RobotKeys:
             raise EnrolmentError(str(exc)) from None
         now = self.clock()
         with self._lock:
-            self._db.execute("INSERT OR REPLACE INTO trusted_robots VALUES (?, ?, ?, ?)",
+            self._db.execute("INSERT INTO trusted_robots VALUES (?, ?, ?, ?) ON CONFLICT "
+                             "(robot_id) DO UPDATE SET public_key = excluded.public_key, "
+                             "source = excluded.source, enrolled = excluded.enrolled",
                              (robot_id, key, source, now))
             self._cached_at = -float("inf")
         return TrustedRobot(robot_id, key, source, now)
@@ -200,14 +195,19 @@ class RobotKeys:
         last = self._noted.get((robot_id, key))
         if last is not None and now - last < SEEN_UPDATE:
             return  # one write per key and robot every SEEN_UPDATE seconds at most
+        # the database may be away (the store reports that): the key is noted again later
+        with contextlib.suppress(DatabaseError):
+            self._note_seen(robot_id, key, now, last)
+
+    def _note_seen(self, robot_id: str, key: str, now: float, last: float | None) -> None:
         with self._lock:
             if last is None:
                 count = self._db.execute("SELECT COUNT(*) FROM seen_robot_keys WHERE "
                                          "robot_id = ?", (robot_id,)).fetchone()[0]
                 if count >= MAX_SEEN_PER_ROBOT or len(robot_id) > MAX_ROBOT_ID:
                     return
-                self._db.execute("INSERT OR IGNORE INTO seen_robot_keys VALUES (?, ?, ?, ?)",
-                                 (robot_id, key, now, now))
+                self._db.execute("INSERT INTO seen_robot_keys VALUES (?, ?, ?, ?) "
+                                 "ON CONFLICT DO NOTHING", (robot_id, key, now, now))
             self._noted[(robot_id, key)] = now
             self._db.execute("UPDATE seen_robot_keys SET last_seen = ? WHERE robot_id = ? "
                              "AND public_key = ?", (now, robot_id, key))
@@ -219,9 +219,15 @@ class RobotKeys:
         return [SeenKey(*r) for r in rows]
 
     def by_resource(self) -> dict[int, tuple[str, Ed25519PublicKey]]:
-        """Resource id -> (robot id, key) of every trusted robot (cached)."""
+        """Resource id -> (robot id, key) of every trusted robot (cached; while the database
+        is away the last list read stays in force)."""
         now = time.monotonic()
         if now - self._cached_at >= self.refresh:
-            fresh = {robot_resource_id(r.robot_id): (r.robot_id, r.key) for r in self.robots()}
+            try:
+                robots = self.robots()
+            except DatabaseError:
+                self._cached_at = now
+                return self._cache
+            fresh = {robot_resource_id(r.robot_id): (r.robot_id, r.key) for r in robots}
             self._cache, self._cached_at = fresh, now
         return self._cache

@@ -8,30 +8,20 @@ status differs from the last one kept. The robot's own row (``instance_id`` :dat
 is its derived status (:func:`blackbox.station.status.robot_status`, the one rule of the
 badge), written whenever that changes.
 
-The SQL lives here, beside nothing else, so a storage backend carries it as one unit.
+The table is part of the versioned schema (version 3, :mod:`blackbox.station.schema`); its
+SQL lives here, in the subset both engines accept (:mod:`blackbox.station.database`).
 """
 
 from __future__ import annotations
 
-import sqlite3
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+from blackbox.station.database import Connection
 from blackbox.station.status import robot_status
 
 ROBOT = -1
 """The ``instance_id`` under which a robot's derived status is kept."""
-
-SCHEMA = (
-    "CREATE TABLE IF NOT EXISTS status_changes ("
-    "resource_id INTEGER NOT NULL, instance_id INTEGER NOT NULL, time REAL NOT NULL, "
-    "status TEXT NOT NULL)",
-    "CREATE INDEX IF NOT EXISTS status_changes_time ON status_changes "
-    "(resource_id, time)",
-    "CREATE INDEX IF NOT EXISTS status_changes_entity ON status_changes "
-    "(resource_id, instance_id, time)",
-)
-
 
 @dataclass(frozen=True, slots=True)
 class StatusTrack:
@@ -47,28 +37,24 @@ class StatusTrack:
         return set(self.before) | {iid for _, iid, _ in self.changes}
 
 
-def create(db: sqlite3.Connection) -> None:
-    for statement in SCHEMA:
-        db.execute(statement)
-
-
-def _last(db: sqlite3.Connection, resource_id: int, instance_id: int) -> str | None:
+def _last(db: Connection, resource_id: int, instance_id: int) -> str | None:
     row = db.execute("SELECT status FROM status_changes WHERE resource_id = ? AND "
-                     "instance_id = ? ORDER BY rowid DESC LIMIT 1",
+                     "instance_id = ? ORDER BY id DESC LIMIT 1",
                      (resource_id, instance_id)).fetchone()
     return None if row is None else str(row[0])
 
 
-def _keep(db: sqlite3.Connection, resource_id: int, instance_id: int, status: str,
+def _keep(db: Connection, resource_id: int, instance_id: int, status: str,
           t: float) -> bool:
     if _last(db, resource_id, instance_id) == status:
         return False
-    db.execute("INSERT INTO status_changes VALUES (?, ?, ?, ?)",
+    db.execute("INSERT INTO status_changes (resource_id, instance_id, time, status) "
+               "VALUES (?, ?, ?, ?)",
                (resource_id, instance_id, t, status))
     return True
 
 
-def note(db: sqlite3.Connection, resource_id: int, instance_id: int, status: str,
+def note(db: Connection, resource_id: int, instance_id: int, status: str,
          t: float) -> None:
     """Keep ``status`` of an entity at ``t`` if it changed, and the robot's derived status
     over its entities (as stored, this one included) if that changed: it can only change
@@ -80,15 +66,15 @@ def note(db: sqlite3.Connection, resource_id: int, instance_id: int, status: str
     _keep(db, resource_id, ROBOT, robot_status(statuses, stale=False, online=True), t)
 
 
-def read(db: sqlite3.Connection, resource_id: int, since: float, until: float) -> StatusTrack:
+def read(db: Connection, resource_id: int, since: float, until: float) -> StatusTrack:
     before: dict[int, str] = {}
     for (iid,) in db.execute("SELECT DISTINCT instance_id FROM status_changes WHERE "
                              "resource_id = ? AND time < ?", (resource_id, since)).fetchall():
         row = db.execute("SELECT status FROM status_changes WHERE resource_id = ? AND "
-                         "instance_id = ? AND time < ? ORDER BY time DESC, rowid DESC LIMIT 1",
+                         "instance_id = ? AND time < ? ORDER BY time DESC, id DESC LIMIT 1",
                          (resource_id, iid, since)).fetchone()
         before[int(iid)] = str(row[0])
     changes = [(float(t), int(iid), str(status)) for t, iid, status in db.execute(
         "SELECT time, instance_id, status FROM status_changes WHERE resource_id = ? AND "
-        "time >= ? AND time <= ? ORDER BY time, rowid", (resource_id, since, until))]
+        "time >= ? AND time <= ? ORDER BY time, id", (resource_id, since, until))]
     return StatusTrack(before, changes)

@@ -3,7 +3,7 @@
 A token is ``bbt_<id>_<secret>``; the database keeps only the SHA-256 of the secret (a
 stolen database opens nothing). A token acts with its user's *current* role (changing or
 removing the user changes or ends what the token may do), until it expires or is revoked.
-Table ``web_api_tokens`` in the station file, beside the accounts.
+Table ``web_api_tokens`` in the station database, beside the accounts.
 """
 
 from __future__ import annotations
@@ -11,14 +11,15 @@ from __future__ import annotations
 import hashlib
 import hmac
 import secrets
-import sqlite3
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from blackbox.station import schema
 from blackbox.station.auth import Auth, StationAuthError, User
+from blackbox.station.database import Database, ReconnectingConnection, open_database
 
 PREFIX = "bbt_"
 MAX_DAYS = 366
@@ -36,17 +37,15 @@ class ApiToken:
 
 
 class ApiTokens:
-    def __init__(self, path: str | Path, auth: Auth,
+    def __init__(self, path: str | Path | Database, auth: Auth,
                  clock: Callable[[], float] = time.time) -> None:
         self.auth = auth
         self.clock = clock
         self._lock = threading.Lock()
-        self._db = sqlite3.connect(str(path), check_same_thread=False, timeout=10.0,
-                                   isolation_level=None)
-        self._db.execute(
-            "CREATE TABLE IF NOT EXISTS web_api_tokens (id INTEGER PRIMARY KEY AUTOINCREMENT, "
-            "user TEXT NOT NULL, name TEXT NOT NULL, hash TEXT NOT NULL, created REAL NOT NULL, "
-            "expires REAL NOT NULL, revoked REAL, last_used REAL)")
+        self.database = open_database(path)
+        self._db = ReconnectingConnection(self.database)
+        with self._lock:
+            schema.ensure_part(self.database, self._db, "tokens")
 
     def close(self) -> None:
         with self._lock:
@@ -61,12 +60,11 @@ class ApiTokens:
         secret = secrets.token_urlsafe(32)
         now = self.clock()
         with self._lock:
-            cur = self._db.execute(
-                "INSERT INTO web_api_tokens (user, name, hash, created, expires) "
+            token_id = self._db.insert(
+                "INSERT INTO web_api_tokens (\"user\", name, hash, created, expires) "
                 "VALUES (?, ?, ?, ?, ?)",
                 (user, name, hashlib.sha256(secret.encode()).hexdigest(), now,
                  now + days * 86400.0))
-            token_id = int(cur.lastrowid or 0)
         self.auth.audit(user, "token.create", f"token {token_id}", "ok", address,
                         f"name={name} days={days:g}")
         return f"{PREFIX}{token_id}_{secret}", ApiToken(token_id, user, name, now,
@@ -77,7 +75,7 @@ class ApiTokens:
         from blackbox.station.auth import Role
 
         with self._lock:
-            row = self._db.execute("SELECT user FROM web_api_tokens WHERE id = ?",
+            row = self._db.execute('SELECT "user" FROM web_api_tokens WHERE id = ?',
                                    (token_id,)).fetchone()
             if row is None or (row[0] != by.name and by.role < Role.ADMIN):
                 allowed = False
@@ -91,10 +89,11 @@ class ApiTokens:
             raise StationAuthError("no such token of yours")
 
     def tokens(self, user: str | None = None) -> list[ApiToken]:
-        sql = "SELECT id, user, name, created, expires, revoked, last_used FROM web_api_tokens"
+        sql = ('SELECT id, "user", name, created, expires, revoked, last_used '
+               "FROM web_api_tokens")
         args: tuple[str, ...] = ()
         if user is not None:
-            sql += " WHERE user = ?"
+            sql += ' WHERE "user" = ?'
             args = (user,)
         with self._lock:
             rows = self._db.execute(sql + " ORDER BY id DESC", args).fetchall()
@@ -110,7 +109,7 @@ class ApiTokens:
             return None
         now = self.clock()
         with self._lock:
-            row = self._db.execute("SELECT user, hash, expires, revoked FROM web_api_tokens "
+            row = self._db.execute('SELECT "user", hash, expires, revoked FROM web_api_tokens '
                                    "WHERE id = ?", (int(id_text),)).fetchone()
             if row is None:
                 return None

@@ -23,7 +23,6 @@ are tested without waiting.
 from __future__ import annotations
 
 import json
-import sqlite3
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -39,6 +38,7 @@ from blackbox.station.alerts.rules import (
     Rule,
     parse_rule_text,
 )
+from blackbox.station.database import Connection
 from blackbox.station.store import Event, StationStore
 
 Audit = Callable[[str, str, str, str, str], None]
@@ -51,6 +51,11 @@ HISTORY_KEEP = 30 * 86400.0
 MAX_EXAMPLES = 10
 SCHEMA = "blackbox.alert/1"
 
+
+_RATE_RESTART = ("INSERT INTO alert_rate VALUES (?, ?, 1, 0, '[]') ON CONFLICT (rule) DO UPDATE "
+                 "SET window_start = excluded.window_start, sent = 1, suppressed = 0, "
+                 "examples = '[]'")
+"""A rule's rate window starts again at ``now`` with one alert sent."""
 
 class AlertRuleError(BlackBoxError, ValueError):
     """A rule change the engine refuses; the message is safe to show."""
@@ -244,12 +249,11 @@ class AlertEngine:
                            "status = ? WHERE id = ?", (now, item.text[:2000], item.status,
                                                        row[0]))
                 return int(row[0])
-            cur = db.execute(
+            alert_id = db.insert(
                 "INSERT INTO alert_alerts (rule, key, robot, entity, kind, status, text, "
                 "event_id, first, last, count, state) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
                 "1, 'pending')", (rule.name, key, item.robot, item.entity, item.kind,
                                   item.status, item.text[:2000], item.event_id, now, now))
-            alert_id = int(cur.lastrowid or 0)
         if rule.lasting <= 0:
             self._fire(rule, alert_id, now)
         return alert_id
@@ -279,14 +283,14 @@ class AlertEngine:
             self.outbox.enqueue(alert.id, rule.name, channel, purpose, payload, now)
         return True
 
-    def _within_limit(self, db: sqlite3.Connection, rule: Rule, alert: Alert,
+    def _within_limit(self, db: Connection, rule: Rule, alert: Alert,
                       now: float) -> bool:
         row = db.execute("SELECT window_start, sent, suppressed, examples FROM alert_rate "
                          "WHERE rule = ?", (rule.name,)).fetchone()
         if row is None or now - row[0] >= rule.rate_limit.per:
             if row is not None and row[2] > 0:  # the window ended with a digest to send
                 return self._digest_then_count(db, rule, row, now)
-            db.execute("INSERT OR REPLACE INTO alert_rate VALUES (?, ?, 1, 0, '[]')",
+            db.execute(_RATE_RESTART,
                        (rule.name, now))
             return True
         if row[1] < rule.rate_limit.count:
@@ -299,10 +303,10 @@ class AlertEngine:
                    "WHERE rule = ?", (json.dumps(examples), rule.name))
         return False
 
-    def _digest_then_count(self, db: sqlite3.Connection, rule: Rule, row: Sequence[Any],
+    def _digest_then_count(self, db: Connection, rule: Rule, row: Sequence[Any],
                            now: float) -> bool:
         self._enqueue_digest(rule, int(row[2]), json.loads(row[3]), now)
-        db.execute("INSERT OR REPLACE INTO alert_rate VALUES (?, ?, 1, 0, '[]')",
+        db.execute(_RATE_RESTART,
                    (rule.name, now))
         return True
 

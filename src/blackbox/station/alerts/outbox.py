@@ -55,11 +55,10 @@ class Outbox:
         if purpose not in PURPOSES:
             raise ValueError(f"unknown purpose {purpose!r}")
         with self.db.transaction() as db:
-            cur = db.execute("INSERT INTO alert_outbox (alert_id, rule, channel, purpose, "
+            return db.insert("INSERT INTO alert_outbox (alert_id, rule, channel, purpose, "
                              "payload, created, next_attempt) VALUES (?, ?, ?, ?, ?, ?, ?)",
                              (alert_id, rule, channel, purpose,
                               json.dumps(payload, default=str), now, now))
-            return int(cur.lastrowid or 0)
 
     def due(self, now: float, limit: int = 50, busy: frozenset[int] = frozenset()
             ) -> list[OutboxEntry]:

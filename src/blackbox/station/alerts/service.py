@@ -22,13 +22,14 @@ from blackbox.station.alerts.db import AlertDB
 from blackbox.station.alerts.engine import AlertEngine, Audit, _nobody
 from blackbox.station.alerts.outbox import Outbox, OutboxEntry
 from blackbox.station.alerts.rules import AlertConfig
-from blackbox.station.store import StationStore
+from blackbox.station.database import Database
+from blackbox.station.store import StationStore, StationStoreError
 
 log = logging.getLogger("blackbox.station.alerts")
 
 
 class AlertService:
-    def __init__(self, store: StationStore, path: str | Path, config: AlertConfig,
+    def __init__(self, store: StationStore, path: str | Path | Database, config: AlertConfig,
                  audit: Audit = _nobody, channels: Mapping[str, Channel] | None = None,
                  clock: Callable[[], float] = time.time, tick: float = 0.5,
                  workers: int = 4) -> None:
@@ -75,13 +76,18 @@ class AlertService:
         while not self._stop.is_set():
             try:
                 self.step()
+            except StationStoreError as exc:  # the database is away: said once, retried
+                self.store.report_problem("alerts", f"alerting waits for the database: {exc}")
             except Exception as exc:  # keep alerting alive; say what broke
                 log.exception("alerting step failed")
                 self.store.report_problem("alerts", f"alerting step failed: {exc}")
             wait = self.tick_interval
             with self._busy_lock:
                 busy = frozenset(self._busy)
-            upcoming = self.outbox.next_due(busy)
+            try:
+                upcoming = self.outbox.next_due(busy)
+            except StationStoreError:  # the database is away: reported by step(), retried
+                upcoming = None
             if upcoming is not None:
                 wait = max(0.0, min(wait, upcoming - self.clock()))
             if self._wake.is_set():

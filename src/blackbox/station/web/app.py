@@ -125,7 +125,11 @@ def add_error_pages(app: FastAPI, web: WebContext) -> None:
         if request.url.path.startswith("/api/"):
             return Response(json.dumps({"error": exc.detail}), status_code=exc.status_code,
                             media_type="application/json")
-        return web.page(request, "error.html", web.session_of(request),
+        try:
+            session = web.session_of(request)
+        except StationStoreError:  # the database is away: say so without the session
+            session = None
+        return web.page(request, "error.html", session,
                         status=exc.status_code, code=exc.status_code, message=str(exc.detail))
 
     @app.exception_handler(UnknownRobot)

@@ -1,0 +1,177 @@
+"""The station's write queue: changes are queued by the follower and committed in batches.
+
+The follower must never wait on the database (a robot's samples keep coming), and a write
+that fails must lose nothing: each change is a small function of a connection, queued in
+memory; :meth:`WriteQueue.flush` applies everything queued in one transaction. When the
+transaction fails (disk full, the PostgreSQL server gone, a deadlock with another station
+process) it is rolled back, the queue is kept (bounded: the oldest chart points go first,
+counted) and retried, and the failure is a problem on the operator's page. Nothing already
+committed is touched. A connection to a server that went away is replaced at the next try.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TypeVar
+
+from blackbox.station.database import Connection, Database, DatabaseError
+from blackbox.station.problems import ProblemLog
+
+Op = Callable[[Connection], None]
+"""One queued change: applied to the write connection inside the flush's transaction."""
+
+T = TypeVar("T")
+
+RETRY_AFTER = 1.0
+"""Seconds a failed flush waits before the next (unless forced)."""
+
+
+@dataclass(slots=True)
+class PendingWrite:
+    op: Op
+    robot: int | None
+    topic: str
+    droppable: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class Committed:
+    """What one successful flush wrote: robots touched and change-feed topics."""
+
+    robots: frozenset[int]
+    topics: frozenset[str]
+
+
+class WriteQueue:
+    """Queued changes and the one write connection of a store (thread-safe)."""
+
+    def __init__(self, database: Database, problems: ProblemLog, *, max_pending: int,
+                 clock: Callable[[], float] = time.time) -> None:
+        self.database = database
+        self.problems = problems
+        self.max_pending = max_pending
+        self.clock = clock
+        self.lock = threading.RLock()
+        self._pending: deque[PendingWrite] = deque()
+        self._dropped_points = 0
+        self._last_failed = -math.inf
+        self._db: Connection | None = database.connect()
+        self.closed = False
+
+    @property
+    def pending(self) -> int:
+        return len(self._pending)
+
+    @property
+    def dropped_points(self) -> int:
+        return self._dropped_points
+
+    @property
+    def failing(self) -> bool:
+        """The last flush failed and nothing has been committed since."""
+        return self._last_failed > -math.inf
+
+    def connection(self) -> Connection:
+        """The write connection (call with :attr:`lock` held), reconnected if it was lost."""
+        if self._db is None:
+            self._db = self.database.connect()
+        return self._db
+
+    def _drop_connection(self) -> None:
+        """Forget a connection a server may have closed (never an in-memory SQLite one:
+        that would lose the database)."""
+        if self._db is None or self.database.memory or self.database.dialect == "sqlite":
+            return
+        with contextlib.suppress(Exception):
+            self._db.close()
+        self._db = None
+
+    def add(self, op: Op, robot: int | None, topic: str, droppable: bool = False) -> None:
+        with self.lock:
+            self._pending.append(PendingWrite(op, robot, topic, droppable))
+            if len(self._pending) > self.max_pending:
+                self._shed()
+
+    def _shed(self) -> None:
+        """Over the bound: drop queued time-series points first (counted), then refuse the
+        oldest of anything else (counted as a problem)."""
+        kept: deque[PendingWrite] = deque()
+        excess = len(self._pending) - self.max_pending // 2
+        for item in self._pending:
+            if excess > 0 and item.droppable:
+                excess -= 1
+                self._dropped_points += 1
+                continue
+            kept.append(item)
+        while len(kept) > self.max_pending:
+            kept.popleft()
+            self.problems.report("store", "write queue full while the database cannot be "
+                                          "written: oldest queued changes dropped")
+        self._pending = kept
+        self.problems.report("store", f"database not writable: {self._dropped_points} chart "
+                                      "points dropped so far (state and events are kept)")
+
+    def flush(self, force: bool = False) -> Committed | None:
+        """Commit everything queued in one transaction. ``None`` when something stays queued
+        (the database failed, or a failed flush is less than a second ago and not
+        ``force``); otherwise what was committed (empty when nothing was queued)."""
+        with self.lock:
+            if self.closed:
+                return None
+            now = self.clock()
+            if not self._pending:
+                return Committed(frozenset(), frozenset())
+            if not force and now - self._last_failed < RETRY_AFTER:
+                return None
+            batch = list(self._pending)
+            try:
+                db = self.connection()
+                db.begin()
+                try:
+                    for item in batch:
+                        item.op(db)
+                    db.commit()
+                except BaseException:
+                    with contextlib.suppress(DatabaseError):
+                        db.rollback()
+                    raise
+            except DatabaseError as exc:
+                self._drop_connection()
+                self._last_failed = now
+                self.problems.report("store", f"cannot write {self.database.describe()}: "
+                                              f"{exc} ({len(batch)} changes kept in memory, "
+                                              "retried)")
+                return None
+            if self._last_failed > -math.inf:
+                self._last_failed = -math.inf
+                self.problems.clear("store")
+                self.problems.report("store-recovered",
+                                     f"{self.database.describe()} writable again")
+            for _ in batch:
+                self._pending.popleft()
+        return Committed(frozenset(i.robot for i in batch if i.robot is not None),
+                         frozenset(i.topic for i in batch if i.topic))
+
+    def run_now(self, what: Callable[[Connection], T]) -> T:
+        """Run ``what`` on the write connection now (call after a successful flush, with
+        :attr:`lock` held, so it lands after everything queued). Raises
+        :class:`DatabaseError` after dropping a lost connection."""
+        try:
+            return what(self.connection())
+        except DatabaseError:
+            self._drop_connection()
+            raise
+
+    def close(self) -> None:
+        with self.lock:
+            self.closed = True
+            if self._db is not None:
+                with contextlib.suppress(Exception):
+                    self._db.close()
+                self._db = None

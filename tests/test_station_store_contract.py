@@ -1,0 +1,327 @@
+"""The station store's contract, held against every backend: SQLite and PostgreSQL.
+
+Each test names one behaviour of the protocols in ``blackbox.station.protocols`` and runs
+on an SQLite file and on a database of a real PostgreSQL cluster (``postgres_support``).
+A backend that passes these can stand behind the station's pages, API and follower.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from blackbox.health.ids import robot_resource_id
+from blackbox.record.store import LogEntry
+from blackbox.station.auth import Auth, Role
+from blackbox.station.changes import Change
+from blackbox.station.database import open_database
+from blackbox.station.enrolment import RobotKeys
+from blackbox.station.records import StationStoreError, UnknownRobot
+from blackbox.station.store import StationStore
+from blackbox.station.tokens import ApiTokens
+from postgres_support import postgres, postgres_url  # noqa: F401  (fixtures)
+
+T0 = 1_800_000_000.0
+RID = robot_resource_id("tug-1")
+BACKENDS = ["sqlite", "postgresql"]
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = T0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+@pytest.fixture(params=BACKENDS)
+def location(request: pytest.FixtureRequest, tmp_path: Path) -> str:
+    if request.param == "sqlite":
+        return str(tmp_path / "station.db")
+    url: str = request.getfixturevalue("postgres_url")
+    return url
+
+
+@pytest.fixture
+def clock() -> Clock:
+    return Clock()
+
+
+@pytest.fixture
+def store(location: str, clock: Clock) -> Iterator[StationStore]:
+    s = StationStore(location, clock=clock, stale_after=10.0)
+    yield s
+    s.close()
+
+
+def robot_with_a_failing_camera(store: StationStore) -> None:
+    store.put_robot_id(RID, "tug-1")
+    store.heard(RID, T0)
+    store.put_entity(RID, 1, name="tug-1", kind="robot", status="DEGRADED")
+    store.put_entity(RID, 2, name="/camera", kind="node", status="NOT_OPERATIONAL",
+                     parent=1, cause="no frames", actions="restart the driver",
+                     characteristics=[10])
+    store.put_entity(RID, 3, name="/lidar", kind="node", status="OPERATIONAL", parent=1)
+    store.put_characteristic(RID, 10, entity=2, name="frame rate", observer="rate",
+                             resource="/camera/image", quantity="rate", unit="Hz",
+                             expected_noise=0.5, exceeded=True)
+    store.put_threshold(RID, 11, 10, "too slow", "min", 10.0)
+    store.put_diagnosis(RID, ["/camera"], T0 - 1)
+    assert store.flush()
+
+
+def test_a_robot_heard_is_in_the_fleet_with_its_status_and_counts(store: StationStore) -> None:
+    robot_with_a_failing_camera(store)
+    [summary] = store.fleet()
+    assert (summary.robot_id, summary.resource_id, summary.status) == ("tug-1", RID,
+                                                                         "DEGRADED")
+    assert (summary.entities, summary.failing, summary.diagnosis) == (3, 1, ("/camera",))
+    assert store.robot("tug-1").resource_id == RID == store.resource_of(f"#{RID}")
+    assert store.robot_id_of(RID) == "tug-1" and store.robot_id_of(1) == "#1"
+    assert store.last_heard("tug-1") == T0
+
+
+def test_later_hearings_only_move_last_heard_forward(store: StationStore) -> None:
+    robot_with_a_failing_camera(store)
+    store.heard(RID, T0 + 5)
+    store.heard(RID, T0 + 2)
+    assert store.flush()
+    assert store.last_heard(RID) == T0 + 5
+
+
+def test_a_silent_robot_is_unknown_and_an_unknown_robot_is_refused(
+        store: StationStore, clock: Clock) -> None:
+    robot_with_a_failing_camera(store)
+    clock.now = T0 + 60
+    assert store.robot(RID).status == "UNKNOWN" and store.robot(RID).stale
+    store.put_robot_online(RID, False)
+    assert store.flush()
+    assert not store.robot(RID).online
+    with pytest.raises(UnknownRobot):
+        store.robot("nobody")
+    assert store.last_heard("nobody") is None and store.last_event_time("nobody") is None
+
+
+def test_entities_form_a_tree_robot_first_and_keep_unsent_fields(store: StationStore) -> None:
+    robot_with_a_failing_camera(store)
+    store.put_entity(RID, 2, failures=3)  # only the count: the rest stays
+    assert store.flush()
+    tree = store.entities(RID)
+    assert [e.name for e in tree] == ["tug-1", "/camera", "/lidar"]
+    camera = store.entity_by_name(RID, "/camera")
+    assert camera is not None and camera == store.entity(RID, 2)
+    assert (camera.parent, camera.status, camera.failures, camera.characteristics) == (
+        1, "NOT_OPERATIONAL", 3, 1)
+    assert store.entity(RID, 99) is None
+
+
+def test_the_diagnosis_is_explained_with_causes_and_actions(store: StationStore) -> None:
+    robot_with_a_failing_camera(store)
+    d = store.diagnosis("tug-1")
+    assert d.components == ("/camera",) and d.since == T0 - 1
+    assert "/camera" in d.explanation and "restart the driver" in d.explanation
+    assert d.causes == {"/camera": "no frames"}
+
+
+def test_characteristics_carry_thresholds_and_values_make_a_thinned_series(
+        store: StationStore) -> None:
+    robot_with_a_failing_camera(store)
+    for i in range(100):
+        store.put_value(RID, 10, T0 - 100 + i, float(i), entity=2)
+    store.put_value(RID, 10, T0 - 500, -1.0)  # older than the current value: chart only
+    store.put_threshold(RID, 11, 10, "too slow", "min", 12.0)  # replaced, not added
+    assert store.flush()
+    [c] = store.characteristics(RID)
+    assert (c.name, c.unit, c.value, c.time, c.exceeded) == ("frame rate", "Hz", 99.0,
+                                                             T0 - 1, True)
+    assert [(t.name, t.type, t.value) for t in c.thresholds] == [("too slow", "min", 12.0)]
+    assert store.characteristics(RID, entity=3) == []
+    full = store.series(RID, 10, since=T0 - 1000)
+    assert len(full) == 101 and full[0].value == -1.0 and full[-1].value == 99.0
+    thinned = store.series(RID, 10, since=T0 - 1000, max_points=10)
+    assert 1 < len(thinned) <= 11 and thinned == sorted(thinned, key=lambda p: p.time)
+
+
+def test_an_event_is_stored_once_per_identity(store: StationStore) -> None:
+    robot_with_a_failing_camera(store)
+    for _ in range(3):
+        store.add_event(RID, T0, "failure", dedup="id:boot-1", entity="/camera",
+                        text="camera silent", details={"seq": 1})
+    store.add_event(RID, T0, "failure", dedup="id:boot-2", entity="/camera")
+    store.add_event(RID, T0, "exceedance", dedup="id:boot-3", origin="log",
+                    characteristic="frame rate")
+    assert store.flush()
+    assert store.count_events() == 3
+    assert store.count_events(RID, kinds=["failure"]) == 2
+    assert store.count_events(origin="log") == 1
+    assert store.last_event_time(RID) == T0
+    first = store.events_after(0, limit=1)[0]
+    assert first.details == {"seq": 1} and store.event(first.id) == first
+    assert store.last_event_id() == max(e.id for e in store.events_after(0))
+    with pytest.raises(ValueError):
+        store.add_event(RID, T0, "gossip", dedup="x")
+
+
+def test_events_page_newest_first_with_filters_and_a_cursor(store: StationStore) -> None:
+    robot_with_a_failing_camera(store)
+    for i in range(25):
+        store.add_event(RID, T0 + i, "failure" if i % 2 else "exceedance",
+                        dedup=f"id:b-{i}", entity="/camera" if i < 20 else "/lidar")
+    assert store.flush()
+    page = store.events(RID, limit=10)
+    assert [e.time for e in page.events] == [T0 + i for i in range(24, 14, -1)]
+    rest = store.events(RID, limit=100, cursor=page.next_cursor)
+    assert len(rest.events) == 15 and rest.next_cursor is None
+    assert {e.entity for e in store.events(entity="/lidar").events} == {"/lidar"}
+    assert len(store.events(kinds=["failure"], since=T0 + 10, until=T0 + 19).events) == 5
+    assert store.events("nobody").events == ()
+    with pytest.raises(ValueError):
+        store.events(cursor="garbage")
+
+
+def test_acknowledging_marks_the_event_once_and_adds_an_acknowledgement(
+        store: StationStore) -> None:
+    robot_with_a_failing_camera(store)
+    store.add_event(RID, T0, "failure", dedup="id:b-1", entity="/camera", text="silent")
+    assert store.flush()
+    [event] = store.events(unacknowledged=True).events
+    acked = store.acknowledge(event.id, "olga", "on it")
+    assert acked.acknowledged_by == "olga"
+    assert store.acknowledge(event.id, "bert").acknowledged_by == "olga"
+    assert store.events(unacknowledged=True).events == ()
+    [ack] = store.events(kinds=["acknowledgement"]).events
+    assert ack.refers_to == event.id and "on it" in ack.text
+    assert store.fleet()[0].unacknowledged == 0
+    with pytest.raises(LookupError):
+        store.acknowledge(999_999, "olga")
+
+
+def test_a_log_request_keeps_its_rows_in_order_and_exports_them(store: StationStore) -> None:
+    robot_with_a_failing_camera(store)
+    req = store.create_log_request(RID, "tug-1", entity="/camera", characteristic=None,
+                                   since=T0 - 60, until=T0, kinds=["failure"],
+                                   requested_by="olga")
+    entries = [LogEntry(100 + i, T0 - 60 + i, "failure", "/camera", None, None, {"i": i})
+               for i in range(30)]
+    store.add_log_rows(req, 0, entries[:20])
+    store.add_log_rows(req, 10, entries[10:30])  # overlapping page: stored once
+    store.update_log_request(req, RID, status="done", rows=30, pages=2, progress=1.0,
+                             finished=T0)
+    assert store.flush()
+    info = store.log_request(req)
+    assert info is not None and (info.status, info.rows, info.kinds) == ("done", 30,
+                                                                         ("failure",))
+    assert [r.id for r in store.log_requests("tug-1")] == [req]
+    assert [e.id for e in store.log_entries(req, 5, 3)] == [105, 106, 107]
+    assert [e.payload["i"] for e in store.iter_log_entries(req, batch=7)] == list(range(30))
+    out = io.StringIO()
+    assert store.export_log(req, "jsonl", out) == 30
+    assert json.loads(out.getvalue().splitlines()[0])["id"] == 100
+    assert store.log_request(req + 1000) is None
+
+
+def test_an_ibit_run_is_created_then_finished(store: StationStore) -> None:
+    robot_with_a_failing_camera(store)
+    run = store.create_ibit_run(RID, "tug-1", "/camera", "olga")
+    assert store.ibit_run(run) is not None and store.ibit_run(run).status == "pending"  # type: ignore[union-attr]
+    store.finish_ibit_run(run, RID, status="done", health="NOT_OPERATIONAL",
+                          observations=4, failed=1, report=["frame rate 0 Hz"])
+    assert store.flush()
+    [done] = store.ibit_runs(RID)
+    assert (done.id, done.status, done.failed, done.report) == (run, "done", 1,
+                                                                ("frame rate 0 Hz",))
+
+
+def test_each_commit_is_announced_to_subscribers_and_listeners(store: StationStore) -> None:
+    seen: list[Change] = []
+    remove = store.add_listener(seen.append)
+    with store.subscribe() as sub:
+        before = store.sequence
+        robot_with_a_failing_camera(store)
+        change = sub.get(timeout=5)
+        assert change is not None and RID in change.robots and "fleet" in change.topics
+        assert store.wait_for_change(before, 5) > before
+    remove()
+    assert seen and seen[0].seq == change.seq
+
+
+def test_problems_are_counted_and_cleared(store: StationStore) -> None:
+    store.report_problem("robot", "id reused")
+    store.report_problem("robot", "id reused")
+    [p] = store.problems()
+    assert (p.source, p.count) == ("robot", 2)
+    store.clear_problem("robot")
+    assert store.problems() == []
+
+
+def test_a_second_store_on_the_same_database_sees_what_the_first_wrote(
+        location: str, clock: Clock, store: StationStore) -> None:
+    robot_with_a_failing_camera(store)
+    store.add_event(RID, T0, "failure", dedup="id:b-1", entity="/camera")
+    assert store.flush()
+    other = StationStore(location, clock=clock)
+    try:
+        other.add_event(RID, T0, "failure", dedup="id:b-1", entity="/camera")  # same event
+        other.add_event(RID, T0, "failure", dedup="id:b-2", entity="/camera")
+        assert other.flush()
+        assert other.fleet()[0].robot_id == "tug-1"
+        assert store.count_events() == other.count_events() == 2
+    finally:
+        other.close()
+
+
+def test_accounts_tokens_and_robot_keys_live_in_the_same_database(location: str,
+                                                                  store: StationStore) -> None:
+    from argon2 import PasswordHasher
+
+    quick = PasswordHasher(time_cost=1, memory_cost=1024, parallelism=1)
+    auth = Auth(location, hasher=quick)
+    other = Auth(location, hasher=quick)
+    tokens = ApiTokens(location, auth)
+    keys = RobotKeys(location)
+    try:
+        auth.add_user("olga", "correct horse battery staple 42", Role.ADMIN)
+        login = auth.log_in("olga", "correct horse battery staple 42", "127.0.0.1")
+        assert login.session_token is not None
+        session = other.session(login.session_token)  # another process, same sessions
+        assert session is not None and session.user.name == "olga"
+        assert other.log_in("olga", "wrong", "10.0.0.1").session is None
+        assert [e.action for e in other.audit_log(user="olga")][:2] == ["login", "login"]
+        token, _ = tokens.create("olga", "script", 1)
+        user = ApiTokens(location, other).user_of(token)
+        assert user is not None and user.name == "olga"
+        keys.enrol("tug-1", "A" * 43 + "=")
+        assert [r.robot_id for r in RobotKeys(location).robots()] == ["tug-1"]
+    finally:
+        keys.close()
+        tokens.close()
+        other.close()
+        auth.close()
+
+
+def test_a_database_that_is_not_a_station_database_is_refused(location: str) -> None:
+    database = open_database(location)
+    db = database.connect()
+    db.execute("CREATE TABLE payroll (name TEXT)")
+    db.close()
+    with pytest.raises(StationStoreError, match="not a station database"):
+        StationStore(location)
+
+
+def test_status_changes_are_kept_once_each_and_read_by_window(store: StationStore,
+                                                              clock: Clock) -> None:
+    store.put_robot_id(RID, "tug-1")
+    store.heard(RID, T0)
+    store.put_entity(RID, 2, name="/camera", kind="node", status="OPERATIONAL", updated=T0)
+    store.put_entity(RID, 2, status="OPERATIONAL", updated=T0 + 1)
+    store.put_entity(RID, 2, status="DEGRADED", updated=T0 + 5)
+    store.put_entity(RID, 2, status="NOT_OPERATIONAL", updated=T0 + 9)
+    assert store.flush()
+    track = store.status_track("tug-1", T0 + 4, T0 + 20)
+    assert track.before[2] == "OPERATIONAL"
+    assert [(t - T0, iid, s) for t, iid, s in track.changes if iid == 2] == [
+        (5, 2, "DEGRADED"), (9, 2, "NOT_OPERATIONAL")]
