@@ -40,6 +40,7 @@ from starlette.middleware.base import BaseHTTPMiddleware
 from blackbox.errors import BlackBoxError
 from blackbox.station.alerts.service import AlertService
 from blackbox.station.auth import Auth, Role, Session, StationAuthError
+from blackbox.station.fleet_view import SiteMap
 from blackbox.station.headline import diagnosis_headlines, event_headline, since_words
 from blackbox.station.passwords import MAX_PASSWORD
 from blackbox.station.store import (
@@ -52,6 +53,7 @@ from blackbox.station.timeline import ZOOMS, Happening, build, svg
 from blackbox.station.tokens import ApiTokens
 from blackbox.station.web.alerts_pages import PageTools, mount_alert_pages
 from blackbox.station.web.api_v1 import create_api
+from blackbox.station.web.fleet_page import fleet_router, fleet_state, query_of
 from blackbox.station.web.limits import RequestLimits
 from blackbox.station.web.metrics import metrics_router
 from blackbox.timestamps import parse_timestamp
@@ -382,10 +384,8 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
 
     # ---- pages -----------------------------------------------------------------------------
 
-    @app.get("/")
-    async def fleet(request: Request) -> Response:
-        session = require(request)
-        return page(request, "fleet.html", session, robots=store.fleet(), nav="fleet")
+    sites = SiteMap(alerts.config.sites if alerts is not None else None)
+    app.include_router(fleet_router(store, sites, page, require))  # GET /: web/fleet_page.py
 
     def headlines_of(r: str) -> list[Any]:
         """The robot page's headlines: the diagnosis, with each component's latest failure."""
@@ -645,14 +645,6 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
 
     changes = ChangeSignal(store)
 
-    def fleet_state() -> dict[str, Any]:
-        return {"robots": {robot_ref(s.robot_id, s.resource_id): {
-            "status": s.status, "stale": s.stale, "last_heard": fmt_ago(s.last_heard),
-            "failing": s.failing, "entities": s.entities, "unacknowledged": s.unacknowledged,
-            "silent": "silent" if s.stale else ("stopped" if not s.online else ""),
-            "diagnosis": ", ".join(s.diagnosis)}
-            for s in store.fleet()}}
-
     def robot_state(r: str) -> dict[str, Any]:
         summary = store.robot(r)
         diagnosis = store.diagnosis(r)
@@ -694,6 +686,7 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
                      id: Id = 0) -> Response:
         session = require(request)
         token = request.cookies.get(SESSION_COOKIE)
+        fleet_query = query_of(dict(request.query_params))
 
         def still_allowed() -> bool:
             """The session is still open with the role it had (not logged out, expired,
@@ -701,7 +694,8 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
             now = auth.session(token, touch=False)
             return now is not None and now.user.role == session.user.role
         snapshots: dict[str, Callable[[], dict[str, Any]]] = {
-            "fleet": fleet_state, "robot": lambda: robot_state(r),
+            "fleet": lambda: fleet_state(store, sites, fleet_query, fmt_ago),
+            "robot": lambda: robot_state(r),
             "entity": lambda: entity_state(r, id), "ibit": lambda: ibit_state(id),
             "log": lambda: log_state(id)}
         if view not in snapshots:

@@ -132,17 +132,29 @@
 
   const views = {
     fleet: function (root, s) {
-      Object.keys(s.robots || {}).forEach(function (ref) {
-        const row = Array.from(root.querySelectorAll("tr[data-robot]"))
-          .find(function (r) { return r.dataset.robot === ref; });
-        if (!row) { reloadOnce(); return; }  // a new robot: the list changed
-        const r = s.robots[ref];
-        const badge = row.querySelector('[data-field="status"]');
-        setText(badge, r.status); paint(badge, r.status);
-        ["entities", "failing", "unacknowledged", "last_heard", "silent", "diagnosis"].forEach(function (f) {
-          setText(row.querySelector('[data-field="' + f + '"]'), r[f]);
-        });
+      // The server sends this page's rows in order (worst first): redraw them, and the counts.
+      Object.keys(s.counts || {}).forEach(function (status) {
+        const a = document.querySelector('[data-count="' + CSS.escape(status) + '"] [data-field="count"]');
+        setText(a, s.counts[status]);
       });
+      setText(document.querySelector('[data-field="total"]'), s.total);
+      const body = root.tBodies[0];
+      if (!body || !s.rows) return;
+      body.replaceChildren.apply(body, s.rows.map(function (r) {
+        const tr = document.createElement("tr");
+        tr.dataset.robot = r.ref;
+        const name = el("td"); const link = el("a", "", r.name);
+        link.href = "/robot?r=" + encodeURIComponent(r.ref); name.appendChild(link);
+        const status = el("td"); const badge = el("span", "badge " + healthClass(r.status), r.status);
+        badge.dataset.field = "status"; status.appendChild(badge);
+        status.appendChild(document.createTextNode(" "));
+        const silent = el("small", "muted", r.silent); silent.dataset.field = "silent"; status.appendChild(silent);
+        const fields = [["site", r.site], ["diagnosis", r.diagnosis], ["entities", r.entities],
+          ["failing", r.failing], ["unacknowledged", r.unacknowledged], ["last_heard", r.last_heard]]
+          .map(function (f) { const td = el("td", "", f[1]); td.dataset.field = f[0]; return td; });
+        [name, fields[0], status].concat(fields.slice(1)).forEach(function (td) { tr.appendChild(td); });
+        return tr;
+      }));
     },
     robot: function (root, s) {
       const badge = document.getElementById("robot-status");
@@ -204,6 +216,7 @@
   const params = new URLSearchParams({ view: view });
   if (root.dataset.ref) params.set("r", root.dataset.ref);
   if (root.dataset.id) params.set("id", root.dataset.id);
+  if (root.dataset.query) new URLSearchParams(root.dataset.query).forEach(function (v, k) { params.set(k, v); });
   const source = new EventSource("/api/stream?" + params.toString());
   source.addEventListener("state", function (e) {
     const state = JSON.parse(e.data);
