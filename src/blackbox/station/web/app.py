@@ -53,7 +53,7 @@ from blackbox.station.timeline import ZOOMS, Happening, build, svg
 from blackbox.station.tokens import ApiTokens
 from blackbox.station.web.alerts_pages import PageTools, mount_alert_pages
 from blackbox.station.web.api_v1 import create_api
-from blackbox.station.web.fleet_page import fleet_router, fleet_state, query_of
+from blackbox.station.web.fleet_page import FleetCache, fleet_router, fleet_state, query_of
 from blackbox.station.web.limits import RequestLimits
 from blackbox.station.web.metrics import metrics_router
 from blackbox.timestamps import parse_timestamp
@@ -385,7 +385,8 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
     # ---- pages -----------------------------------------------------------------------------
 
     sites = SiteMap(alerts.config.sites if alerts is not None else None)
-    app.include_router(fleet_router(store, sites, page, require))  # GET /: web/fleet_page.py
+    fleet_cache = FleetCache(store)
+    app.include_router(fleet_router(fleet_cache, sites, page, require))  # GET /: fleet_page.py
 
     def headlines_of(r: str) -> list[Any]:
         """The robot page's headlines: the diagnosis, with each component's latest failure."""
@@ -694,7 +695,7 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
             now = auth.session(token, touch=False)
             return now is not None and now.user.role == session.user.role
         snapshots: dict[str, Callable[[], dict[str, Any]]] = {
-            "fleet": lambda: fleet_state(store, sites, fleet_query, fmt_ago),
+            "fleet": lambda: fleet_state(fleet_cache, sites, fleet_query, fmt_ago),
             "robot": lambda: robot_state(r),
             "entity": lambda: entity_state(r, id), "ibit": lambda: ibit_state(id),
             "log": lambda: log_state(id)}

@@ -7,6 +7,8 @@ rows the server would render for the same query.
 
 from __future__ import annotations
 
+import threading
+import time
 from collections.abc import Callable
 from typing import Any
 from urllib.parse import urlencode
@@ -15,10 +17,31 @@ from fastapi import APIRouter, Request
 from fastapi.responses import Response
 
 from blackbox.station.fleet_view import WORST_FIRST, FleetPage, FleetQuery, SiteMap, fleet_page
-from blackbox.station.store import StationStore
+from blackbox.station.store import RobotSummary, StationStore
 
 PageRenderer = Callable[..., Response]
 Requirer = Callable[[Request], Any]
+
+
+class FleetCache:
+    """The store's fleet summary, shared by the page and every open live stream for up to
+    ``max_age`` seconds while the store has committed nothing new: with 1,000 robots one
+    summary costs a good part of the page's time, and a control room keeps many pages open."""
+
+    def __init__(self, store: StationStore, max_age: float = 1.0) -> None:
+        self.store = store
+        self.max_age = max_age
+        self._lock = threading.Lock()
+        self._key: tuple[int, float] = (-1, -1.0)
+        self._fleet: list[RobotSummary] = []
+
+    def fleet(self) -> list[RobotSummary]:
+        with self._lock:
+            sequence, now = self.store.sequence, time.monotonic()
+            if sequence != self._key[0] or now - self._key[1] > self.max_age:
+                self._fleet = self.store.fleet()
+                self._key = (sequence, now)
+            return self._fleet
 
 
 def robot_ref(robot_id: str, resource_id: int) -> str:
@@ -35,7 +58,7 @@ def query_of(params: dict[str, str]) -> FleetQuery:
                          params.get("status", ""), int(page))
 
 
-def fleet_state(store: StationStore, sites: SiteMap, query: FleetQuery,
+def fleet_state(store: FleetCache, sites: SiteMap, query: FleetQuery,
                 ago: Callable[[float | None], str]) -> dict[str, Any]:
     """What the page's live stream sends: the counts and the page's rows, in order."""
     view = fleet_page(store.fleet(), sites.site_of, query)
@@ -50,7 +73,7 @@ def fleet_state(store: StationStore, sites: SiteMap, query: FleetQuery,
                       "diagnosis": ", ".join(r.robot.diagnosis)} for r in view.rows]}
 
 
-def fleet_router(store: StationStore, sites: SiteMap, page: PageRenderer,
+def fleet_router(store: FleetCache, sites: SiteMap, page: PageRenderer,
                  require: Requirer) -> APIRouter:
     router = APIRouter()
 
