@@ -23,14 +23,13 @@ from urllib.parse import urlencode
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from fleet_support import SITES, fill_fleet  # noqa: E402
-from station_support import Unreachable, quick_auth  # noqa: E402
-
-from blackbox.station.alerts.rules import AlertConfig  # noqa: E402
-from blackbox.station.alerts.service import AlertService  # noqa: E402
-from blackbox.station.auth import Role  # noqa: E402
-from blackbox.station.store import StationStore  # noqa: E402
-from blackbox.station.web.app import create_app  # noqa: E402
+from blackbox.station.alerts.rules import AlertConfig
+from blackbox.station.alerts.service import AlertService
+from blackbox.station.auth import Role
+from blackbox.station.store import StationStore
+from blackbox.station.web.app import create_app
+from fleet_support import SITES, fill_fleet
+from station_support import Unreachable, quick_auth
 
 PASSWORD = "station password 1"
 CHROMIUM = "/usr/bin/chromium"
