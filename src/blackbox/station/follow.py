@@ -65,6 +65,7 @@ from blackbox.health.types import (
     seconds_of,
 )
 from blackbox.record.store import KINDS, LogEntry
+from blackbox.station.delivery import DeliveryWatch
 from blackbox.station.enrolment import RobotKeys
 from blackbox.station.sequence import EventSequences, Gap
 from blackbox.station.store import (
@@ -101,6 +102,8 @@ MAX_LOG_RANGE_DAYS = 3660
 EXT_WAIT = 1.0
 BACKFILL_REPEAT = 5.0
 STATE_DEPTH = 64
+TAKE = 512
+"""Samples taken from one reader per poll; a full take means more were waiting."""
 _ON = T_Monitored_Entity_StateType.L_Monitored_Entity_StateType_ON
 _ORDER = {"BlackBox_Entity_Description": 0, "BlackBox_Event_Extension": 1,
           "C_Failure_Event": 2}
@@ -239,6 +242,8 @@ class StationFollower:
         self.gate = SampleGate(robot_keys.by_resource if robot_keys is not None else dict,
                                self._trust_problem, on_key_seen=self._key_seen)
         self.writers = WriterWatch()
+        self.delivery = DeliveryWatch(store.report_problem, store.clear_problem)
+        """Samples the bus dropped and whether the station keeps up (problems, /metrics)."""
         self._participants: dict[tuple[int, Any], str] = {}
         self._signature_reader: DataReader[Any] | None = None
         self.bus: HealthBus | None = None
@@ -346,14 +351,17 @@ class StationFollower:
         assert self._waitset is not None, "open() first"
         self._waitset.wait(timeout)
         now = self.clock()
+        started = time.monotonic()
         self._take_signatures()
         taken: list[tuple[str, Any]] = []
+        full = False
         for name, reader in self._readers.items():
             try:
-                samples = reader.take(N=512)
+                samples = reader.take(N=TAKE)
             except Exception as exc:
                 self._reject(name, f"cannot read: {exc}")
                 continue
+            full = full or len(samples) >= TAKE
             for sample in samples:
                 info = getattr(sample, "sample_info", None)
                 if info is not None and not info.valid_data:
@@ -382,6 +390,8 @@ class StationFollower:
         self._drop_foreign_replies()
         self.store.flush()
         self._start_backfills()
+        self.delivery.check(self._readers, now)
+        self.delivery.took(full, now, time.monotonic() - started)
         return len(taken)
 
     # ---- authentication -------------------------------------------------------------------

@@ -640,7 +640,8 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
     tokens = ApiTokens(auth.path, auth)
     mount_alert_pages(app, PageTools(page, require, change, address), alerts, tokens)
     app.mount("/api/v1", create_api(auth, tokens, store, operations, alerts))
-    app.include_router(metrics_router(store, alerts, metrics_token))
+    app.include_router(metrics_router(store, alerts, metrics_token,
+                                      getattr(operations, "delivery", None)))
 
     # ---- live updates ---------------------------------------------------------------------
 
