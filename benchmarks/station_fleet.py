@@ -106,10 +106,10 @@ def robots_child(args: argparse.Namespace) -> int:
     faulty = [False] * len(sinks)
     tick = 0
     while not stop.is_set() and time.time() - start < args.duration:
-        t = time.time()
+        t = time.time() + args.clock_offset  # the robot's clock, right or (tests) wrong
         for i, sink in enumerate(sinks):
-            phase = (t - start + args.index * 7 + i * 3) % args.fault_every
-            now_faulty = phase < args.fault_length
+            phase = (t - args.clock_offset - start + args.index * 7 + i * 3) % args.fault_every
+            now_faulty = phase < args.fault_length and time.time() - start >= args.fault_start
             obs = observations(t, now_faulty)
             sink.on_observations(t, obs)
             if now_faulty and not faulty[i]:
@@ -334,6 +334,8 @@ def main() -> int:
     p.add_argument("--ids", default="", help=argparse.SUPPRESS)
     p.add_argument("--index", type=int, default=0, help=argparse.SUPPRESS)
     p.add_argument("--watch-ids", dest="watch_ids", default="", help=argparse.SUPPRESS)
+    p.add_argument("--clock-offset", type=float, default=0.0, help=argparse.SUPPRESS)
+    p.add_argument("--fault-start", type=float, default=0.0, help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.robots_child:
         return robots_child(args)
