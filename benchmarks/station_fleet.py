@@ -99,6 +99,11 @@ def robots_child(args: argparse.Namespace) -> int:
     sinks = [CountingSink(r, domain_id=args.domain, zenoh=zenoh) for r in ids]
     watched = set(args.watch_ids.split(",")) if args.watch_ids else set()
     transitions: dict[str, list[tuple[float, bool]]] = {r: [] for r in ids if r in watched}
+    if zenoh is not None:  # a robot's session opens at once; measure once all reach the router
+        deadline = time.monotonic() + 600
+        while time.monotonic() < deadline and not all(
+                list(sink.bus.session.info.routers_zid()) for sink in sinks):
+            time.sleep(0.2)
     print("ready", flush=True)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -439,6 +444,9 @@ def main() -> int:
         fleet_page = web.time_get("/")
         total = re.search(r'data-field="total">(\d+)<', web.http.get("/").text)
         robot_count = int(total.group(1)) if total else 0
+        told = [line for line in web.http.get("/metrics").text.splitlines()
+                if line.startswith(("blackbox_station_samples_dropped_total",
+                                    "blackbox_station_ingest_behind"))]
     station.send_signal(signal.SIGINT)
     try:
         station.wait(timeout=60)
@@ -469,10 +477,12 @@ def main() -> int:
     for k in kinds:
         print(f"{k:16}{total_pub[k]:>12}{total_sto[k]:>12}{total_pub[k] - total_sto[k]:>10}")
     short = [r for r in ids if any(stored[r][k] < published[r][k] for k in kinds)]
-    print("robots with anything missing:", ", ".join(short) or "none")
+    print(f"robots with anything missing: {len(short)}", ", ".join(short[:10]),
+          "..." if len(short) > 10 else "")
     extra = [r for r in ids if any(stored[r][k] > published[r][k] for k in kinds)]
     if extra:
-        print("robots with more stored than published (duplicates):", ", ".join(extra))
+        print(f"robots with more stored than published (duplicates): {len(extra)}",
+              ", ".join(extra[:10]), "..." if len(extra) > 10 else "")
     if web is not None:
         if page_times:
             print(f"fleet page ({args.robots} robots) while running: n={len(page_times)}, "
@@ -480,7 +490,8 @@ def main() -> int:
                   f"{max(page_times) * 1000:.1f} ms, {statistics.mean(page_sizes) / 1024:.0f}"
                   f" KiB; errors {page_errors}")
         print(f"fleet page after the run: {fleet_page[0] * 1000:.1f} ms, status "
-              f"{fleet_page[1]}, robots named on it: {robot_count}")
+              f"{fleet_page[1]}, robots on the station: {robot_count}")
+        print("what the station told (/metrics):", "; ".join(told))
     if watched:
         print(colour_changes(published, seen))
     if args.keep:
