@@ -99,10 +99,14 @@ def robots_child(args: argparse.Namespace) -> int:
     sinks = [CountingSink(r, domain_id=args.domain, zenoh=zenoh) for r in ids]
     watched = set(args.watch_ids.split(",")) if args.watch_ids else set()
     transitions: dict[str, list[tuple[float, bool]]] = {r: [] for r in ids if r in watched}
+    deadline = time.monotonic() + 600
     if zenoh is not None:  # a robot's session opens at once; measure once all reach the router
-        deadline = time.monotonic() + 600
         while time.monotonic() < deadline and not all(
                 list(sink.bus.session.info.routers_zid()) for sink in sinks):
+            time.sleep(0.2)
+    elif args.matched:  # DDS: measure once the station's readers matched every robot
+        while time.monotonic() < deadline and not all(
+                sink._writers[C_Failure_Event].get_matched_subscriptions() for sink in sinks):
             time.sleep(0.2)
     print("ready", flush=True)
     stop = threading.Event()
@@ -341,6 +345,9 @@ def main() -> int:
     p.add_argument("--watch-ids", dest="watch_ids", default="", help=argparse.SUPPRESS)
     p.add_argument("--clock-offset", type=float, default=0.0, help=argparse.SUPPRESS)
     p.add_argument("--fault-start", type=float, default=0.0, help=argparse.SUPPRESS)
+    p.add_argument("--matched", action="store_true",
+                   help="DDS: robots start publishing only once the station's readers "
+                        "matched them all (what is lost then is delivery, not discovery)")
     args = p.parse_args()
     if args.robots_child:
         return robots_child(args)
@@ -400,7 +407,8 @@ def main() -> int:
     robots = []
     for index, group in enumerate(groups):
         child = subprocess.Popen([py, str(HERE), "--robots-child", "--ids", ",".join(group),
-                                  *bus_args, "--watch-ids", ",".join(watched), "--duration",
+                                  *bus_args, "--watch-ids", ",".join(watched),
+                                  *(["--matched"] if args.matched else []), "--duration",
                                   str(args.duration), "--interval", str(args.interval),
                                   "--fault-every", str(args.fault_every), "--fault-length",
                                   str(args.fault_length), "--index", str(index)],
