@@ -25,9 +25,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import re
 import signal
+import socket
 import sqlite3
 import statistics
 import subprocess
@@ -90,7 +92,22 @@ def robots_child(args: argparse.Namespace) -> int:
                             {"cpu": 3.0, "memory": 2.1e7})]
 
     ids = args.ids.split(",")
-    sinks = [CountingSink(r, domain_id=args.domain) for r in ids]
+    zenoh = None
+    if args.zenoh:
+        from blackbox.transport.zenoh_bus import ZenohSettings
+        zenoh = ZenohSettings((args.zenoh,))
+    sinks = [CountingSink(r, domain_id=args.domain, zenoh=zenoh) for r in ids]
+    watched = set(args.watch_ids.split(",")) if args.watch_ids else set()
+    transitions: dict[str, list[tuple[float, bool]]] = {r: [] for r in ids if r in watched}
+    deadline = time.monotonic() + 600
+    if zenoh is not None:  # a robot's session opens at once; measure once all reach the router
+        while time.monotonic() < deadline and not all(
+                list(sink.bus.session.info.routers_zid()) for sink in sinks):
+            time.sleep(0.2)
+    elif args.matched:  # DDS: measure once the station's readers matched every robot
+        while time.monotonic() < deadline and not all(
+                sink._writers[C_Failure_Event].get_matched_subscriptions() for sink in sinks):
+            time.sleep(0.2)
     print("ready", flush=True)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -98,10 +115,10 @@ def robots_child(args: argparse.Namespace) -> int:
     faulty = [False] * len(sinks)
     tick = 0
     while not stop.is_set() and time.time() - start < args.duration:
-        t = time.time()
+        t = time.time() + args.clock_offset  # the robot's clock, right or (tests) wrong
         for i, sink in enumerate(sinks):
-            phase = (t - start + args.index * 7 + i * 3) % args.fault_every
-            now_faulty = phase < args.fault_length
+            phase = (t - args.clock_offset - start + args.index * 7 + i * 3) % args.fault_every
+            now_faulty = phase < args.fault_length and time.time() - start >= args.fault_start
             obs = observations(t, now_faulty)
             sink.on_observations(t, obs)
             if now_faulty and not faulty[i]:
@@ -110,6 +127,8 @@ def robots_child(args: argparse.Namespace) -> int:
             elif faulty[i] and not now_faulty:
                 sink.on_diagnosis(Diagnosis(t, ()))
                 sink.counts["rectifications"] += 1
+            if now_faulty != faulty[i] and sink.robot_id in transitions:
+                transitions[sink.robot_id].append((time.time(), now_faulty))
             faulty[i] = now_faulty
         tick += 1
         stop.wait(max(0.0, start + tick * args.interval - time.time()))
@@ -117,7 +136,8 @@ def robots_child(args: argparse.Namespace) -> int:
     out = {}
     for sink in sinks:
         out[sink.robot_id] = {**sink.counts, "written": sink.written,
-                              "write_errors": sink.write_errors}
+                              "write_errors": sink.write_errors,
+                              "transitions": transitions.get(sink.robot_id, [])}
         sink.close()
     print(json.dumps(out), flush=True)
     return 0
@@ -132,7 +152,11 @@ def station_child(args: argparse.Namespace) -> int:
     from blackbox.transport.participant import TransportSettings
 
     store = StationStore.open(args.db, series_retention=args.duration + 3600)
-    follower = StationFollower(store, TransportSettings(args.domain), backfill=0)
+    zenoh = None
+    if args.zenoh:
+        from blackbox.transport.zenoh_bus import ZenohSettings
+        zenoh = ZenohSettings((args.zenoh,))
+    follower = StationFollower(store, TransportSettings(args.domain, zenoh=zenoh), backfill=0)
     follower.start()
     print("ready", flush=True)
     stop = threading.Event()
@@ -186,6 +210,114 @@ class WebClient:
         return time.perf_counter() - t0, answer.status_code, len(answer.content)
 
 
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def stored_counts(db: str, ids: list[str]) -> dict[str, dict[str, int]]:
+    """What the station stored per robot (live events and chart values), read with the same
+    SQL from SQLite or, for a ``postgresql://`` URL, with psycopg."""
+    from blackbox.health.ids import robot_resource_id
+
+    postgres = db.startswith(("postgresql://", "postgres://"))
+    if postgres:
+        import psycopg  # type: ignore[import-not-found]  # the storage backend's client
+
+        con: Any = psycopg.connect(db)
+        mark = "%s"
+    else:
+        con = sqlite3.connect(db)
+        mark = "?"
+    stored: dict[str, dict[str, int]] = {}
+    try:
+        for rid in ids:
+            res = robot_resource_id(rid)
+            ev = dict(con.execute(f"SELECT kind, count(*) FROM events WHERE resource_id = "
+                                  f"{mark} AND origin = 'live' GROUP BY kind",
+                                  (res,)).fetchall())
+            stored[rid] = {
+                "values": con.execute(f"SELECT count(*) FROM samples WHERE resource_id = "
+                                      f"{mark}", (res,)).fetchone()[0],
+                "exceedances": ev.get("exceedance", 0) + ev.get("state_change", 0),
+                "failures": ev.get("failure", 0), "rectifications": ev.get("rectification", 0)}
+    finally:
+        con.close()
+    return stored
+
+
+SEEN_JS = """() => {
+  window.__seen = [];
+  const last = {};
+  const record = () => {
+    const now = Date.now();
+    document.querySelectorAll('tr[data-robot]').forEach((tr) => {
+      const status = tr.querySelector('[data-field=status]').textContent;
+      if (last[tr.dataset.robot] !== status) {
+        last[tr.dataset.robot] = status;
+        window.__seen.push([tr.dataset.robot, status, now]);
+      }
+    });
+  };
+  record();
+  document.addEventListener('station:state', record);
+}"""
+
+
+class FleetWatcher:
+    """Debian's Chromium on the fleet page, filtered to the watched robots, noting when
+    each row's status changes (the browser's own clock: the machine's)."""
+
+    def __init__(self, url: str, user: str, password: str, search: str) -> None:
+        from playwright.sync_api import sync_playwright
+
+        self._pw = sync_playwright().start()
+        self._browser = self._pw.chromium.launch(executable_path="/usr/bin/chromium")
+        self.page = self._browser.new_page(base_url=url)
+        self.page.goto("/login")
+        self.page.fill("input[name=username]", user)
+        self.page.fill("input[name=password]", password)
+        self.page.click("button[type=submit]")
+        self.page.wait_for_load_state()
+        self.page.goto(f"/?search={search}")
+        self.page.locator("body[data-live=open]").wait_for(timeout=30_000)
+        self.page.evaluate(SEEN_JS)
+
+    def wait(self, seconds: float) -> None:
+        self.page.wait_for_timeout(seconds * 1000)
+
+    def close(self) -> list[tuple[str, str, float]]:
+        seen = [(r, s, t / 1000) for r, s, t in self.page.evaluate("window.__seen")]
+        self._browser.close()
+        self._pw.stop()
+        return seen
+
+
+def colour_changes(published: dict[str, Any], seen: list[tuple[str, str, float]]) -> str:
+    """Fault (or its end) published by a watched robot -> its row's colour in Chromium."""
+    delays: list[float] = []
+    missed = 0
+    for robot, p in published.items():
+        changes = p.get("transitions") or []
+        for k, (t, faulty) in enumerate(changes):
+            end = changes[k + 1][0] if k + 1 < len(changes) else float("inf")
+            shown = [at for r, status, at in seen if r == robot and t <= at < end
+                     and (status != "OPERATIONAL") == faulty]
+            if shown:
+                delays.append(shown[0] - t)
+            else:
+                missed += 1
+    if not delays:
+        return f"fault -> colour change in Chromium: nothing seen ({missed} changes missed)"
+    delays.sort()
+    p99 = delays[min(len(delays) - 1, math.ceil(0.99 * len(delays)) - 1)]
+    return (f"fault -> colour change in Chromium ({len(delays)} changes of "
+            f"{len({r for r, *_ in seen})} watched robots): median "
+            f"{statistics.median(delays):.2f} s, p99 {p99:.2f} s, max {delays[-1]:.2f} s; "
+            f"not shown before the next change: {missed}")
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--robots", type=int, default=20)
@@ -197,11 +329,25 @@ def main() -> int:
     p.add_argument("--station", choices=["auto", "web", "core"], default="auto")
     p.add_argument("--domain", type=int, default=60 + os.getpid() % 40)
     p.add_argument("--keep", action="store_true", help="keep the station database")
+    p.add_argument("--zenoh", nargs="?", const="router", default="",
+                   help="robots and station meet through a Zenoh router (in this process, "
+                        "on 127.0.0.1) instead of DDS")
+    p.add_argument("--db", default="",
+                   help="the station's database: a file (SQLite; default a temporary one) or "
+                        "postgresql://... (passed to blackbox station --db as it is)")
+    p.add_argument("--watch", type=int, default=10,
+                   help="robots whose fault -> colour change Chromium times on the fleet page "
+                        "(0: no browser)")
     p.add_argument("--robots-child", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--station-child", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--ids", default="", help=argparse.SUPPRESS)
     p.add_argument("--index", type=int, default=0, help=argparse.SUPPRESS)
-    p.add_argument("--db", default="", help=argparse.SUPPRESS)
+    p.add_argument("--watch-ids", dest="watch_ids", default="", help=argparse.SUPPRESS)
+    p.add_argument("--clock-offset", type=float, default=0.0, help=argparse.SUPPRESS)
+    p.add_argument("--fault-start", type=float, default=0.0, help=argparse.SUPPRESS)
+    p.add_argument("--matched", action="store_true",
+                   help="DDS: robots start publishing only once the station's readers "
+                        "matched them all (what is lost then is delivery, not discovery)")
     args = p.parse_args()
     if args.robots_child:
         return robots_child(args)
@@ -214,7 +360,15 @@ def main() -> int:
     if mode == "auto":
         mode = "web" if _has_web_station() else "core"
     work = Path(tempfile.mkdtemp(prefix="station-fleet-"))
-    db = work / "station.db"
+    db = args.db or str(work / "station.db")
+    router = None
+    bus_args: list[str] = ["--domain", str(args.domain)]
+    if args.zenoh:
+        from blackbox.transport.zenoh_router import RouterSettings, open_router
+
+        args.zenoh = f"tcp/127.0.0.1:{free_port()}"
+        router = open_router(RouterSettings((args.zenoh,)))
+        bus_args = ["--zenoh", args.zenoh]
     py = sys.executable
     web: WebClient | None = None
     password = "bench-" + os.urandom(8).hex()
@@ -225,7 +379,7 @@ def main() -> int:
         ready = work / "url"
         station = subprocess.Popen(
             [py, "-m", "blackbox", "station", "--db", str(db), "--bind", "127.0.0.1:0",
-             "--domain", str(args.domain), "--ready-file", str(ready)],
+             *bus_args, "--ready-file", str(ready)],
             env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + 60
         while not ready.exists() and time.monotonic() < deadline and station.poll() is None:
@@ -238,8 +392,7 @@ def main() -> int:
         web = WebClient(url, "bench", password)
     else:
         station = subprocess.Popen([py, str(HERE), "--station-child", "--db", str(db),
-                                    "--domain", str(args.domain), "--duration",
-                                    str(args.duration)],
+                                    *bus_args, "--duration", str(args.duration)],
                                    env=_env(), stdout=subprocess.PIPE, text=True)
         assert station.stdout is not None
         if station.stdout.readline().strip() != "ready":
@@ -247,12 +400,15 @@ def main() -> int:
     proc = psutil.Process(station.pid)
     time.sleep(2.0)  # the station's readers exist before the first robot writes
 
-    ids = [f"fleet-{i:02d}" for i in range(args.robots)]
+    ids = [f"fleet-{i:04d}" for i in range(args.robots)]
+    watched = ids[:min(args.watch, 10)] if web is not None else []
+    browser = FleetWatcher(url, "bench", password, "fleet-000") if watched else None
     groups = [ids[i::args.processes] for i in range(args.processes) if ids[i::args.processes]]
     robots = []
     for index, group in enumerate(groups):
         child = subprocess.Popen([py, str(HERE), "--robots-child", "--ids", ",".join(group),
-                                  "--domain", str(args.domain), "--duration",
+                                  *bus_args, "--watch-ids", ",".join(watched),
+                                  *(["--matched"] if args.matched else []), "--duration",
                                   str(args.duration), "--interval", str(args.interval),
                                   "--fault-every", str(args.fault_every), "--fault-length",
                                   str(args.fault_length), "--index", str(index)],
@@ -271,7 +427,10 @@ def main() -> int:
     page_errors = 0
     next_page = t0 + 10.0
     while any(c.poll() is None for c in robots):
-        time.sleep(1.0)
+        if browser is not None:
+            browser.wait(1.0)
+        else:
+            time.sleep(1.0)
         rss.append(proc.memory_info().rss)
         if web is not None and time.monotonic() >= next_page:
             next_page += 10.0
@@ -288,36 +447,34 @@ def main() -> int:
         out, _ = child.communicate(timeout=60)
         published.update(json.loads(out.strip().splitlines()[-1]))
     time.sleep(3.0)  # the last samples reach the station and are committed
+    seen = browser.close() if browser is not None else []
     if web is not None:
         fleet_page = web.time_get("/")
-        robot_count = len(set(re.findall(r"fleet-\d\d", web.http.get("/").text)))
+        total = re.search(r'data-field="total">(\d+)<', web.http.get("/").text)
+        robot_count = int(total.group(1)) if total else 0
+        told = [line for line in web.http.get("/metrics").text.splitlines()
+                if line.startswith(("blackbox_station_samples_dropped_total",
+                                    "blackbox_station_ingest_behind"))]
     station.send_signal(signal.SIGINT)
     try:
         station.wait(timeout=60)
     except subprocess.TimeoutExpired:
         station.kill()
 
-    con = sqlite3.connect(db)
-    from blackbox.health.ids import robot_resource_id
-
-    stored: dict[str, dict[str, int]] = {}
-    for rid in ids:
-        res = robot_resource_id(rid)
-        ev = dict(con.execute("SELECT kind, count(*) FROM events WHERE resource_id = ? AND "
-                              "origin = 'live' GROUP BY kind", (res,)).fetchall())
-        stored[rid] = {
-            "values": con.execute("SELECT count(*) FROM samples WHERE resource_id = ?",
-                                  (res,)).fetchone()[0],
-            "exceedances": ev.get("exceedance", 0) + ev.get("state_change", 0),
-            "failures": ev.get("failure", 0), "rectifications": ev.get("rectification", 0)}
-    con.close()
+    if router is not None:
+        router.close()
+    stored = stored_counts(db, ids)
 
     cpu = (cpu1.user + cpu1.system - cpu0.user - cpu0.system) / elapsed * 100
-    print(f"machine: {os.cpu_count()} cores, {psutil.virtual_memory().total / 2**30:.1f} GiB; "
+    load = os.getloadavg()
+    print(f"machine: {os.cpu_count()} cores, {psutil.virtual_memory().total / 2**30:.1f} GiB, "
+          f"load average {load[0]:.1f} / {load[1]:.1f} at the end; "
+          f"bus: {'Zenoh via ' + args.zenoh if args.zenoh else f'DDS domain {args.domain}'}; "
+          f"database: {'PostgreSQL' if str(db).startswith('postgresql') else 'SQLite'}; "
           f"station: {mode}; robots: {args.robots} in {len(groups)} processes; "
           f"measured {elapsed:.0f} s")
-    print(f"station CPU {cpu:.1f} % of one core; RSS max {max(rss) / 2**20:.0f} MiB, "
-          f"last {rss[-1] / 2**20:.0f} MiB")
+    print(f"station CPU {cpu:.1f} % of one core ({100 * cpu / max(1, args.robots):.1f} % per "
+          f"100 robots); RSS max {max(rss) / 2**20:.0f} MiB, last {rss[-1] / 2**20:.0f} MiB")
     kinds = ("values", "exceedances", "failures", "rectifications")
     total_pub = {k: sum(p[k] for p in published.values()) for k in kinds}
     total_sto = {k: sum(s[k] for s in stored.values()) for k in kinds}
@@ -328,10 +485,12 @@ def main() -> int:
     for k in kinds:
         print(f"{k:16}{total_pub[k]:>12}{total_sto[k]:>12}{total_pub[k] - total_sto[k]:>10}")
     short = [r for r in ids if any(stored[r][k] < published[r][k] for k in kinds)]
-    print("robots with anything missing:", ", ".join(short) or "none")
+    print(f"robots with anything missing: {len(short)}", ", ".join(short[:10]),
+          "..." if len(short) > 10 else "")
     extra = [r for r in ids if any(stored[r][k] > published[r][k] for k in kinds)]
     if extra:
-        print("robots with more stored than published (duplicates):", ", ".join(extra))
+        print(f"robots with more stored than published (duplicates): {len(extra)}",
+              ", ".join(extra[:10]), "..." if len(extra) > 10 else "")
     if web is not None:
         if page_times:
             print(f"fleet page ({args.robots} robots) while running: n={len(page_times)}, "
@@ -339,7 +498,10 @@ def main() -> int:
                   f"{max(page_times) * 1000:.1f} ms, {statistics.mean(page_sizes) / 1024:.0f}"
                   f" KiB; errors {page_errors}")
         print(f"fleet page after the run: {fleet_page[0] * 1000:.1f} ms, status "
-              f"{fleet_page[1]}, robots named on it: {robot_count}")
+              f"{fleet_page[1]}, robots on the station: {robot_count}")
+        print("what the station told (/metrics):", "; ".join(told))
+    if watched:
+        print(colour_changes(published, seen))
     if args.keep:
         print("station database:", db)
     return 0

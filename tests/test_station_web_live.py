@@ -73,7 +73,7 @@ def test_every_live_page_binds_only_fields_its_snapshot_has_and_each_list_is_dra
     client, pages = served
     live: LiveViews = client.app.state.live  # type: ignore[attr-defined]
     parts = drawing_functions()
-    assert {"robots", "events", "entities", "values"} <= parts
+    assert {"counts", "rows", "events", "entities", "values"} <= parts
     views = set()
     for page in pages:
         html = client.get(page).text

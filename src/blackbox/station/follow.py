@@ -65,6 +65,9 @@ from blackbox.health.types import (
     seconds_of,
 )
 from blackbox.record.store import KINDS, LogEntry
+from blackbox.station.claims import BootWatch
+from blackbox.station.clocks import ClockWatch
+from blackbox.station.delivery import DeliveryWatch
 from blackbox.station.enrolment import RobotKeys
 from blackbox.station.sequence import EventSequences, Gap
 from blackbox.station.store import (
@@ -101,6 +104,8 @@ MAX_LOG_RANGE_DAYS = 3660
 EXT_WAIT = 1.0
 BACKFILL_REPEAT = 5.0
 STATE_DEPTH = 64
+TAKE = 512
+"""Samples taken from one reader per poll; a full take means more were waiting."""
 _ON = T_Monitored_Entity_StateType.L_Monitored_Entity_StateType_ON
 _ORDER = {"BlackBox_Entity_Description": 0, "BlackBox_Event_Extension": 1,
           "C_Failure_Event": 2}
@@ -246,6 +251,12 @@ class StationFollower:
         self.gate = SampleGate(robot_keys.by_resource if robot_keys is not None else dict,
                                self._trust_problem, on_key_seen=self._key_seen)
         self.writers = WriterWatch()
+        self.delivery = DeliveryWatch(store.report_problem, store.clear_problem)
+        """Samples the bus dropped and whether the station keeps up (problems, /metrics)."""
+        self.clocks = ClockWatch(store.report_problem, store.clear_problem)
+        """Robots whose clock is minutes off: their events go at the station's time."""
+        self.boots = BootWatch(store.report_problem)
+        """Robot ids two black boxes use at once (their boots interleave)."""
         self._participants: dict[tuple[int, Any], str] = {}
         self._signature_reader: DataReader[Any] | None = None
         self.bus: HealthBus | None = None
@@ -353,14 +364,17 @@ class StationFollower:
         assert self._waitset is not None, "open() first"
         self._waitset.wait(timeout)
         now = self.clock()
+        started = time.monotonic()
         self._take_signatures()
         taken: list[tuple[str, Any]] = []
+        full = False
         for name, reader in self._readers.items():
             try:
-                samples = reader.take(N=512)
+                samples = reader.take(N=TAKE)
             except Exception as exc:
                 self._reject(name, f"cannot read: {exc}")
                 continue
+            full = full or len(samples) >= TAKE
             for sample in samples:
                 info = getattr(sample, "sample_info", None)
                 if info is not None and not info.valid_data:
@@ -389,6 +403,8 @@ class StationFollower:
         self._drop_foreign_replies()
         self.store.flush()
         self._start_backfills()
+        self.delivery.check(self._readers, now)
+        self.delivery.took(full, now, time.monotonic() - started)
         return len(taken)
 
     # ---- authentication -------------------------------------------------------------------
@@ -560,8 +576,10 @@ class StationFollower:
             if int(ent.A_resourceId) == rid:
                 c.entity = int(ent.A_instanceId)
             value = float(s.A_value)
-            self.store.put_value(rid, iid, seconds_of(s.A_timeOfDataGeneration), value,
-                                 c.entity)
+            robot_time = seconds_of(s.A_timeOfDataGeneration)
+            self.clocks.observe(robot.name, robot_time, now)
+            self.store.put_value(rid, iid, self.clocks.time_of(robot.name, robot_time, now),
+                                 value, c.entity)
             self.store.put_characteristic(rid, iid,
                                           exceeded=bool(s.A_thresholdExceedenceEvents_sourceID))
         elif isinstance(s, C_Monitored_Characteristic_Specification):
@@ -668,7 +686,7 @@ class StationFollower:
                              details={"components": sorted(components)})
 
     def _identity(self, robot: _Robot, event_id: object, legacy: str, t: float,
-                  now: float) -> str:
+                  now: float, live: bool = True) -> str:
         """The dedup key of an event, live or from the log: its identity when the robot named
         it (and the station notes the number as received), else the legacy key from kind,
         time and entity. ``event_id`` comes from the network or a log: parsed strictly."""
@@ -677,6 +695,8 @@ class StationFollower:
             return legacy
         with self._sequence_lock:
             robot.sequences.see(ident, t, now)
+        if live:
+            self.boots.see(robot.name, ident.boot)
         return f"id:{ident}"
 
     def _rectification(self, robot: _Robot, s: C_Event_Extension, now: float) -> None:
@@ -686,9 +706,11 @@ class StationFollower:
         name = e.name if e is not None else f"#{int(ent.A_instanceId)}"
         t = seconds_of(s.A_timeOfDataGeneration)
         dedup = self._identity(robot, s.A_eventId, f"rectification|{_stamp(t)}|{name}", t, now)
-        self.store.add_event(rid, t, "rectification", dedup=dedup, entity=name,
+        self.store.add_event(rid, self.clocks.time_of(robot.name, t, now), "rectification",
+                             dedup=dedup, entity=name,
                              text=f"{name} is no longer diagnosed faulty",
-                             details={"event_id": s.A_eventId[:40]})
+                             details={"event_id": s.A_eventId[:40], **self._robot_time(
+                                 robot, t)})
 
     def _failure(self, robot: _Robot, s: C_Failure_Event, ext: C_Event_Extension | None = None,
                  now: float = 0.0) -> None:
@@ -706,7 +728,7 @@ class StationFollower:
         dedup = self._identity(robot, ext.A_eventId if ext is not None else None,
                                f"failure|{_stamp(t)}|{name}", t, now)
         self.store.add_event(
-            rid, t, "failure", dedup=dedup, entity=name,
+            rid, self.clocks.time_of(robot.name, t, now), "failure", dedup=dedup, entity=name,
             text=description + (f": {cause}" if cause else ""),
             details={"standard_fault_code": float(s.A_standardFaultCode)
                      if math.isfinite(s.A_standardFaultCode) else None,
@@ -716,7 +738,12 @@ class StationFollower:
                      "maintenance_action": s.A_maintenanceActionDescription[:500],
                      "complementary": s.A_complementaryInformation[:MAX_STRING],
                      "documentation_uri": s.A_eventDocumentationURI[:500],
-                     "event_id": ext.A_eventId[:40] if ext is not None else ""})
+                     "event_id": ext.A_eventId[:40] if ext is not None else "",
+                     **self._robot_time(robot, t)})
+
+    def _robot_time(self, robot: _Robot, t: float) -> dict[str, float]:
+        """The robot's own time of an event placed at the station's time (clock skew)."""
+        return {"robot_time": t} if self.clocks.skewed(robot.name) else {}
 
     def _resolve_waiting(self, now: float) -> None:
         waiting: list[tuple[float, C_Threshold_Exceedence_Event | C_Failure_Event]] = []
@@ -813,7 +840,8 @@ class StationFollower:
         dedup = self._identity(robot, ext.A_eventId if ext is not None else None, dedup, t, now)
         if ext is not None and ext.A_eventId:
             details["event_id"] = ext.A_eventId[:40]
-        self.store.add_event(rid, t, kind, dedup=dedup,
+        details.update(self._robot_time(robot, t))
+        self.store.add_event(rid, self.clocks.time_of(robot.name, t, now), kind, dedup=dedup,
                              entity=owner.name if owner is not None else "",
                              characteristic=cname, text=text, details=details)
 
@@ -875,7 +903,8 @@ class StationFollower:
             message = str(payload.get("message") or payload.get("code_name") or "")
             owner = self._owner_of(robot, observer, entity)
             dedup = self._identity(robot, payload.get("event_id"),
-                                   f"exceedance|{_stamp(t)}|{observer}|{entity}", t, self.clock())
+                                   f"exceedance|{_stamp(t)}|{observer}|{entity}", t,
+                                   self.clock(), live=False)
             self.store.add_event(rid, t, "exceedance", dedup=dedup,
                                  entity=owner or entity, characteristic=f"{observer} {entity}",
                                  text=f"{observer} {entity}: {message}".strip(), origin="log",
@@ -931,7 +960,7 @@ class StationFollower:
             comp = str(item.get("entity") or "")[:200]
             kind = str(item["kind"])
             dedup = self._identity(robot, item.get("id"), f"{kind}|{_stamp(t)}|{comp}", t,
-                                   self.clock())
+                                   self.clock(), live=False)
             text = f"{comp} is no longer diagnosed faulty" if kind == "rectification" else \
                 f"{comp} diagnosed faulty" + (f": {explanation}" if explanation else "")
             details: dict[str, Any] = {"log_id": log_id, "event_id": str(item.get("id"))[:40]}

@@ -8,6 +8,7 @@ answers remote log requests (from the recorder's store) and run_IBIT commands.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import threading
 import time
 from collections import deque
@@ -107,6 +108,8 @@ class DdsHealthSink(SinkBase):
             self.signer = SampleSigner(load_private_key(Path(signing_key_file)), robot_id,
                                        clock=clock)
         self.on_ibit = on_ibit
+        if zenoh is not None:  # a robot runs and records whether or not a router is up
+            zenoh = dataclasses.replace(zenoh, router_optional=True)
         self.settings = TransportSettings(domain_id, partition, cyclone_config, zenoh)
         self.mapper = HealthMapper(robot_id, descriptions=descriptions, owners=owners,
                                    failure_actions=failure_actions, hysteresis=hysteresis,

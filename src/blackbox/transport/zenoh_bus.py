@@ -76,6 +76,11 @@ class ZenohSettings:
     root_ca: str | None = None
     certificate: str | None = None
     private_key: str | None = None
+    router_optional: bool = False
+    """A robot's session: it opens at once, router or not, and connects whenever a router
+    appears (so the black box runs, records and publishes into its cache meanwhile, and
+    delivers in order when the link comes). A station's session (``False``) waits
+    :data:`CONNECT_WAIT_MS` for a router and otherwise stops with a clear error."""
 
     def __post_init__(self) -> None:
         if not self.endpoints:
@@ -88,14 +93,22 @@ class ZenohSettings:
     def config(self) -> zenoh.Config:
         """A client of the routers: no multicast scouting (nothing is announced on the LAN).
         Opening waits :data:`CONNECT_WAIT_MS` for a router and fails after that (a Zenoh
-        client cannot open without one; Zenoh peers could, but a router does not forward
-        between peers); once open, a lost router is reconnected in the background."""
+        client cannot open without one); once open, a lost router is reconnected in the
+        background. With :attr:`router_optional` the session is a Zenoh peer instead, the
+        one mode that opens without a router: it listens nowhere (so it is reached only
+        through the router, like a client, and opens no socket of its own) and keeps
+        trying the routers' endpoints in the background for as long as it runs."""
         config = zenoh.Config()
-        config.insert_json5("mode", '"client"')
-        config.insert_json5("connect/endpoints", _json_list(self.endpoints))
-        config.insert_json5("connect/timeout_ms", str(CONNECT_WAIT_MS))
-        config.insert_json5("connect/exit_on_failure", "false")
         config.insert_json5("scouting/multicast/enabled", "false")
+        config.insert_json5("connect/endpoints", _json_list(self.endpoints))
+        if self.router_optional:
+            config.insert_json5("mode", '"peer"')
+            config.insert_json5("listen/endpoints", "[]")
+            config.insert_json5("scouting/gossip/enabled", "false")
+        else:
+            config.insert_json5("mode", '"client"')
+            config.insert_json5("connect/timeout_ms", str(CONNECT_WAIT_MS))
+            config.insert_json5("connect/exit_on_failure", "false")
         apply_tls(config, self.root_ca, self.certificate, self.private_key)
         return config
 

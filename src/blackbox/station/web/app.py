@@ -105,7 +105,8 @@ def create_app(auth: Auth, store: StationStore, operations: Operations,
     mount_alert_pages(app, PageTools(web.page, web.require, web.change, web.address),
                       alerts, tokens)
     app.mount("/api/v1", create_api(auth, tokens, store, operations, alerts))
-    app.include_router(metrics_router(store, alerts, metrics_token))
+    app.include_router(metrics_router(store, alerts, metrics_token,
+                                      getattr(operations, "delivery", None)))
     app.include_router(stream.router(web, ChangeSignal(store)))
     return app
 

@@ -11,7 +11,7 @@ marked ``data-bind``/``data-paint`` take scalar fields; the few structured field
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 from urllib.parse import urlencode
@@ -28,6 +28,8 @@ class StreamQuery:
 
     r: str = ""
     id: int = 0
+    params: tuple[tuple[str, str], ...] = ()
+    """Every parameter of the stream's URL (a page's filters, e.g. the fleet's search)."""
 
 
 class UnknownLiveView(BlackBoxError, LookupError):
@@ -53,11 +55,13 @@ class LiveViews:
             raise UnknownLiveView(f"unknown live view {name[:40]!r}")
         return self._views[name](query)
 
-    def source(self, name: str, r: str = "", id: int | None = None) -> str:
-        """The stream URL a page of view ``name`` listens to (its ``data-live`` attribute)."""
+    def source(self, name: str, r: str = "", id: int | None = None,
+               params: Mapping[str, str] | None = None) -> str:
+        """The stream URL a page of view ``name`` listens to (its ``data-live`` attribute);
+        ``params`` are the page's own filters, which its snapshot reads back."""
         if name not in self._views:
             raise UnknownLiveView(f"unknown live view {name!r}")
-        query = {"view": name, **({"r": r} if r else {}),
+        query = {**(params or {}), "view": name, **({"r": r} if r else {}),
                  **({"id": str(id)} if id is not None else {})}
         return "/api/stream?" + urlencode(query)
 

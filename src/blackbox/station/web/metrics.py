@@ -15,10 +15,12 @@ from fastapi.responses import Response
 
 from blackbox.prometheus import CONTENT_TYPE, MetricsText
 from blackbox.station.alerts.service import AlertService
+from blackbox.station.delivery import DeliveryWatch
 from blackbox.station.store import EVENT_KINDS, STATUSES, StationStore
 
 
-def station_metrics(store: StationStore, alerts: AlertService | None) -> str:
+def station_metrics(store: StationStore, alerts: AlertService | None,
+                    delivery: DeliveryWatch | None = None) -> str:
     out = MetricsText()
     fleet = store.fleet()
     out.family("blackbox_station_robots", "gauge", "Robots by the status shown to operators")
@@ -47,6 +49,14 @@ def station_metrics(store: StationStore, alerts: AlertService | None) -> str:
             store.dropped_points)
     out.add("blackbox_station_problems", "gauge", "Problems shown on the page",
             len(store.problems(200)))
+    if delivery is not None:
+        out.add("blackbox_station_samples_dropped_total", "counter",
+                "Samples the bus dropped before the station took them (DDS sample lost or "
+                "rejected, Zenoh queue full)", delivery.counts.total())
+        out.add("blackbox_station_ingest_behind", "gauge",
+                "1 while the station cannot keep up with the fleet", int(delivery.behind))
+        out.add("blackbox_station_ingest_behind_seconds_total", "counter",
+                "Seconds the station spent with samples waiting", delivery.behind_total)
     if alerts is not None:
         engine = alerts.engine
         out.family("blackbox_station_alerts", "gauge", "Alerts by state")
@@ -72,7 +82,7 @@ def station_metrics(store: StationStore, alerts: AlertService | None) -> str:
 
 
 def metrics_router(store: StationStore, alerts: AlertService | None,
-                   token: str | None) -> APIRouter:
+                   token: str | None, delivery: DeliveryWatch | None = None) -> APIRouter:
     router = APIRouter()
 
     @router.get("/metrics", include_in_schema=False)
@@ -83,6 +93,6 @@ def metrics_router(store: StationStore, alerts: AlertService | None,
                 return Response("metrics need the bearer token\n", status_code=401,
                                 media_type="text/plain",
                                 headers={"WWW-Authenticate": "Bearer"})
-        return Response(station_metrics(store, alerts), media_type=CONTENT_TYPE)
+        return Response(station_metrics(store, alerts, delivery), media_type=CONTENT_TYPE)
 
     return router

@@ -36,7 +36,8 @@ def router(web: WebContext, changes: ChangeSignal) -> APIRouter:
             now = auth.session(token, touch=False)
             return now is not None and now.user.role == session.user.role
         try:
-            snapshot = web.live.snapshot(view, StreamQuery(r=r, id=id))
+            snapshot = web.live.snapshot(view, StreamQuery(r=r, id=id, params=tuple(
+                request.query_params.items())))
         except UnknownLiveView:
             raise HTTPException(400, "unknown view") from None
         snapshot()  # an unknown robot or a bad id is an error answer, not a broken stream

@@ -136,18 +136,32 @@
   // Which snapshot a page listens to is the server's business (web/live.py): the page's
   // data-live attribute is its stream's URL.
   const parts = {
-    robots: function (robots) {
-      Object.keys(robots || {}).forEach(function (ref) {
-        const row = Array.from(document.querySelectorAll("tr[data-robot]"))
-          .find(function (r) { return r.dataset.robot === ref; });
-        if (!row) { reloadOnce(); return; }  // a new robot: the list changed
-        const r = robots[ref];
-        const badge = row.querySelector('[data-field="status"]');
-        setText(badge, r.status); paint(badge, r.status);
-        ["entities", "failing", "unacknowledged", "last_heard", "silent", "diagnosis"].forEach(function (f) {
-          setText(row.querySelector('[data-field="' + f + '"]'), r[f]);
-        });
+    counts: function (counts) {
+      Object.keys(counts || {}).forEach(function (status) {
+        const a = document.querySelector('[data-count="' + CSS.escape(status) + '"] [data-field="count"]');
+        setText(a, counts[status]);
       });
+    },
+    rows: function (rows) {
+      // The server sends this page's rows in order (worst first): redraw them.
+      const table = document.querySelector("table.fleet");
+      const body = table && table.tBodies[0];
+      if (!body || !rows) return;
+      body.replaceChildren.apply(body, rows.map(function (r) {
+        const tr = document.createElement("tr");
+        tr.dataset.robot = r.ref;
+        const name = el("td"); const link = el("a", "", r.name);
+        link.href = "/robot?r=" + encodeURIComponent(r.ref); name.appendChild(link);
+        const status = el("td"); const badge = el("span", "badge " + healthClass(r.status), r.status);
+        badge.dataset.field = "status"; status.appendChild(badge);
+        status.appendChild(document.createTextNode(" "));
+        const silent = el("small", "muted", r.silent); silent.dataset.field = "silent"; status.appendChild(silent);
+        const fields = [["site", r.site], ["diagnosis", r.diagnosis], ["entities", r.entities],
+          ["failing", r.failing], ["unacknowledged", r.unacknowledged], ["last_heard", r.last_heard]]
+          .map(function (f) { const td = el("td", "", f[1]); td.dataset.field = f[0]; return td; });
+        [name, fields[0], status].concat(fields.slice(1)).forEach(function (td) { tr.appendChild(td); });
+        return tr;
+      }));
     },
     diagnosis: function (components) {
       const comp = document.getElementById("diagnosis-components");
