@@ -106,3 +106,14 @@ def _receive_path(request: Any, monkeypatch: Any) -> str:
 
 
 receive_path = pytest.fixture(params=RECEIVE_PATHS)(_receive_path)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """In parallel workers, the tests measured slowest start first (tests/ordering.py);
+    a run in one process keeps the file order, where module fixtures are set up once."""
+    import os
+
+    from ordering import expected_seconds, longest_first
+
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        items[:] = longest_first(items, expected_seconds())

@@ -188,7 +188,11 @@ def test_replaying_the_bag_of_a_live_run_gives_its_observations_and_diagnoses(
             continue
         for name, value in rec["values"].items():
             replayed = other["values"][name]
-            if not isinstance(value, float) or near_change or name == "period_deviation":
+            # A window's deviation (period_deviation, score_deviation) moves a lot with one
+            # message more or less in its ten: live delivery lag under load shifts the
+            # window by a message where the bag's does not (0.30 vs 0.37 seen beside a
+            # fault's end). Its verdict (above) and its mean are still compared.
+            if not isinstance(value, float) or near_change or name.endswith("_deviation"):
                 continue
             # a message that landed within the live delivery lag before an evaluation is
             # counted there in the bag but at the next evaluation live: ``silent_for`` may

@@ -134,7 +134,9 @@ def test_demo_runs_black_box_and_station_as_two_processes_over_dds(tmp_path: Pat
         auth.close()
         store.close()
     assert (tmp_path / "blackbox.db").exists()
-    assert "8.0 s observed" in (tmp_path / "blackbox.log").read_text()
+    # --duration 8 of real time: the last step may end a tenth later on a loaded machine
+    observed = re.search(r"(\d+\.\d) s observed", (tmp_path / "blackbox.log").read_text())
+    assert observed and 8.0 <= float(observed.group(1)) < 9.0, observed
 
 
 def test_demo_runs_until_interrupted_and_stops_everything_it_started(tmp_path: Path) -> None:

@@ -21,6 +21,7 @@ from typing import Any
 import psutil
 import pytest
 
+from conftest import described
 from isolation import fresh_domain
 from station_support import DriverBlackBox, dds_env
 
@@ -57,7 +58,7 @@ class Listener:
             env["BLACKBOX_STATION_KEY"] = str(key)  # its backfill requests are signed
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "blackbox", "listen", "--domain", str(domain), "--json",
-             "--duration", "30", *extra],
+             "--duration", "90", *extra],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
         self.lines: queue.Queue[str] = queue.Queue()
         self.state: dict[str, Any] = {}
@@ -68,8 +69,9 @@ class Listener:
         for line in self.proc.stdout:
             self.lines.put(line)
 
-    def wait_for(self, predicate, timeout: float = 10.0) -> dict[str, Any]:
-        """Read state lines until ``predicate(state)`` holds (bounded by ``timeout``)."""
+    def wait_for(self, predicate, timeout: float = 30.0) -> dict[str, Any]:
+        """Read state lines until ``predicate(state)`` holds (bounded by ``timeout``: it
+        includes the listener's start-up and DDS discovery, over 10 s on a loaded machine)."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             try:
@@ -82,7 +84,9 @@ class Listener:
                 self.state = json.loads(line)
                 if predicate(self.state):
                     return self.state
-        raise AssertionError(f"condition not met; last state: {json.dumps(self.state)[:2000]}")
+        ended = "" if self.proc.poll() is None else f" (the listener exited {self.proc.poll()})"
+        raise AssertionError(f"waited {timeout:g} s for {described(predicate)}{ended}; "
+                             f"last state: {json.dumps(self.state)[:2000]}")
 
     def kill(self) -> None:
         self.proc.kill()

@@ -30,6 +30,11 @@ class Collect(SinkBase):
         self.observations.extend(observations)
 
 
+SHARES_THE_LEARNED_THESIS = pytest.mark.xdist_group("test_learn_thesis")
+"""On one worker: the learned configuration is made once per process (half a minute of
+CPU); spread over three workers it was made three times."""
+
+
 @functools.cache
 def learned_thesis() -> tuple[Learned, str]:
     learned = learn_from(lambda: open_sim("sim:thesis", seed=42, realtime=False), 180.0)
@@ -52,6 +57,7 @@ def run(config: Path, duration: float, faults: Sequence[Fault] = (), seed: int =
     return sink.observations
 
 
+@SHARES_THE_LEARNED_THESIS
 def test_learned_thesis_configuration_observes_every_node_and_topic(tmp_path: Path) -> None:
     config = load_config(write_learned(tmp_path))
     entries = [e.to_python() for e in config.observers]
@@ -72,6 +78,7 @@ def test_learned_thesis_configuration_observes_every_node_and_topic(tmp_path: Pa
     assert len(build_observers(config)) == len(entries)
 
 
+@SHARES_THE_LEARNED_THESIS
 def test_constants_counters_and_stamps_are_named_not_observed(tmp_path: Path) -> None:
     raw = write_learned(tmp_path).read_text()
     text = " ".join(line.strip().lstrip("#").strip() for line in raw.splitlines())
@@ -83,6 +90,7 @@ def test_constants_counters_and_stamps_are_named_not_observed(tmp_path: Path) ->
     assert [f["topic"] for f in fields] == ["/signal"]
 
 
+@SHARES_THE_LEARNED_THESIS
 def test_learned_model_is_the_graph(tmp_path: Path) -> None:
     write_learned(tmp_path)
     model = yaml.safe_load((tmp_path / "robot.model.yaml").read_text())
@@ -94,6 +102,7 @@ def test_learned_model_is_the_graph(tmp_path: Path) -> None:
     assert len(load_robot_model(tmp_path / "robot.model.yaml").nodes) == 3
 
 
+@SHARES_THE_LEARNED_THESIS
 def test_learned_configuration_is_quiet_on_another_healthy_run(tmp_path: Path) -> None:
     observations = run(write_learned(tmp_path), 600.0, seed=9)
     assert len({o.key() for o in observations}) == 15  # + liveness of /signal
@@ -109,6 +118,7 @@ def test_learned_configuration_is_quiet_on_another_healthy_run(tmp_path: Path) -
     (Fault("cpu_hog", "/audio_capture", 60, 70, {"percent": 60.0}), "resources",
      Resource(node="/audio_capture")),
 ], ids=["kill", "stall", "rate", "offset", "stuck", "cpu_hog"])
+@SHARES_THE_LEARNED_THESIS
 def test_learned_configuration_sees_injected_faults_within_two_seconds(
         tmp_path: Path, fault: Fault, observer: str, resource: Resource) -> None:
     observations = run(write_learned(tmp_path), 80.0, [fault])
@@ -207,6 +217,7 @@ def test_a_topic_with_two_publishers_gets_one_rate_observer_per_publisher() -> N
     assert right["lower_bound"] < 0.25 < right["upper_bound"]
 
 
+@SHARES_THE_LEARNED_THESIS
 def test_learned_configuration_scores_at_least_the_hand_written_one(tmp_path: Path) -> None:
     """A short version of benchmarks/learn_evaluation.py (docs/evaluation.md)."""
     from blackbox.app import DEFAULT_CONFIG

@@ -26,6 +26,10 @@ HAND_OBSERVER = """\
 """
 
 
+SHARES_LEARNED_RUNS = pytest.mark.xdist_group("test_learn_update_runs")
+"""On one worker: the three learning runs these tests share are made once per process."""
+
+
 @functools.cache
 def learned(seed: int, slow_signal: bool = False) -> Learned:
     faults = [Fault("rate", "/signal", 0, None, {"factor": 0.9})] if slow_signal else []
@@ -52,6 +56,7 @@ def outside_blocks(text: str) -> str:
                    if s.block is None)
 
 
+@SHARES_LEARNED_RUNS
 def test_update_keeps_hand_edits_and_widens_learned_bounds() -> None:
     before = hand_edited()
     after = update_config(before, "robot.yaml", learned(2, slow_signal=True),
@@ -68,6 +73,7 @@ def test_update_keeps_hand_edits_and_widens_learned_bounds() -> None:
     assert "robot-7" in after and "source sim:thesis, 60 s, second" in after
 
 
+@SHARES_LEARNED_RUNS
 def test_a_hand_written_observer_wins_over_the_learned_one() -> None:
     after = update_config(hand_edited(), "robot.yaml", learned(2), "robot.model.yaml", "2nd")
     hz_audio = [e.to_python() for e in load_config_text(after, "x").observers
@@ -78,6 +84,7 @@ def test_a_hand_written_observer_wins_over_the_learned_one() -> None:
     assert entry(after, "timeout", "/audio")["timeout"] > 0  # the rest of the block stays
 
 
+@SHARES_LEARNED_RUNS
 def test_blocks_the_new_run_did_not_see_are_kept_with_a_note() -> None:
     partial = learned(2)
     partial = Learned(partial.source, partial.duration, partial.nodes,

@@ -23,7 +23,28 @@ from blackbox.terminate import EXIT_TERMINATED, Terminated, raise_terminated
 EXIT_USAGE = 2
 
 
-def build_parser() -> argparse.ArgumentParser:
+def command_module(argv: Sequence[str]) -> str | None:
+    """The module of the subcommand ``argv`` names (``check-config`` -> ``check_config``),
+    or None when it names none (``--help``, ``--version``, a typo).
+
+    Building the parser imports every command's module, and with them numpy, scipy,
+    Cyclone DDS and the learner: about a second of CPU at each start. A command needs only
+    its own module, which matters where ``blackbox`` processes start often (tests, scripts,
+    a supervisor restarting ``run``)."""
+    for arg in argv:
+        if arg.startswith("-"):
+            return None  # options before the command: the full parser answers them
+        name = arg.replace("-", "_")
+        known = {info.name for info in pkgutil.iter_modules(__path__)
+                 if not info.name.startswith("_")}
+        return name if name in known else None
+    return None
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The ``blackbox`` parser with every command, or with command module ``only`` alone
+    (:func:`command_module`): that command parses, prints its help and its errors as in
+    the full parser."""
     parser = argparse.ArgumentParser(
         prog="blackbox",
         description="Robot black box: watch a robot, detect and isolate faults, record its health.",
@@ -31,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"blackbox {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-        if info.name.startswith("_"):
+        if info.name.startswith("_") or (only is not None and info.name != only):
             continue
         module = importlib.import_module(f"{__name__}.{info.name}")
         register = getattr(module, "register", None)
@@ -41,8 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    arguments = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(command_module(arguments))
+    args = parser.parse_args(arguments)
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_USAGE
