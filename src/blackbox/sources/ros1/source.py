@@ -139,6 +139,11 @@ def parse_source_spec(spec: str, settings: Ros1Settings) -> tuple[str, Ros1Setti
 ROS1_CAPABILITIES = Capabilities(snapshot_format="ros1", diagnostics_bridge="ros1")
 
 
+READ_LIMIT = 1.0
+"""Seconds ``poll`` waits for the TCPROS reader thread to hand on what arrived before its
+horizon; past that the black box is starved and the stretch is a gap of everything."""
+
+
 @dataclasses.dataclass(frozen=True, slots=True)
 class Ros1Settings:
     """How a ROS 1 robot is watched: seconds between graph polls and resource samples,
@@ -296,7 +301,15 @@ class Ros1Source:
         if gap is None:
             self._await_counts(until)
         if self._subscriber is not None:  # the native reader holds arrivals until asked
-            self._subscriber.reader.flush()
+            # Waited for, not just asked: a reader thread that has not run since ``until``
+            # still holds what arrived before it, and handed out without it that stretch
+            # was silence, then a burst. Not in time is the black box starved: a gap.
+            flushed = self._subscriber.reader.flush(READ_LIMIT)
+            if not flushed and gap is None:
+                now = self._wall()
+                gap = MeasurementGap(now, self._floor or until, now, "the black box's "
+                                     f"TCPROS reader did not run for {READ_LIMIT:g} s "
+                                     "(starved of CPU)")
         queue = self._queue
         events = self._held
         self._held = []
