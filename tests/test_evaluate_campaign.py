@@ -91,6 +91,24 @@ def test_kinds_option() -> None:
     assert parse_kinds("kill, stall") == ("kill", "stall")
     with pytest.raises(ValueError, match="--kinds: unknown fault kind 'explode'"):
         parse_kinds("kill,explode")
+    assert parse_kinds("none") == ()
+
+
+def test_a_healthy_campaign_injects_nothing_and_counts_every_alarm_as_false(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--kinds none``: the healthy hours of issue 23. No fault is injected (an empty kind
+    list must not fall back to every kind), so TP and FN are 0 and any alarm is an FP."""
+    out = tmp_path / "healthy.json"
+    assert main(["evaluate", "--quiet", "--kinds", "none", "--runs", "1", "--duration", "60",
+                 "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["settings"]["kinds"] == []
+    assert data["totals"]["faults"] == data["totals"]["tp"] == data["totals"]["fn"] == 0
+    run = data["runs"][0]
+    assert run["faults"] == [] and run["observations"] > 0
+    assert data["totals"]["fp"] == len(run["false_positives"])
+    # the simulator's healthy thesis robot: what a healthy hour must show on a real one
+    assert data["totals"]["fp"] == 0
 
 
 @pytest.mark.parametrize(("settings", "message"), [

@@ -21,6 +21,7 @@ import pytest
 from blackbox.app import RunOptions, build
 from blackbox.model import BlackBoxEvent, Code, Observation
 from blackbox.sinks import SinkBase
+from blackbox.sources.ros1.source import Ros1Settings, Ros1Source
 from conftest import black_box_running, wait_for
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros1_robot"))
@@ -264,3 +265,41 @@ def test_a_stalled_counted_topic_leaves_the_other_counted_topics_rate_alone(
             back = time.time()
             assert wait_for(lambda b=back: seen.ok(b + 2.0), 30), "not healthy after the stall"
         assert seen.alarms(start, ["/audio", "/signal"]) == []
+
+
+def test_a_slow_round_of_counts_is_waited_for_not_handed_out_as_silence(
+        robot: ThesisRobot) -> None:
+    """The first round after the camera node is stopped waits the whole probe time-out for
+    it before the audio publisher's counts are queued. The black box's evaluations meanwhile
+    must not take the still uncounted stretch for silence of /audio (a hole, hence a long
+    period, hence a wrong rate: the remaining false alarms of the real campaign during
+    stalls): ``poll`` waits for the round that counts up to its horizon. A probe time-out of
+    1 s makes the slow round twice as long as the default's, so the hole it left before
+    was longer than `hz` on /audio tolerates (50 periods of 0.03 s, |mean - 0.03| < 0.01)."""
+    seen = Seen()
+    uri = f"ros1://127.0.0.1:{robot.port}"
+    box = build(RunOptions(config=THESIS, source=uri, live=False, extra_sinks=[seen]))
+    box.pipeline.source.close()  # built from the URI with the default settings
+    box.pipeline.source = Ros1Source(f"http://127.0.0.1:{robot.port}",
+                                     Ros1Settings(probe_timeout=1.0))
+    stop = threading.Event()
+    thread = threading.Thread(target=box.run, args=(stop,), daemon=True)
+    thread.start()
+    try:
+        start = settled(seen)
+        for _ in range(3):
+            os.kill(robot.pid("/usb_cam"), signal.SIGSTOP)
+            stopped = time.time()
+            try:
+                assert wait_for(lambda s=stopped: any(
+                    o.resource.node == "/usb_cam" for o in seen.alarms(s)), 10), \
+                    "the stall was not seen"
+                time.sleep(2.0)  # the stall's length is the input, not a wait
+            finally:
+                os.kill(robot.pid("/usb_cam"), signal.SIGCONT)
+            back = time.time()
+            assert wait_for(lambda b=back: seen.ok(b + 2.0), 30), "not healthy after the stall"
+        assert seen.alarms(start, ["/audio", "/signal"]) == []
+    finally:
+        stop.set()
+        thread.join(timeout=5)

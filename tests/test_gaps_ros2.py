@@ -149,3 +149,47 @@ def test_the_black_box_on_ros2_stopped_for_three_seconds_raises_no_alarm(
             proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             proc.kill()
+
+
+def test_a_late_dds_thread_is_waited_for_not_handed_out_as_silence(
+        robot: tuple[int, object, Path]) -> None:
+    """On a busy machine the source's DDS thread may run later than the pipeline's, which
+    polls at its evaluation instants. What the robot sent before such an instant but was
+    not yet taken used to be missing at the evaluation (silence: a provisional period, a
+    time-out) and then crowded in after it: the black box's own lag read as a wrong rate.
+    Here every pass of the DDS thread over its readers starts 0.45 s late; at each horizon
+    the last /audio message handed out (33 Hz) must still be a period or so old, because
+    ``poll`` waits for a pass that began at its horizon."""
+    domain, _r, _config = robot
+    watched = Watched(domain, Interest(topics=frozenset({"/audio"})))
+    source = watched.source
+    take_all = source._take_all
+
+    def late_take_all() -> None:
+        time.sleep(0.45)  # the DDS thread scheduled late: the input, not a wait
+        take_all()
+
+    try:
+        assert watched.until(lambda: len(watched.arrivals("/audio")) >= 30, 40), \
+            "no /audio messages"
+        source._take_all = late_take_all  # type: ignore[method-assign]
+        watched.pump(1.0)
+        silences: list[float] = []
+        gapped = 0
+        last = max(a.time for a in watched.arrivals("/audio"))
+        for _ in range(20):
+            horizon = time.time() + 0.5
+            new = source.poll(horizon)
+            watched.events.extend(new)
+            if any(isinstance(e, MeasurementGap) and e.everything for e in new):
+                gapped += 1
+                continue
+            last = max([last] + [e.time for e in new if getattr(e, "topic", None) == "/audio"
+                                 and not isinstance(e, MeasurementGap)])
+            silences.append(horizon - last)
+        assert gapped <= 2, f"{gapped} of 20 polls were gaps: the wait is too short"
+        long = [round(s, 3) for s in silences if s > 0.3]
+        assert len(long) <= 1, f"silences at the horizons over 0.3 s: {long}"
+    finally:
+        source._take_all = take_all  # type: ignore[method-assign]
+        source.close()

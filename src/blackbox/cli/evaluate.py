@@ -45,8 +45,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--duration", type=float, default=300.0, metavar="S",
                    help="simulated seconds per run (default 300)")
     p.add_argument("--seed", type=int, default=0, help="seed of the first run (run i: seed+i)")
-    p.add_argument("--kinds", default="thesis", metavar="thesis|all|K1,K2",
-                   help="fault kinds to inject: the thesis's five (default), all, or a list")
+    p.add_argument("--kinds", default="thesis", metavar="thesis|all|none|K1,K2",
+                   help="fault kinds to inject: the thesis's five (default), all, none (a "
+                        "healthy run: every alarm is false), or a list")
     p.add_argument("--grace", type=float, default=CampaignSettings.grace, metavar="S",
                    help="seconds after a fault's end that still count for it (default 2)")
     p.add_argument("--separation", type=float, default=CampaignSettings.separation,

@@ -53,18 +53,20 @@ from blackbox.sources.base import (
 from blackbox.sources.sim import FAULT_KINDS, THESIS_FAULT_KINDS
 
 KIND_SETS: Mapping[str, tuple[str, ...]] = {"thesis": THESIS_FAULT_KINDS,
-                                            "all": tuple(FAULT_KINDS)}
+                                            "all": tuple(FAULT_KINDS), "none": ()}
+"""Named sets of fault kinds for ``--kinds``. ``none`` injects nothing: a healthy run, in
+which every alarm is a false one (the healthy hours of docs/evaluation.md)."""
 
 
 def parse_kinds(text: str) -> tuple[str, ...]:
-    """``thesis``, ``all`` or a comma-separated list of fault kinds."""
+    """``thesis``, ``all``, ``none`` (a healthy run) or a comma-separated list of kinds."""
     if text in KIND_SETS:
         return KIND_SETS[text]
     kinds = tuple(k.strip() for k in text.split(",") if k.strip())
     unknown = [k for k in kinds if k not in FAULT_KINDS]
     if not kinds or unknown:
         raise ValueError(f"--kinds: unknown fault kind {unknown[0] if unknown else text!r}; "
-                         f"expected thesis, all or a comma-separated list of "
+                         f"expected thesis, all, none or a comma-separated list of "
                          f"{', '.join(FAULT_KINDS)}")
     return kinds
 
@@ -119,8 +121,6 @@ class CampaignSettings:
             raise ValueError("--source: campaigns need a simulated robot (sim:...) or a source "
                              "with a demo robot and fault injector (" +
                              ", ".join(ROBOT_HARNESSES) + ")")
-        if not self.kinds:
-            raise ValueError("--kinds: no fault kinds")
         if self.engine is not None and self.engine not in ("cbd", "sfdd", "hybrid"):
             raise ValueError(f"--engine: expected cbd, sfdd or hybrid, got {self.engine!r}")
         unknown = [k for k in self.kinds if k not in FAULT_KINDS]
@@ -288,9 +288,10 @@ def run_one(settings: CampaignSettings, index: int,
                           diagnoses=real.diagnoses if settings.diagnosis else None)
         return RunResult(index, seed, score, real.stats, time.perf_counter() - started,
                          real=real)
+    # No kinds is a healthy run; RandomFaults would read an empty tuple as "every kind".
     faults = RandomFaults(settings.duration - settings.tail, settings.kinds,
                           mean_gap=settings.mean_gap, warmup=settings.warmup,
-                          min_separation=settings.separation)
+                          min_separation=settings.separation) if settings.kinds else None
     sink = Collector()
     try:
         box = build(RunOptions(config=Path(settings.config), source=settings.source,

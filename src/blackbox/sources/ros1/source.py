@@ -139,6 +139,11 @@ def parse_source_spec(spec: str, settings: Ros1Settings) -> tuple[str, Ros1Setti
 ROS1_CAPABILITIES = Capabilities(snapshot_format="ros1", diagnostics_bridge="ros1")
 
 
+READ_LIMIT = 1.0
+"""Seconds ``poll`` waits for the TCPROS reader thread to hand on what arrived before its
+horizon; past that the black box is starved and the stretch is a gap of everything."""
+
+
 @dataclasses.dataclass(frozen=True, slots=True)
 class Ros1Settings:
     """How a ROS 1 robot is watched: seconds between graph polls and resource samples,
@@ -249,6 +254,11 @@ class Ros1Source:
         round's arrivals continue from there (see :meth:`_push_counted`)."""
         self._uris: dict[str, str] = {}
         self._last_round = 0.0
+        self._counts_done = threading.Condition()
+        self._covered: dict[tuple[str, str], float] = {}
+        """Counted (topic, publisher) -> the time (with ``clock_offset``) up to which the
+        publisher's counters have been read and queued; ``poll`` waits for it to reach its
+        horizon (:meth:`_await_counts`). Under ``_counts_done``."""
 
     @classmethod
     def from_uri(cls, spec: str, settings: Ros1Settings | None = None) -> Ros1Source:
@@ -288,8 +298,18 @@ class Ros1Source:
         if back:
             assert gap is not None and gap.end is not None
             until = gap.end
+        if gap is None:
+            self._await_counts(until)
         if self._subscriber is not None:  # the native reader holds arrivals until asked
-            self._subscriber.reader.flush()
+            # Waited for, not just asked: a reader thread that has not run since ``until``
+            # still holds what arrived before it, and handed out without it that stretch
+            # was silence, then a burst. Not in time is the black box starved: a gap.
+            flushed = self._subscriber.reader.flush(READ_LIMIT)
+            if not flushed and gap is None:
+                now = self._wall()
+                gap = MeasurementGap(now, self._floor or until, now, "the black box's "
+                                     f"TCPROS reader did not run for {READ_LIMIT:g} s "
+                                     "(starved of CPU)")
         queue = self._queue
         events = self._held
         self._held = []
@@ -309,6 +329,37 @@ class Ros1Source:
             due.insert(0, gap)
         return due
 
+    def _await_counts(self, until: float) -> None:
+        """Wait until every counted topic has been counted up to ``until`` (a round of the
+        graph thread reads the publishers' counters and queues what they sent since the
+        previous round), at most a graph period, a probe time-out and half a second.
+
+        A round waits for its slowest reply: when a node stops (a stall, a busy robot)
+        the counts of every other publisher come up to a probe time-out later than usual.
+        Handed out before they came, the uncounted stretch was silence to the observers
+        (a provisional period at an evaluation, then a hole in the arrivals: a wrong rate
+        on a healthy topic, the false alarms of the real campaign during stalls). A topic
+        still not counted up to ``until`` after the wait is a measurement gap from where its
+        counts end until its next counts: the black box could not keep up, which says
+        nothing about the robot."""
+        settings = self.settings
+        deadline = time.monotonic() + settings.graph_period + settings.probe_timeout + 0.5
+        late: dict[tuple[str, str], float] = {}
+        with self._counts_done:
+            while not self._stop.is_set():
+                late = {k: t for k, t in self._covered.items()
+                        if t < until and k not in self._waiting}
+                remaining = deadline - time.monotonic()
+                if not late or remaining <= 0:
+                    break
+                self._counts_done.wait(remaining)
+        for key, covered in sorted(late.items()):
+            with self._lock:
+                self._counted_until.pop(key, None)
+            self._open_gap(key, f"the publisher's counters for {key[1]} were not read in "
+                           f"time (the black box's rounds are late)",
+                           start=covered - self.clock_offset)
+
     @property
     def reader_processes(self) -> ReaderProcesses | None:
         """The child processes reading timing-only topics (``readers`` > 0), once started."""
@@ -319,6 +370,8 @@ class Ros1Source:
 
     def close(self) -> None:
         self._stop.set()
+        with self._counts_done:
+            self._counts_done.notify_all()
         if self._thread is not None:
             self._thread.join(timeout=3.0)
         if self._subscriber is not None:
@@ -459,7 +512,8 @@ class Ros1Source:
                                  f"{r.topic} from {r.publisher}: rate from the publisher's "
                                  "own counters (getBusStats); not subscribed")
                 span = r.arrivals[-1].time - now if r.arrivals else 0.0
-                if not switched and span > 2 * self._graph_period + 0.5:
+                late = 2 * self._graph_period + self.settings.probe_timeout
+                if not switched and span > late:
                     # a late round (the black box stalled): its counts cover a stretch
                     # nobody measured live; replayed, they would overlap the next round's
                     self._open_gap(key, f"a late round of the publisher's counters "
@@ -482,6 +536,17 @@ class Ros1Source:
                             else "no live subscriber on the robot")
                          + "; subscribing to measure its rate")
         self.counted = counted
+        self._mark_counted(counted)
+
+    def _mark_counted(self, counted: set[tuple[str, str]]) -> None:
+        """Record how far each counted topic is now counted (for :meth:`_await_counts`):
+        to the end of its queued arrivals, which run a round ahead of now, or to now."""
+        now = self._wall()
+        with self._lock:
+            until = dict(self._counted_until)
+        with self._counts_done:
+            self._covered = {k: max(until.get(k, now), now) for k in counted}
+            self._counts_done.notify_all()
 
     def _check_behind(self, now: float, r: TopicCounts) -> None:
         if r.robot_sent is None or r.own_sent is None:

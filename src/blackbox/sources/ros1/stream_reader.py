@@ -179,19 +179,20 @@ class TcprosReader:
             self._pending.append(_Stream(key, sock, max_bytes, decode_as))
         self._wake()
 
-    def flush(self, timeout: float = FLUSH_TIMEOUT) -> None:
+    def flush(self, timeout: float = FLUSH_TIMEOUT) -> bool:
         """Hand on now everything received so far (the native loop holds arrivals up to
-        ``hand_over``); returns once the reader thread has, or after ``timeout``. A no-op
-        for the Python reader, which hands on at once."""
+        ``hand_over``); returns once the reader thread has (``True``), or after ``timeout``
+        (``False``: the reader thread did not run meanwhile). A no-op for the Python
+        reader, which hands on at once."""
         if self._engine is None or self._hand_over_every <= 0 or not self._thread.is_alive():
-            return
+            return True
         with self._flushed:
             self._flush_asked += 1
             want = self._flush_asked
         self._wake()
         with self._flushed:
-            self._flushed.wait_for(lambda: self._flush_done >= want or self._stop.is_set(),
-                                   timeout)
+            return self._flushed.wait_for(
+                lambda: self._flush_done >= want or self._stop.is_set(), timeout)
 
     def drop(self, key: StreamKey, reason: str) -> None:
         """Close ``key``'s connection from another thread (half-open, lost interest)."""

@@ -48,7 +48,14 @@ from cyclonedds.builtin import (
     BuiltinTopicDcpsPublication,
     BuiltinTopicDcpsSubscription,
 )
-from cyclonedds.core import DDSException, InstanceState, ReadCondition, SampleState, ViewState
+from cyclonedds.core import (
+    DDSException,
+    GuardCondition,
+    InstanceState,
+    ReadCondition,
+    SampleState,
+    ViewState,
+)
 from cyclonedds.core import WaitSet as _WaitSet
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.idl import IdlStruct, make_idl_struct
@@ -90,6 +97,9 @@ IGNORE_TYPE_INFORMATION = ("<Compatibility><IgnoreTypeInformation>1.15"
 _ANY = SampleState.Any | ViewState.Any | InstanceState.Any
 _TAKE_BATCH = 256
 _NS = 1_000_000_000
+TAKE_LIMIT = 1.0
+"""Seconds ``poll`` waits for the DDS thread to take what arrived before its horizon; past
+that the black box is starved of CPU and the stretch is a measurement gap of everything."""
 
 ROS2_CAPABILITIES = Capabilities(snapshot_format="mcap", diagnostics_bridge="ros2")
 
@@ -229,6 +239,11 @@ class Ros2Source:
         participant are held back until it names its nodes."""
         self._graph_ready = False
         self._handed_out = 0.0
+        self._taken = threading.Condition()
+        self._taken_through = 0.0
+        """Wall time at which the DDS thread's latest pass over the readers began: every
+        sample received before it has been taken (under ``_taken``)."""
+        self._nudge: GuardCondition | None = None
         self._machine_id = _machine_id()
         self._hostname = socket.gethostname()
         self._domain: Domain | None = None
@@ -277,6 +292,10 @@ class Ros2Source:
     def poll(self, until: float) -> list[Event]:
         wait_until(self._stop, until)
         pause = self._clock.check(expected=until)
+        if pause is None and not self._await_taken(until):
+            pause = MeasurementGap(time.time(), self._handed_out or until, time.time(),
+                                   f"the black box's DDS thread did not take its samples "
+                                   f"within {TAKE_LIMIT:g} s (starved of CPU)")
         events = self._held
         self._held = []
         with self._lock:
@@ -292,11 +311,30 @@ class Ros2Source:
             due.insert(0, pause)
         return due
 
+    def _await_taken(self, until: float) -> bool:
+        """Wake the DDS thread and wait (at most :data:`TAKE_LIMIT` s) until it has taken
+        every sample received before ``until``; ``False`` if it did not in time.
+
+        Samples are stamped when the DDS thread takes them. Handed out before it had run
+        (a busy machine: this thread woke, that one not yet), what the robot sent just
+        before ``until`` was missing at the evaluation (silence: a time-out, a long period)
+        and came after it crowded at the horizon (a burst): false alarms that were the
+        black box's own lag."""
+        nudge = self._nudge
+        if nudge is None or not self._readers:
+            return True
+        nudge.set(True)
+        with self._taken:
+            return self._taken.wait_for(
+                lambda: self._taken_through >= until or self._stop.is_set(), TAKE_LIMIT)
+
     def schema(self, topic: str) -> TopicSchema | None:
         return None
 
     def close(self) -> None:
         self._stop.set()
+        with self._taken:
+            self._taken.notify_all()
         if self._thread is not None:
             self._thread.join(timeout=3.0)
 
@@ -349,6 +387,8 @@ class Ros2Source:
             Qos(Policy.Reliability.Reliable(0), Policy.Durability.TransientLocal,
                 Policy.History.KeepAll))
         self._waitset = _WaitSet(dp)
+        self._nudge = GuardCondition(dp)
+        self._waitset.attach(self._nudge)
 
     def _run(self) -> None:
         try:
@@ -379,7 +419,13 @@ class Ros2Source:
                 wait = max(0.0, next_graph - time.time())
                 if self._readers:
                     self._waitset.wait(int(wait * _NS))
+                    assert self._nudge is not None
+                    self._nudge.set(False)
+                    began = time.time()
                     self._take_all()
+                    with self._taken:
+                        self._taken_through = began
+                        self._taken.notify_all()
                 else:
                     self._stop.wait(wait)
         finally:
