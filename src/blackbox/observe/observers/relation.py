@@ -63,7 +63,14 @@ from typing import ClassVar
 from blackbox.config.node import ConfigNode
 from blackbox.events import Interest, MessageArrival
 from blackbox.model import Code, Observation, Resource
-from blackbox.observe.base import OBSERVERS, Mode, ObserverBase, ObserverKind, Subject
+from blackbox.observe.base import (
+    OBSERVERS,
+    JudgedSignals,
+    Mode,
+    ObserverBase,
+    ObserverKind,
+    Subject,
+)
 from blackbox.observe.observers.entry import COMMON_KEYS, read_every, read_name
 from blackbox.observe.signals import (
     Cusum,
@@ -321,6 +328,7 @@ class RelationObserver(ObserverBase):
         failed: list[str] = []
         held: list[str] = []
         open_: list[str] = []
+        open_all: list[str | None] = []
         for judge in self._judges:
             spec = judge.spec
             stat = judge.cusum.statistic
@@ -328,6 +336,7 @@ class RelationObserver(ObserverBase):
                 values[f"{spec.name}_z"] = round(judge.last_z, 4)
                 values[f"{spec.name}_cusum"] = round(stat, 4)
             what = f"{spec.target.label()} ~ {spec.inputs()}"
+            open_all.append(None)
             if judge.verdict == "failed":
                 failed.append(f"{spec.target.label()} disagrees with {spec.inputs()} "
                               f"(residual {judge.last_z:+.1f} noise std, CUSUM {stat:.1f} >= "
@@ -340,18 +349,37 @@ class RelationObserver(ObserverBase):
             elif judge.verdict == "undecided":
                 open_.append(f"{what}: undecided (CUSUM {stat:.1f} between "
                              f"{spec.cusum.h / 2:.1f} and {spec.cusum.h:.1f})")
+                open_all[-1] = open_[-1]
             else:
                 open_.append(f"{what}: unjudged, {judge.reason}")
+                open_all[-1] = open_[-1]
         if failed:
             text = "; ".join(failed)
             if held:
                 text += "; held: " + "; ".join(held)
             return [Observation(now, self.type_name, self.resource, Code.NO_STATE_FITS,
                                 values=values, message=text)]
-        if open_:
+        # OK clears exactly the signals of the relations that can clear (judged_signals):
+        # it needs every one of them held; one that clears nobody blocks nothing
+        blocking = [o for o, judge in zip(open_all, self._judges, strict=True)
+                    if o is not None and judge.spec.clears]
+        if blocking or not held:
             return [self.unavailable(now, "; ".join(open_ + held), values)]
+        text = "holds: " + "; ".join(held)
+        if open_:
+            text += "; not counted: " + "; ".join(open_)
         return [Observation(now, self.type_name, self.resource, Code.GENERAL_OK,
-                            values=values, message="holds: " + "; ".join(held))]
+                            values=values, message=text)]
+
+    def judged_signals(self) -> JudgedSignals:
+        """Field-level diagnosis (docs/diagnosis.md): a failure accuses the signals of every
+        relation; OK clears those of the relations that see all their signals' faults."""
+        accused = {s: None for r in self.relations
+                   for s in (r.target, *(t.signal for t in r.taps))}
+        cleared = {s: None for r in self.relations if r.clears
+                   for s in (r.target, *(t.signal for t in r.taps))}
+        return JudgedSignals(tuple((s.topic, s.field) for s in accused),
+                             tuple((s.topic, s.field) for s in cleared))
 
     def describe(self) -> str:
         parts = [f"{r.name}: {r.target.label()} from {r.inputs()} (CUSUM k {r.cusum.k:g}, "
