@@ -77,6 +77,10 @@ TRACK_RATE = 5.0
 CHANGE_STEPS = 100
 """Grid steps over which a trending signal's change is taken (five seconds)."""
 LIVENESS_BLOCK_SECONDS = 0.5
+EVERY = 0.5
+"""Seconds between the verdicts of relation and liveness observers: one block, so a
+verdict is at most half a second old (a 1 s interval added up to a second to every
+detection and made alarms outlive their faults past the 2 s grace)."""
 LOGGING_TOPICS = frozenset({"/rosout", "/rosout_agg"})
 LAMBDAS = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
 
@@ -100,6 +104,9 @@ class Signal:
     topic, when it is significant and would leave the learned range within an hour (a
     battery voltage discharging under a current that moves it more): no band."""
     note: str = ""
+    monotonic: bool = False
+    """Only grows or only falls (an odometer): related on its changes, no liveness check
+    (it stands still with the robot)."""
 
 
 @dataclass
@@ -187,7 +194,9 @@ def signals_of(rec: Recording, notes: list[str]) -> list[Signal]:
                 if x.size < MIN_SIGNAL_SAMPLES:
                     continue
                 kind = classify(x, frec.info.integer).kind
-                if kind != "numeric":
+                # a monotonic signal (an odometer) is no band's but may be related: its
+                # changes follow a speed (a clock's or a counter's changes follow nothing)
+                if kind not in ("numeric", "monotonic"):
                     continue
                 name = f"{topic.name} {path}"
                 d = np.diff(x)
@@ -199,8 +208,16 @@ def signals_of(rec: Recording, notes: list[str]) -> list[Signal]:
                 noise = _robust(d) / math.sqrt(2)
                 if noise == 0.0:
                     noise = float(np.std(d)) / math.sqrt(2)
+                if kind == "monotonic":
+                    # its steps follow the speed: the noise is what smooth motion does not
+                    # explain (second differences), at least the rounding of whole units
+                    noise = max(_robust(np.diff(d)) / math.sqrt(6),
+                                1 / math.sqrt(12) if frec.info.integer else 0.0)
+                trend = _trend(t, x, noise)
+                if kind == "monotonic" and trend is None and np.ptp(t) > 0:
+                    trend = float((x[-1] - x[0]) / np.ptp(t))
                 sig = Signal(SignalRef(topic.name, path), name, t, x, period, noise, wrap,
-                             _trend(t, x, noise), frec.info.integer)
+                             trend, frec.info.integer, monotonic=kind == "monotonic")
                 out.append(sig)
     return out
 
@@ -569,6 +586,8 @@ def learn_relations(rec: Recording) -> RelationsLearned:
                 f"{s.noise:.3g}): no band, it would leave it; checked for being alive")
     liveness: dict[str, list[Liveness]] = {}
     for s in signals:
+        if s.monotonic:
+            continue
         live = learn_liveness(s)
         if live is not None:
             liveness.setdefault(s.ref.topic, []).append(live)
@@ -787,7 +806,8 @@ def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict
             **({} if r.clears else {"clears": False}),
             "span": [round_down(r.span[0]), round_up(r.span[1])],
         })
-    return {"type": "relation", "topic": pair[0], "topic_b": pair[1], "step": STEP,
+    return {"type": "relation", "topic": pair[0], "topic_b": pair[1], "every": EVERY,
+            "step": STEP,
             "block": BLOCK, "window": WINDOW, "fresh": round_up(fresh, 2),
             "delay": _g(delay_of(signals)), "relations": items}
 
@@ -833,7 +853,8 @@ def liveness_entry(topic: str, lives: Sequence[Liveness]) -> dict[str, Any]:
             item["wrap"] = True
         items.append(item)
     fresh = max(max(2.0 * freshness(live.signal) for live in lives), 1.0)
-    return {"type": "liveness", "topic": topic, "fresh": round_up(fresh, 2), "signals": items}
+    return {"type": "liveness", "topic": topic, "every": EVERY, "fresh": round_up(fresh, 2),
+            "signals": items}
 
 
 def liveness_comments(lives: Sequence[Liveness]) -> list[str]:

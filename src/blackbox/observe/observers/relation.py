@@ -25,10 +25,12 @@ checks them on a common grid of ``step`` seconds:
   relation it has) accuses that topic's producers alone;
 * ``clears: false``: the relation sees a fault of its target but not one of its inputs (a
   clean command beside a noisy sensor); failed, it accuses as any other, held, it clears
-  nobody (``NOT_AVAILABLE``);
+  nobody (the observer's ``OK`` does not wait for it and does not cover its signals);
 * the verdict has three values: failed (CUSUM at ``h``), held (below ``h / 2``), and in
-  between, or unjudged, ``NOT_AVAILABLE``: a held relation clears the values of both
-  topics in the diagnosis (docs/diagnosis.md), so it says so only when it is sure.
+  between, or unjudged, ``NOT_AVAILABLE``: a held relation clears the (topic, field)
+  signals it relates in the diagnosis (``judged_signals``, docs/diagnosis.md), so it says
+  so only when it is sure; the observer is ``OK`` when every relation that can clear
+  holds.
 
 .. code-block:: yaml
 
