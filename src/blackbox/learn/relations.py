@@ -511,6 +511,15 @@ def change_r2(fitted: Fit, target: np.ndarray) -> float:
     return 1.0 - float(np.mean(dr[ok] ** 2)) / var if var > 0 else -math.inf
 
 
+def fault_unit(sig: Signal) -> float:
+    """The size a fault of ``sig`` is judged at: its noise, or for a monotonic signal (an
+    odometer in whole centimetres, nearly noise-free) a hundredth of what it climbed while
+    learning: a rounding step is no scale for a fault of a counter of metres."""
+    if sig.monotonic and sig.values.size:
+        return max(sig.noise, 0.01 * float(np.ptp(sig.values)))
+    return sig.noise
+
+
 def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Relation | None:
     """Residual noise per mode, sensitivity and span of a fitted relation; ``None`` when it
     cannot see a fault of four noise std on one of its signals."""
@@ -555,8 +564,8 @@ def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Rela
     per = len(fitted.gains) // n_in
     gains = [fitted.gains[i * per:(i + 1) * per].tolist() for i in range(n_in)]
     noise_mode = max(m_noise, still_mode[1] if still_mode else 0.0)
-    seen_target = 4 * target.noise / noise_mode
-    seen = [4 * sig.noise * abs(sum(g)) / noise_mode for sig, g in zip(inputs, gains,
+    seen_target = 4 * fault_unit(target) / noise_mode
+    seen = [4 * fault_unit(sig) * abs(sum(g)) / noise_mode for sig, g in zip(inputs, gains,
                                                                       strict=True)]
     if seen_target < SENSITIVITY:
         return None
