@@ -208,7 +208,7 @@ class Cusum:
     afterglow was measured to blame neighbours of a fault that had already ended, and an
     alarm outliving its fault by more than the 2 s grace counts as a false alarm)."""
 
-    __slots__ = ("down", "rising", "spec", "top", "two_sided", "up")
+    __slots__ = ("down", "spec", "top", "two_sided", "up")
 
     def __init__(self, spec: CusumSpec, two_sided: bool = True, ceiling: float = 0.5) -> None:
         self.spec = spec
@@ -216,26 +216,13 @@ class Cusum:
         self.top = spec.h + ceiling * max(spec.k, 0.25)
         self.up = 0.0
         self.down = 0.0
-        self.rising = False
 
     def update(self, z: float) -> float:
         k, top = self.spec.k, self.top
-        before = self.statistic
         self.up = min(top, max(0.0, self.up + z - k))
         if self.two_sided:
             self.down = min(top, max(0.0, self.down - z - k))
-        after = self.statistic
-        self.rising = after >= before
-        return after
-
-    @property
-    def sustained(self) -> bool:
-        """At the alarm level and still fed: the last block did not lower the statistic.
-        Once the evidence stops (a residual back within ``k`` of its mean, even on the
-        alarm's side), the alarm ends with that block rather than decaying for several:
-        afterglow past the 2 s grace was most of the learned configurations' false alarms
-        in the fault campaigns (the CUSUM sat at ``h`` on a residual of -0.4 noise std)."""
-        return self.statistic >= self.spec.h and self.rising
+        return self.statistic
 
     @property
     def statistic(self) -> float:
@@ -248,4 +235,3 @@ class Cusum:
     def reset(self) -> None:
         self.up = 0.0
         self.down = 0.0
-        self.rising = False

@@ -116,7 +116,7 @@ class _Signal:
         if spec.repeats is not None and self.run + 1 >= spec.repeats:
             return (f"{spec.name} stuck: {self.run + 1} equal samples in a row "
                     f"({self.last:.6g})")
-        if self.cusum is not None and self.cusum.sustained:
+        if self.cusum is not None and self.cusum.alarm:
             return (f"{spec.name} noise burst: log squared difference {self.last_z:+.1f} "
                     f"std, CUSUM {self.cusum.statistic:.1f} >= {self.cusum.spec.h:.1f}")
         return None

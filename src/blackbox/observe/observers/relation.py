@@ -196,8 +196,7 @@ class _Judge:
             self.followed += min(self.step_limit, max(-self.step_limit, self.alpha * off))
         stat = self.cusum.update(self.last_z)
         h = spec.cusum.h
-        self.verdict = ("failed" if self.cusum.sustained else "undecided" if stat >= h / 2
-                        else "held")
+        self.verdict = "failed" if stat >= h else "undecided" if stat >= h / 2 else "held"
         self.reason = ""
 
     def _unjudged(self, reason: str, window_blocks: int) -> None:
