@@ -78,9 +78,10 @@ CHANGE_STEPS = 100
 """Grid steps over which a trending signal's change is taken (five seconds)."""
 LIVENESS_BLOCK_SECONDS = 0.5
 EVERY = 0.5
-"""Seconds between the verdicts of relation and liveness observers: one block, so a
-verdict is at most half a second old (a 1 s interval added up to a second to every
-detection and made alarms outlive their faults past the 2 s grace)."""
+"""Seconds between the verdicts of relation observers: one block, so a verdict is at most
+half a second old (a 1 s interval added up to a second to every detection and made
+alarms outlive their faults past the 2 s grace). Liveness keeps the default second: its
+first verdict waits for a block of samples."""
 LOGGING_TOPICS = frozenset({"/rosout", "/rosout_agg"})
 LAMBDAS = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
 
@@ -865,8 +866,7 @@ def liveness_entry(topic: str, lives: Sequence[Liveness]) -> dict[str, Any]:
             item["wrap"] = True
         items.append(item)
     fresh = max(max(2.0 * freshness(live.signal) for live in lives), 1.0)
-    return {"type": "liveness", "topic": topic, "every": EVERY, "fresh": round_up(fresh, 2),
-            "signals": items}
+    return {"type": "liveness", "topic": topic, "fresh": round_up(fresh, 2), "signals": items}
 
 
 def liveness_comments(lives: Sequence[Liveness]) -> list[str]:
