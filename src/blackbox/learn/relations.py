@@ -77,11 +77,6 @@ TRACK_RATE = 5.0
 CHANGE_STEPS = 100
 """Grid steps over which a trending signal's change is taken (five seconds)."""
 LIVENESS_BLOCK_SECONDS = 0.5
-EVERY = 0.5
-"""Seconds between the verdicts of relation observers: one block, so a verdict is at most
-half a second old (a 1 s interval added up to a second to every detection and made
-alarms outlive their faults past the 2 s grace). Liveness keeps the default second: its
-first verdict waits for a block of samples."""
 LOGGING_TOPICS = frozenset({"/rosout", "/rosout_agg"})
 LAMBDAS = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
 
@@ -819,8 +814,7 @@ def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict
             **({} if r.track is not None else
                {"span": [round_down(r.span[0]), round_up(r.span[1])]}),
         })
-    return {"type": "relation", "topic": pair[0], "topic_b": pair[1], "every": EVERY,
-            "step": STEP,
+    return {"type": "relation", "topic": pair[0], "topic_b": pair[1], "step": STEP,
             "block": BLOCK, "window": WINDOW, "fresh": round_up(fresh, 2),
             "delay": _g(delay_of(signals)), "relations": items}
 
