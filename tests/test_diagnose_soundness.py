@@ -21,7 +21,7 @@ from __future__ import annotations
 import itertools
 import random
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import pytest
 
@@ -34,6 +34,7 @@ from blackbox.diagnose.robot_model import (
     build_model,
 )
 from blackbox.model import Code, Observation, Resource
+from blackbox.observe.base import JudgedSignals
 
 RATE = ("hz", "timeout", "timestamp")
 VALUE = ("scores", "moving", "fields")
@@ -51,6 +52,8 @@ class Robot:
     observations: tuple[tuple[ObservationSpec, bool | None], ...]  # True OK, False failed
     needs_input: Mapping[str, bool]  # does a silent input silence the node's outputs?
     stale_values: Mapping[str, bool]  # may a silent input make the node's values wrong?
+    signals: Mapping[tuple[str, Resource], JudgedSignals] = field(default_factory=dict)
+    """The (topic, field) signals some relations see (field-level, issue 22 item 1)."""
 
     def topics(self) -> list[str]:
         names = {t for n in self.nodes for t in (*n.pub, *n.sub)}
@@ -154,7 +157,8 @@ class Reference:
                            if s.type in kinds and self.judges(s, t)]
                 if judging and all(v is True for v in judging):
                     forced.add((mode, t))
-            if any(v is True and s.type == RELATION and t in (s.resource.topic, s.resource.topic_b)
+            if any(v is True and s.type == RELATION and s.key() not in self.robot.signals
+                   and t in (s.resource.topic, s.resource.topic_b)
                    for s, v in self.robot.observations):
                 forced.add(("right", t))
             timeouts = [v for s, v in self.robot.observations
@@ -177,10 +181,21 @@ class Reference:
                         changed = True
         return forced
 
+    def signal_holds(self, forced: set[tuple[str, str]], topic: str, name: str) -> bool:
+        """A field's values are right when its topic's are, or a held relation that sees
+        it clears it (a held relation clears the fields it sees, no others)."""
+        return ("right", topic) in forced or any(
+            v is True and (topic, name) in self.robot.signals[s.key()].cleared
+            for s, v in self.robot.observations if s.key() in self.robot.signals)
+
     def consistent(self, abnormal: frozenset[str]) -> bool:
         forced = self.holds(abnormal)
         for spec, value in self.robot.observations:
-            if value is False and spec.type == RELATION:
+            if value is False and spec.key() in self.robot.signals:
+                accused = self.robot.signals[spec.key()].accused
+                if all(self.signal_holds(forced, t, f) for t, f in accused):
+                    return False
+            elif value is False and spec.type == RELATION:
                 pair = (spec.resource.topic, spec.resource.topic_b)
                 if all(("right", t) in forced for t in pair):
                     return False
@@ -237,9 +252,18 @@ def random_robot(rng: random.Random) -> Robot:
             obs.append(ObservationSpec(kind, Resource(topic=t, publishers=group)))
     obs = list(dict.fromkeys(obs))
     values = [rng.choice((True, True, False, False, False, None)) for _ in obs]
+    signals: dict[tuple[str, Resource], JudgedSignals] = {}
+    for s in obs:
+        if s.type == RELATION and rng.random() < 0.6:
+            # field-level: each topic's fields "a" and "b"; some relations cannot clear
+            pair = dict.fromkeys(t for t in (s.resource.topic, s.resource.topic_b) if t)
+            accused = tuple((t, f) for t in pair
+                            for f in rng.sample(("a", "b"), rng.randint(1, 2)))
+            cleared = tuple(x for x in accused if rng.random() < 0.7)
+            signals[s.key()] = JudgedSignals(accused, cleared)
     return Robot(tuple(nodes), tuple(zip(obs, values, strict=True)),
                  {n.name: rng.random() < 0.7 for n in nodes},
-                 {n.name: rng.random() < 0.2 for n in nodes})
+                 {n.name: rng.random() < 0.2 for n in nodes}, signals)
 
 
 def engine_for(robot: Robot) -> DiagnosisEngine:
@@ -248,7 +272,7 @@ def engine_for(robot: Robot) -> DiagnosisEngine:
         for n, needs in robot.needs_input.items()})
     model = build_model(robot.nodes, [s for s, _ in robot.observations])
     return DiagnosisEngine(model, max_cardinality=MAX_CARDINALITY, time_budget=60.0,
-                           propagation=propagation)
+                           propagation=propagation, signals=robot.signals)
 
 
 def code(value: bool | None) -> Code:
@@ -315,3 +339,29 @@ def test_a_topic_seen_silent_passes_no_wrong_values(silence: str):
     d = engine_for(robot).update(1.0, [Observation(1.0, s.type, s.resource, code(v))
                                        for s, v in observed])
     assert d is not None and set(d.candidates) == expected
+
+
+def test_a_relation_held_on_one_field_clears_no_other_field():
+    """Field-level (issue 22 item 1): the yaw rates of the IMU and the command agree, their
+    forward accelerations do not. Topic-level clearing would leave nothing to blame; a
+    held relation clears only the fields it sees, so either producer explains the failure,
+    and the fields are checked by the reference too."""
+    nodes = (NodeSpec("/imu_driver", ("/imu",)), NodeSpec("/planner", ("/cmd",)))
+    yaw = ObservationSpec(RELATION, Resource(topic="/cmd", topic_b="/imu"))
+    accel = ObservationSpec(RELATION, Resource(topic="/imu", topic_b="/cmd"))
+    signals = {yaw.key(): JudgedSignals((("/cmd", "wz"), ("/imu", "wz")),
+                                        (("/cmd", "wz"), ("/imu", "wz"))),
+               accel.key(): JudgedSignals((("/imu", "ax"), ("/cmd", "ax")),
+                                          (("/imu", "ax"), ("/cmd", "ax")))}
+    observed = ((yaw, True), (accel, False))
+    robot = Robot(nodes, observed, {"/imu_driver": True, "/planner": True},
+                  {"/imu_driver": False, "/planner": False}, signals)
+    expected = {frozenset({"/imu_driver"}), frozenset({"/planner"})}
+    assert Reference(robot).minimal_diagnoses(2) == expected
+    d = engine_for(robot).update(1.0, [Observation(1.0, s.type, s.resource, code(v))
+                                       for s, v in observed])
+    assert d is not None and set(d.candidates) == expected
+    topic_level = replace(robot, signals={})
+    assert engine_for(topic_level).update(
+        1.0, [Observation(1.0, s.type, s.resource, code(v)) for s, v in observed]
+    ).candidates == ()  # type: ignore[union-attr]

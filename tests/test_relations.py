@@ -196,6 +196,33 @@ def test_heavy_tails_raise_the_threshold():
     assert heavy.h > gauss.h
 
 
+TWO_RELATIONS = RELATION + """  - name: cmd_w
+    target: {topic: /cmd, field: w}
+    inputs: [{topic: /imu, field: z, lags: [0.0], gains: [1.0]}]
+    intercept: 0.0
+    block_noise: 0.01
+    cusum: {k: 0.5, h: 10.0}
+    excitation: 0.02
+    clears: false
+"""
+
+
+def test_a_relation_observer_judges_the_fields_it_relates_and_is_ok_without_its_blind_ones():
+    """Field-level (issue 22 item 1): the observer names the (topic, field) signals a
+    failure accuses and an OK clears; a relation that cannot see its inputs' faults
+    (``clears: false``) is left out of what OK clears, and does not hold OK back."""
+    obs = relation(TWO_RELATIONS)
+    judged = obs.judged_signals()
+    assert set(judged.accused) == {("/imu", "z"), ("/cmd", "w")}
+    assert set(judged.cleared) == {("/imu", "z"), ("/cmd", "w")}  # imu_z sees both
+    healthy = drive(obs, 30.0)
+    assert healthy[-1].code == Code.GENERAL_OK, healthy[-1].message
+    assert "not counted: /cmd w ~ /imu z" in healthy[-1].message
+    blind = relation(TWO_RELATIONS.replace("imu_z\n", "imu_z\n    clears: false\n", 1))
+    assert blind.judged_signals().cleared == ()
+    assert drive(blind, 30.0)[-1].code == Code.NOT_AVAILABLE  # nothing it could clear
+
+
 # ---- diagnosis ---------------------------------------------------------------------------------
 
 def test_the_pattern_of_failed_and_held_relations_names_the_sensor():

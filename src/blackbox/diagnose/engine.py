@@ -58,7 +58,7 @@ from blackbox.diagnose.robot_model import (
 from blackbox.diagnose.sat import ConsistencyChecker, Theory
 from blackbox.events import GraphSnapshot
 from blackbox.model import Code, Diagnosis, Observation, Resource
-from blackbox.observe.base import Subject
+from blackbox.observe.base import JudgedSignals, Subject
 
 DEFAULT_PRIORS = {"node": 0.05, "hardware": 0.05, "topic": 0.01, "interface": 0.01}
 """Prior fault probability per component kind: with equal cardinality, a dead node is blamed
@@ -104,7 +104,8 @@ class DiagnosisEngine:
     def __init__(self, model: RobotModel, priors: Mapping[str, float] | None = None, *,
                  max_cardinality: int | None = None, time_budget: float = 0.1,
                  cache_size: int = 256, propagation: Propagation | None = None,
-                 independent: Iterable[Edge] = ()) -> None:
+                 independent: Iterable[Edge] = (),
+                 signals: Mapping[Key, JudgedSignals] | None = None) -> None:
         self.priors = dict(priors or {})
         for name, p in self.priors.items():
             if not 0.0 < p < 1.0:
@@ -114,6 +115,7 @@ class DiagnosisEngine:
         self._cache_size = cache_size
         self.propagation = propagation if propagation is not None else Propagation()
         self._independent: set[Edge] = set(independent)
+        self._signals: dict[Key, JudgedSignals] = dict(signals or {})
         self._evidence: dict[Edge, float] = {}
         self._current = Diagnosis(time=0.0, candidates=(), explanation="No observations yet.")
         self._emitted_rows: list[int] = []
@@ -155,12 +157,19 @@ class DiagnosisEngine:
                 ex = Explanation(tuple(t for t in (spec.resource.topic, spec.resource.topic_b)
                                        if t), ())
             if is_relation_type(spec.type):
-                # Failed: the values of one of its topics are wrong. Held: each is right
-                # (faults that cancel out exactly are not assumed).
-                topics = [t for t in (spec.resource.topic, spec.resource.topic_b) if t]
-                th.add([ok, *(-th.var(("right", t)) for t in topics)])
-                for t in topics:
-                    th.add([th.var(("right", t)), -ok])
+                # Failed: the values of one of its signals (fields, when the observer says
+                # which, else its topics) are wrong. Held: each it clears is right (faults
+                # that cancel out exactly are not assumed).
+                judged = self._signals.get(spec.key())
+                if judged is None:
+                    topics = [t for t in (spec.resource.topic, spec.resource.topic_b) if t]
+                    th.add([ok, *(-th.var(("right", t)) for t in topics)])
+                    for t in topics:
+                        th.add([th.var(("right", t)), -ok])
+                    continue
+                th.add([ok, *(-self._signal_var(t, f) for t, f in judged.accused)])
+                for t, f in judged.cleared:
+                    th.add([self._signal_var(t, f), -ok])
                 continue
             if (ex.components and not ex.inputs and not ex.edges
                     and diagnosable.issuperset(ex.components)):
@@ -239,6 +248,20 @@ class DiagnosisEngine:
         self._evidencing: dict[Edge, Watch] = {w[0]: w for w in self._watch
                                                if self._evidences(w)}
         self.checker.warm_up()
+
+    def _signal_var(self, topic: str, field: str) -> int:
+        """``right(topic, field)``: the values of one field are right. It holds when the
+        topic's values are right, and else, as the topic's value mode, unless a producer is
+        abnormal or an input's values are wrong: a fault of the field is a fault of the
+        topic's producers, but a relation held on one field clears no other field."""
+        th = self.theory
+        key = ("right signal", topic, field)
+        known = th.num_vars
+        var = th.var(key)
+        if th.num_vars > known:
+            th.add([var, -th.var(("right", topic))])
+            self._value_clause(var, self.structure.producers(topic, (), rate=False))
+        return var
 
     def _silenced(self, edge: Edge) -> int:
         """A helper literal: the edge's input is not live *and* the output's rate needs it."""
@@ -355,6 +378,29 @@ class DiagnosisEngine:
             ex = self._upstream[topic] = self.structure.producers(topic)
         return ex
 
+    def _own_producers(self, key: Key) -> frozenset[str]:
+        """The observed topics themselves, their publishers and those publishers' hardware:
+        in a feedback loop (a command and the odometry it is computed from) every node of
+        the loop explains the observation, but the publisher of the observed topic is
+        closer to it than the node across the loop (ranking only; the diagnoses are the
+        same)."""
+        r = key[1]
+        out: set[str] = set()
+        if r.node:
+            out.add(r.node)
+        if r.interface:
+            out.add(f"iface:{r.interface}")
+        for t in (r.topic, r.topic_b):
+            if not t:
+                continue
+            out.add(t)
+            for p in self.structure.publishers(t):
+                out.add(p)
+                spec = self.structure.model.node(p)
+                if spec is not None:
+                    out.update(spec.hardware)
+        return frozenset(out)
+
     def closeness(self, failed: Iterable[Key]) -> dict[str, int]:
         """For every component that can explain one of the ``failed`` observations, how
         many nodes its fault must cross to reach the nearest (0: it is among that
@@ -363,8 +409,9 @@ class DiagnosisEngine:
         frontier: list[str] = []
         for key in failed:
             ex = self._explain(key)
+            own = self._own_producers(key)
             for c in ex.components:
-                out.setdefault(c, 0)
+                out[c] = min(out.get(c, 1), 0 if c in own else 1)
             frontier.extend(ex.inputs)
         seen: set[str] = set()
         depth = 1

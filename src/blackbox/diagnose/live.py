@@ -46,7 +46,8 @@ from blackbox.diagnose.robot_model import (
 )
 from blackbox.diagnose.sfdd_live import SfddConfig
 from blackbox.events import GraphSnapshot
-from blackbox.model import Diagnosis, Observation
+from blackbox.model import Diagnosis, Observation, Resource
+from blackbox.observe.base import JudgedSignals, SignalJudge
 
 
 @dataclass(frozen=True)
@@ -119,6 +120,14 @@ def _propagation(node: ConfigNode) -> Propagation:
         learn_after, nodes)
 
 
+def judged_signals(observers: Sequence[ObservedResource]
+                   ) -> dict[tuple[str, Resource], JudgedSignals]:
+    """The fields each relation observer sees, by observation key: the engine accuses and
+    clears those fields, not the observers' topics as a whole."""
+    return {(o.type_name, o.resource): o.judged_signals() for o in observers
+            if isinstance(o, SignalJudge)}
+
+
 def _structure(graph: GraphSnapshot) -> frozenset[tuple[str, tuple[str, ...], tuple[str, ...]]]:
     return frozenset((t.name, tuple(sorted(t.publishers)), tuple(sorted(t.subscribers)))
                      for t in graph.topics.values())
@@ -141,7 +150,8 @@ class LiveDiagnoser:
     def _engine_kwargs(self) -> dict[str, object]:
         kwargs: dict[str, object] = {"max_cardinality": self.settings.max_cardinality,
                                      "time_budget": self.settings.time_budget,
-                                     "propagation": self.settings.propagation}
+                                     "propagation": self.settings.propagation,
+                                     "signals": judged_signals(self.observers)}
         if self.engine is not None:
             kwargs["independent"] = self.engine.independent
         return kwargs

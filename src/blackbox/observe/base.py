@@ -237,6 +237,27 @@ class NamedQuantities(Protocol):
     def quantity_names(self) -> tuple[str, ...]: ...
 
 
+@dataclass(frozen=True, slots=True)
+class JudgedSignals:
+    """The (topic, field) signals a relation observation sees, for field-level diagnosis.
+
+    A relation sees only the fields it relates, not its topics as a whole: failed, one of
+    ``accused`` carries wrong values; OK, every one of ``cleared`` carries right values
+    (``cleared`` leaves out the signals of relations that cannot see their inputs' faults).
+    Other fields of the same topics are neither accused nor cleared by it (issue 22).
+    """
+
+    accused: tuple[tuple[str, str], ...]
+    cleared: tuple[tuple[str, str], ...]
+
+
+@runtime_checkable
+class SignalJudge(Protocol):
+    """An observer whose verdicts are about some fields of its topics only."""
+
+    def judged_signals(self) -> JudgedSignals: ...
+
+
 OBSERVERS: Registry[ObserverKind] = Registry("observer type", "blackbox.observe.observers")
 FILTERS: Registry[FilterFactory] = Registry("filter type", "blackbox.observe.filters")
 VALUE_CHECKS: Registry[CheckFactory] = Registry("value check", "blackbox.observe.checks")

@@ -204,12 +204,13 @@ class CusumSpec:
 class Cusum:
     """Two-sided (or upward only) CUSUM with a ceiling, so an alarm ends soon after the
     fault: the statistic stays at most ``ceiling`` drifts above ``h`` and falls by ``k`` per
-    healthy block (one drift: the alarm ends within two blocks of the evidence; a longer
-    afterglow was measured to blame neighbours of a fault that had already ended)."""
+    healthy block (half a drift: the alarm ends with the first healthy block; a longer
+    afterglow was measured to blame neighbours of a fault that had already ended, and an
+    alarm outliving its fault by more than the 2 s grace counts as a false alarm)."""
 
     __slots__ = ("down", "spec", "top", "two_sided", "up")
 
-    def __init__(self, spec: CusumSpec, two_sided: bool = True, ceiling: float = 1.0) -> None:
+    def __init__(self, spec: CusumSpec, two_sided: bool = True, ceiling: float = 0.5) -> None:
         self.spec = spec
         self.two_sided = two_sided
         self.top = spec.h + ceiling * max(spec.k, 0.25)

@@ -25,10 +25,12 @@ checks them on a common grid of ``step`` seconds:
   relation it has) accuses that topic's producers alone;
 * ``clears: false``: the relation sees a fault of its target but not one of its inputs (a
   clean command beside a noisy sensor); failed, it accuses as any other, held, it clears
-  nobody (``NOT_AVAILABLE``);
+  nobody (the observer's ``OK`` does not wait for it and does not cover its signals);
 * the verdict has three values: failed (CUSUM at ``h``), held (below ``h / 2``), and in
-  between, or unjudged, ``NOT_AVAILABLE``: a held relation clears the values of both
-  topics in the diagnosis (docs/diagnosis.md), so it says so only when it is sure.
+  between, or unjudged, ``NOT_AVAILABLE``: a held relation clears the (topic, field)
+  signals it relates in the diagnosis (``judged_signals``, docs/diagnosis.md), so it says
+  so only when it is sure; the observer is ``OK`` when every relation that can clear
+  holds.
 
 .. code-block:: yaml
 
@@ -63,7 +65,14 @@ from typing import ClassVar
 from blackbox.config.node import ConfigNode
 from blackbox.events import Interest, MessageArrival
 from blackbox.model import Code, Observation, Resource
-from blackbox.observe.base import OBSERVERS, Mode, ObserverBase, ObserverKind, Subject
+from blackbox.observe.base import (
+    OBSERVERS,
+    JudgedSignals,
+    Mode,
+    ObserverBase,
+    ObserverKind,
+    Subject,
+)
 from blackbox.observe.observers.entry import COMMON_KEYS, read_every, read_name
 from blackbox.observe.signals import (
     Cusum,
@@ -321,6 +330,7 @@ class RelationObserver(ObserverBase):
         failed: list[str] = []
         held: list[str] = []
         open_: list[str] = []
+        open_all: list[str | None] = []
         for judge in self._judges:
             spec = judge.spec
             stat = judge.cusum.statistic
@@ -328,6 +338,7 @@ class RelationObserver(ObserverBase):
                 values[f"{spec.name}_z"] = round(judge.last_z, 4)
                 values[f"{spec.name}_cusum"] = round(stat, 4)
             what = f"{spec.target.label()} ~ {spec.inputs()}"
+            open_all.append(None)
             if judge.verdict == "failed":
                 failed.append(f"{spec.target.label()} disagrees with {spec.inputs()} "
                               f"(residual {judge.last_z:+.1f} noise std, CUSUM {stat:.1f} >= "
@@ -340,18 +351,37 @@ class RelationObserver(ObserverBase):
             elif judge.verdict == "undecided":
                 open_.append(f"{what}: undecided (CUSUM {stat:.1f} between "
                              f"{spec.cusum.h / 2:.1f} and {spec.cusum.h:.1f})")
+                open_all[-1] = open_[-1]
             else:
                 open_.append(f"{what}: unjudged, {judge.reason}")
+                open_all[-1] = open_[-1]
         if failed:
             text = "; ".join(failed)
             if held:
                 text += "; held: " + "; ".join(held)
             return [Observation(now, self.type_name, self.resource, Code.NO_STATE_FITS,
                                 values=values, message=text)]
-        if open_:
+        # OK clears exactly the signals of the relations that can clear (judged_signals):
+        # it needs every one of them held; one that clears nobody blocks nothing
+        blocking = [o for o, judge in zip(open_all, self._judges, strict=True)
+                    if o is not None and judge.spec.clears]
+        if blocking or not held:
             return [self.unavailable(now, "; ".join(open_ + held), values)]
+        text = "holds: " + "; ".join(held)
+        if open_:
+            text += "; not counted: " + "; ".join(open_)
         return [Observation(now, self.type_name, self.resource, Code.GENERAL_OK,
-                            values=values, message="holds: " + "; ".join(held))]
+                            values=values, message=text)]
+
+    def judged_signals(self) -> JudgedSignals:
+        """Field-level diagnosis (docs/diagnosis.md): a failure accuses the signals of every
+        relation; OK clears those of the relations that see all their signals' faults."""
+        accused = {s: None for r in self.relations
+                   for s in (r.target, *(t.signal for t in r.taps))}
+        cleared = {s: None for r in self.relations if r.clears
+                   for s in (r.target, *(t.signal for t in r.taps))}
+        return JudgedSignals(tuple((s.topic, s.field) for s in accused),
+                             tuple((s.topic, s.field) for s in cleared))
 
     def describe(self) -> str:
         parts = [f"{r.name}: {r.target.label()} from {r.inputs()} (CUSUM k {r.cusum.k:g}, "
@@ -413,10 +443,13 @@ def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
                                       f"{len(lags)} and {len(gains)}")
         taps.extend(Tap(ref, _steps(lag, step), gain.float())
                     for lag, gain in zip(lags, gains, strict=True))
-    span_node = node["span"]
-    span = span_node.list()
-    if len(span) != 2 or not span[0].float() <= span[1].float():
-        raise span_node.error("span must be [low, high] with low <= high")
+    span_node = node.get("span")
+    limits = (-math.inf, math.inf)  # no span: judged wherever the prediction is
+    if span_node is not None:
+        span = span_node.list()
+        if len(span) != 2 or not span[0].float() <= span[1].float():
+            raise span_node.error("span must be [low, high] with low <= high")
+        limits = (span[0].float(), span[1].float())
     bias = node.get("bias")
     moving = NoiseMode(0.0 if bias is None else bias.float(),
                        node["block_noise"].float(min=0.0, min_exclusive=True))
@@ -427,7 +460,7 @@ def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
         moving=moving, still=None if still is None or still.is_null else _mode(still),
         cusum=CusumSpec.read(node["cusum"]),
         excitation=node["excitation"].float(min=0.0) if node.get("excitation") else 0.0,
-        span=(span[0].float(), span[1].float()),
+        span=limits,
         track=(node["track"].float(min=0.0, min_exclusive=True)
                if node.get("track") is not None else None),
         track_rate=(node["track_rate"].float(min=0.0)
