@@ -1,7 +1,7 @@
 """CPU per message of the TCPROS receive path alone: native loop against the Python one.
 
     .venv/bin/python benchmarks/ros1_native.py [--rate 5000] [--seconds 5] [--repeat 3]
-        [--variants python,native,native:0.005]
+        [--variants python,native,native:0.005,before] [--before SRC] [--callgrind]
 
 A sender process writes one Float64 frame per ``send`` (as rospy does) at ``--rate`` to a
 TCP connection on 127.0.0.1; a reader process runs one ``TcprosReader`` in compact mode (the
@@ -9,7 +9,8 @@ way the black box reads a rate-only topic) and counts what it is handed. The rea
 CPU (user + system, ``getrusage``) over the window, divided by the messages it got, is the
 figure; the sender is not counted. Variants: ``python`` (``BLACKBOX_PURE_PYTHON=1``),
 ``native`` (the compiled loop, the reader's default hand-over), ``native:S`` (hand-over
-every S seconds). Variants alternate within each repeat, so they share the machine's load,
+every S seconds), ``before`` (the native reader of ``--before SRC``, another checkout's
+``src/`` with its ``_tcpros`` built in place). Variants alternate within each repeat, so they share the machine's load,
 which is printed with every row: the machine is shared, so read the rows of one repeat
 side by side.
 """
@@ -84,10 +85,16 @@ def reader(port: int, seconds: float, warmup: float, hand_over: float | None) ->
 
 
 def run(variant: str, rate: float, seconds: float, warmup: float,
-        callgrind: Path | None = None) -> dict[str, object]:
+        callgrind: Path | None = None, before: Path | None = None) -> dict[str, object]:
     env = dict(os.environ)
     hand_over: float | None = None
-    if variant == "python":
+    if variant == "before":  # the default native reader of another src/ (built in place)
+        if before is None:
+            raise SystemExit("variant 'before' needs --before SRC")
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(before),
+                                                          env.get("PYTHONPATH", "")]))
+        env.pop("BLACKBOX_PURE_PYTHON", None)
+    elif variant == "python":
         env["BLACKBOX_PURE_PYTHON"] = "1"
     else:
         env.pop("BLACKBOX_PURE_PYTHON", None)
@@ -142,19 +149,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--variants", default="python,native")
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--before", type=Path, metavar="SRC",
+                        help="a src/ directory (its _tcpros built in place) that the variant "
+                             "'before' runs, for a before/after comparison in one run")
     parser.add_argument("--callgrind", action="store_true",
                         help="count the reader's user-space instructions per message under "
                              "valgrind instead (load-independent): two runs per variant, "
                              "SECONDS and 3 x SECONDS long, differenced")
     a = parser.parse_args(args)
     if a.callgrind:
-        return _callgrind(a.variants.split(","), a.rate, a.seconds, a.warmup)
+        return _callgrind(a.variants.split(","), a.rate, a.seconds, a.warmup, a.before)
     rows = []
     print(f"{'variant':>14} {'native':>6} {'msg/s':>8} {'us/msg':>7} {'user':>5} {'sys':>5} "
           f"{'msg/recv':>8} {'hand-overs/s':>12} {'sleeps/msg':>10} {'load':>5}")
     for _ in range(a.repeat):
         for variant in a.variants.split(","):
-            row = run(variant, a.rate, a.seconds, a.warmup)
+            row = run(variant, a.rate, a.seconds, a.warmup, before=a.before)
             rows.append(row)
             wall = float(row["wall"])  # type: ignore[arg-type]
             print(f"{variant:>14} {row['native']!s:>6} {int(row['messages']) / wall:8.0f} "  # type: ignore[call-overload]
@@ -170,7 +180,8 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _callgrind(variants: list[str], rate: float, seconds: float, warmup: float) -> int:
+def _callgrind(variants: list[str], rate: float, seconds: float, warmup: float,
+               before: Path | None) -> int:
     """Instructions per message = the difference of two runs' totals over the difference
     of their messages: start-up and imports cancel out."""
     import tempfile
@@ -178,8 +189,9 @@ def _callgrind(variants: list[str], rate: float, seconds: float, warmup: float) 
     print(f"{'variant':>14} {'instructions/msg':>16} {'msg/recv':>8} {'messages':>9} {'load':>5}")
     with tempfile.TemporaryDirectory(prefix="ros1-native-cg-") as tmp:
         for variant in variants:
-            short = run(variant, rate, seconds, warmup, Path(tmp) / f"{variant}-1.out")
-            long = run(variant, rate, 3 * seconds, warmup, Path(tmp) / f"{variant}-3.out")
+            short = run(variant, rate, seconds, warmup, Path(tmp) / f"{variant}-1.out", before)
+            long = run(variant, rate, 3 * seconds, warmup, Path(tmp) / f"{variant}-3.out",
+                       before)
             dm = int(long["messages"]) - int(short["messages"])  # type: ignore[call-overload]
             di = int(long["instructions"]) - int(short["instructions"])  # type: ignore[call-overload]
             print(f"{variant:>14} {di / max(1, dm):16.0f} {long['msgs_per_record']:8.2f} "
