@@ -10,9 +10,9 @@ CPU (user + system, ``getrusage``) over the window, divided by the messages it g
 figure; the sender is not counted. Variants: ``python`` (``BLACKBOX_PURE_PYTHON=1``),
 ``native`` (the compiled loop, the reader's default hand-over), ``native:S`` (hand-over
 every S seconds), ``before`` (the native reader of ``--before SRC``, another checkout's
-``src/`` with its ``_tcpros`` built in place). Variants alternate within each repeat, so they share the machine's load,
-which is printed with every row: the machine is shared, so read the rows of one repeat
-side by side.
+``src/`` with its ``_tcpros`` built in place). Variants alternate within each repeat, so
+they share the machine's load, which is printed with every row: the machine is shared, so
+read the rows of one repeat side by side.
 """
 
 from __future__ import annotations
