@@ -4,6 +4,7 @@ the same way (a reason for the one connection, no crash, the other connections r
 
 from __future__ import annotations
 
+import gc
 import os
 import random
 import shutil
@@ -37,9 +38,11 @@ class _Seen:
         self.sizes: dict[StreamKey, list[int]] = {}
         self.closed: dict[StreamKey, tuple[str, int]] = {}
         self.first: list[StreamKey] = []
+        self.items: list[object] = []
 
     def on_batch(self, batch: Arrivals) -> None:
         with self.lock:
+            self.items.extend(batch)
             for item in batch:
                 key = StreamKey(item.topic, item.publisher)
                 if type(item) is ArrivalBatch:
@@ -269,3 +272,85 @@ def test_flush_is_a_no_op_for_the_python_reader(monkeypatch: pytest.MonkeyPatch)
         started = time.monotonic()
         reader.flush(timeout=5.0)
         assert time.monotonic() - started < 1.0
+
+
+def test_timing_only_arrivals_are_arrival_batches_with_the_connection_names(
+        receive_path: str) -> None:
+    """The native loop builds the ArrivalBatch objects itself (no Python per receive); what
+    it builds is what the Python reader builds: the event class, the connection's topic and
+    publisher, the messages' count and bytes, a kernel time on the wall clock."""
+    sizes = [3, 0, 17, 250, 8]
+    with _reader(compact=True) as (reader, seen):
+        ours, theirs = _tcp_pair()
+        reader.add(GOOD, ours, 1 << 20, None)
+        sent = time.time()
+        for n, size in enumerate(sizes, start=1):
+            theirs.sendall(_frame(b"s" * size))
+            wait_until(lambda n=n: (reader.flush(), seen.count(GOOD))[1] >= n,
+                       f"message {n} to be handed on")
+        theirs.close()
+        handed = list(seen.items)
+    assert all(type(item) is ArrivalBatch for item in handed)
+    batches = [item for item in handed if isinstance(item, ArrivalBatch)]
+    assert {(b.topic, b.publisher) for b in batches} == {(GOOD.topic, GOOD.publisher)}
+    assert sum(b.count for b in batches) == len(sizes)
+    assert sum(b.bytes for b in batches) == sum(sizes)
+    assert all(type(b.time) is float and type(b.count) is int and type(b.bytes) is int
+               for b in batches)
+    times = [b.time for b in batches]
+    assert times == sorted(times) and sent - 1.0 < times[0] <= times[-1] < time.time() + 1.0
+
+
+def test_the_native_loop_refuses_an_event_class_it_cannot_fill() -> None:
+    """The loop fills ArrivalBatch's slots directly; a class without those plain slots is
+    refused when the loop is made, never written to."""
+    from blackbox.sources.ros1.native import native_loop
+
+    native = native_loop()
+    if native is None:
+        pytest.skip("the native TCPROS loop is not built here")
+
+    class NoSlots:
+        def __init__(self) -> None:
+            self.time = self.topic = self.publisher = self.count = self.bytes = None
+
+    class WrongSlots:
+        __slots__ = ("time", "topic")
+
+    r, w = socket.socketpair()
+    with r, w:
+        for bad in (NoSlots, WrongSlots, 42):
+            with pytest.raises((TypeError, AttributeError)):
+                native.Engine(r.fileno(), True, bad)
+        native.Engine(r.fileno(), True, ArrivalBatch)  # the real one is accepted
+
+
+def test_the_native_loop_keeps_no_reference_to_what_it_handed_on() -> None:
+    """Batches made in C own their references like any other object: once the consumer and
+    the reader are gone, the topic and publisher names are back to their reference count."""
+    from blackbox.sources.ros1.native import native_loop
+
+    if native_loop() is None:
+        pytest.skip("the native TCPROS loop is not built here")
+    key = StreamKey("".join(["/refcount", "/topic"]), "".join(["/refcount", "/node"]))
+    baseline = sys.getrefcount(key.topic), sys.getrefcount(key.publisher)
+    handed: list[Arrivals] = []
+    reader = TcprosReader(_unexpected, lambda *a: None, lambda k: None, MessageDecoder(),
+                          on_batch=handed.append, compact=True)
+    reader.start()
+    ours, theirs = socket.socketpair()
+    try:
+        reader.add(key, ours, 1 << 20, None)
+        for i in range(50):
+            theirs.sendall(_frame(bytes(i % 7)))
+            if i % 10 == 0:
+                time.sleep(0.002)
+        wait_until(lambda: (reader.flush(), sum(x.count for h in handed for x in h))[1] == 50,
+                   "all 50 messages handed on")
+    finally:
+        reader.close()
+        theirs.close()
+    assert all(type(x) is ArrivalBatch for h in handed for x in h)
+    handed.clear()  # the reader closed: its loop and the streams in it are gone
+    gc.collect()
+    assert (sys.getrefcount(key.topic), sys.getrefcount(key.publisher)) == baseline

@@ -17,6 +17,7 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <structmember.h>
 
 #include <errno.h>
 #include <stdint.h>
@@ -43,6 +44,7 @@ typedef struct {
     uint64_t bytes;
     double time;
     char *body; /* REC_BODY: the message; REC_CLOSED: the reason (malloc'ed, freed here) */
+    const void *stream; /* the Stream: alive until poll() returns (only remove() frees it) */
 } Record;
 
 typedef struct {
@@ -60,8 +62,14 @@ typedef struct {
     uint64_t pending;
     uint64_t pending_bytes;
     int lowat;
-    double last_rx; /* CLOCK_MONOTONIC seconds, as time.monotonic() */
+    double last_rx;      /* CLOCK_MONOTONIC seconds, as time.monotonic() */
+    PyObject *topic;     /* str or NULL: the batch objects' topic (strong reference) */
+    PyObject *publisher; /* str or NULL */
 } Stream;
+
+/* Where ArrivalBatch keeps each of its slots (byte offsets into the object). */
+enum { SLOT_TIME, SLOT_TOPIC, SLOT_PUBLISHER, SLOT_COUNT, SLOT_BYTES, SLOTS };
+static const char *const slot_names[SLOTS] = {"time", "topic", "publisher", "count", "bytes"};
 
 typedef struct {
     PyObject_HEAD
@@ -76,6 +84,9 @@ typedef struct {
     double woke; /* when the last round began: coalescing spans poll() calls */
     unsigned char *scratch;
     void *skip;
+    PyTypeObject *batch_type;   /* NULL: records stay tuples */
+    Py_ssize_t slot_offset[SLOTS];
+    Py_ssize_t objects;         /* records of the last poll that are ready-made objects */
 } Engine;
 
 static double mono_now(void) {
@@ -104,6 +115,7 @@ static Record *push(Engine *e, int kind, Stream *s) {
     Record *r = &e->recs[e->nrecs++];
     r->kind = kind;
     r->sid = s->sid;
+    r->stream = s;
     r->count = 0;
     r->bytes = 0;
     r->time = 0.0;
@@ -312,6 +324,14 @@ static void read_stream(Engine *e, Stream *s) {
     }
 }
 
+/* Frees a stream (the interpreter lock is held: it drops the name references). */
+static void free_stream(Stream *s) {
+    free(s->body);
+    Py_XDECREF(s->topic);
+    Py_XDECREF(s->publisher);
+    free(s);
+}
+
 static Stream *find(Engine *e, uint32_t sid, Py_ssize_t *index) {
     for (Py_ssize_t i = 0; i < e->nstreams; i++)
         if (e->streams[i]->sid == sid) {
@@ -324,10 +344,51 @@ static Stream *find(Engine *e, uint32_t sid, Py_ssize_t *index) {
 
 /* ---- Python type ----------------------------------------------------------------------- */
 
+/*
+ * The offsets of batch_type's slots: it must be a class whose five attributes are plain
+ * __slots__ (member descriptors holding objects), as events.ArrivalBatch is; anything else is
+ * refused at construction, so a changed event class fails loudly instead of being written to.
+ */
+static int resolve_slots(Engine *self, PyObject *batch_type) {
+    if (!PyType_Check(batch_type)) {
+        PyErr_SetString(PyExc_TypeError, "batch_type must be a class");
+        return -1;
+    }
+    PyTypeObject *type = (PyTypeObject *)batch_type;
+    if (type->tp_alloc == NULL) {
+        PyErr_SetString(PyExc_TypeError, "batch_type cannot be allocated");
+        return -1;
+    }
+    for (int i = 0; i < SLOTS; i++) {
+        PyObject *descr = PyObject_GetAttrString(batch_type, slot_names[i]);
+        if (descr == NULL)
+            return -1;
+        int ok = Py_IS_TYPE(descr, &PyMemberDescr_Type);
+        if (ok) {
+            PyMemberDef *m = ((PyMemberDescrObject *)descr)->d_member;
+            ok = m->type == T_OBJECT_EX && !(m->flags & READONLY);
+            self->slot_offset[i] = m->offset;
+        }
+        Py_DECREF(descr);
+        if (!ok) {
+            PyErr_Format(PyExc_TypeError, "batch_type.%s is not a plain __slots__ attribute",
+                         slot_names[i]);
+            return -1;
+        }
+    }
+    Py_INCREF(batch_type);
+    self->batch_type = type;
+    return 0;
+}
+
 static int Engine_init(Engine *self, PyObject *args, PyObject *kwds) {
-    static char *kwlist[] = {"wake_fd", "compact", NULL};
+    static char *kwlist[] = {"wake_fd", "compact", "batch_type", NULL};
     int wake_fd, compact = 0;
-    if (!PyArg_ParseTupleAndKeywords(args, kwds, "i|p", kwlist, &wake_fd, &compact))
+    PyObject *batch_type = Py_None;
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "i|pO", kwlist, &wake_fd, &compact,
+                                     &batch_type))
+        return -1;
+    if (batch_type != Py_None && resolve_slots(self, batch_type) < 0)
         return -1;
     self->compact = compact;
     self->wake_fd = wake_fd;
@@ -354,11 +415,10 @@ static int Engine_init(Engine *self, PyObject *args, PyObject *kwds) {
 }
 
 static void Engine_dealloc(Engine *self) {
-    for (Py_ssize_t i = 0; i < self->nstreams; i++) {
-        free(self->streams[i]->body);
-        free(self->streams[i]);
-    }
+    for (Py_ssize_t i = 0; i < self->nstreams; i++)
+        free_stream(self->streams[i]);
     free(self->streams);
+    Py_XDECREF((PyObject *)self->batch_type);
     for (Py_ssize_t i = 0; i < self->nrecs; i++)
         free(self->recs[i].body);
     free(self->recs);
@@ -374,7 +434,8 @@ static PyObject *Engine_add(Engine *self, PyObject *args) {
     unsigned int sid;
     int fd, keep;
     unsigned long long max_bytes;
-    if (!PyArg_ParseTuple(args, "IiKp", &sid, &fd, &max_bytes, &keep))
+    PyObject *topic = NULL, *publisher = NULL;
+    if (!PyArg_ParseTuple(args, "IiKp|UU", &sid, &fd, &max_bytes, &keep, &topic, &publisher))
         return NULL;
     if (find(self, sid, NULL) != NULL) {
         PyErr_Format(PyExc_ValueError, "stream %u is already read", sid);
@@ -398,9 +459,15 @@ static PyObject *Engine_add(Engine *self, PyObject *args) {
     s->remaining = -1;
     s->lowat = 1;
     s->last_rx = mono_now();
+    if (topic != NULL && publisher != NULL) {
+        Py_INCREF(topic);
+        Py_INCREF(publisher);
+        s->topic = topic;
+        s->publisher = publisher;
+    }
     struct epoll_event ev = {.events = EPOLLIN, .data = {.ptr = s}};
     if (epoll_ctl(self->epfd, EPOLL_CTL_ADD, fd, &ev) < 0) {
-        free(s);
+        free_stream(s);
         return PyErr_SetFromErrno(PyExc_OSError);
     }
     self->streams[self->nstreams++] = s;
@@ -418,8 +485,7 @@ static PyObject *Engine_remove(Engine *self, PyObject *args) {
     if (!s->closed)
         epoll_ctl(self->epfd, EPOLL_CTL_DEL, s->fd, NULL);
     unsigned long long messages = s->messages;
-    free(s->body);
-    free(s);
+    free_stream(s);
     self->streams[i] = self->streams[--self->nstreams];
     return PyLong_FromUnsignedLongLong(messages);
 }
@@ -473,17 +539,51 @@ static PyObject *arrivals_tuple(const Record *r) {
     return t;
 }
 
-/* The records as Python tuples, in the order they happened. */
+/*
+ * One ArrivalBatch made without its __init__: allocated by the class and its five slots filled
+ * directly (the class was checked in resolve_slots), exactly what ArrivalBatch(time, topic,
+ * publisher, count, bytes) would hold.
+ */
+static PyObject *arrivals_object(Engine *self, const Record *r) {
+    const Stream *s = r->stream;
+    PyTypeObject *type = self->batch_type;
+    PyObject *values[SLOTS] = {PyFloat_FromDouble(r->time), s->topic, s->publisher,
+                               PyLong_FromUnsignedLongLong(r->count),
+                               PyLong_FromUnsignedLongLong(r->bytes)};
+    PyObject *o = NULL;
+    if (values[SLOT_TIME] != NULL && values[SLOT_COUNT] != NULL && values[SLOT_BYTES] != NULL)
+        o = type->tp_alloc(type, 0);
+    if (o == NULL) {
+        Py_XDECREF(values[SLOT_TIME]);
+        Py_XDECREF(values[SLOT_COUNT]);
+        Py_XDECREF(values[SLOT_BYTES]);
+        return NULL;
+    }
+    Py_INCREF(s->topic);
+    Py_INCREF(s->publisher);
+    for (int i = 0; i < SLOTS; i++) /* fresh object: every slot is NULL, the values move in */
+        *(PyObject **)((char *)o + self->slot_offset[i]) = values[i];
+    return o;
+}
+
+/* The records as Python tuples (or ready ArrivalBatch objects), in the order they happened. */
 static PyObject *records_to_list(Engine *self) {
     PyObject *out = PyList_New(self->nrecs);
     if (out == NULL)
         return NULL;
+    self->objects = 0;
     for (Py_ssize_t i = 0; i < self->nrecs; i++) {
         Record *r = &self->recs[i];
+        const Stream *s = r->stream;
         PyObject *item = NULL;
         switch (r->kind) {
         case REC_ARRIVALS: /* the common record: built directly, not via a format string */
-            item = arrivals_tuple(r);
+            if (self->batch_type != NULL && s->topic != NULL) {
+                item = arrivals_object(self, r);
+                self->objects += 1;
+            } else {
+                item = arrivals_tuple(r);
+            }
             break;
         case REC_BODY:
             item = Py_BuildValue("(iIKy#d)", r->kind, r->sid, (unsigned long long)r->bytes,
@@ -512,13 +612,14 @@ static void clear_records(Engine *self) {
 }
 
 /*
- * poll(timeout, hand_over, coalesce) -> (records, woken)
+ * poll(timeout, hand_over, coalesce) -> (records, woken, objects)
  *
  * Waits up to `timeout` seconds for something to read; then keeps reading until `hand_over`
  * seconds after the first record (0: after the first round that produced one), or sooner
  * when the wake-up descriptor is readable, a connection starts or ends, or a decoded topic's
  * message is complete (those need Python now). `coalesce`: at least this long between two
  * rounds, as in TcprosReader. `woken`: the wake-up descriptor is readable (Python drains it).
+ * `objects`: how many records are ready ArrivalBatch objects (all of them: nothing to convert).
  */
 static PyObject *Engine_poll(Engine *self, PyObject *args) {
     double timeout, hand_over, coalesce;
@@ -584,18 +685,19 @@ static PyObject *Engine_poll(Engine *self, PyObject *args) {
     }
     if (records == NULL)
         return NULL;
-    return Py_BuildValue("(NO)", records, woken ? Py_True : Py_False);
+    return Py_BuildValue("(NOn)", records, woken ? Py_True : Py_False, self->objects);
 }
 
 static PyMethodDef Engine_methods[] = {
     {"add", (PyCFunction)Engine_add, METH_VARARGS,
-     "add(sid, fd, max_bytes, keep_bodies): read the non-blocking socket fd as stream sid."},
+     "add(sid, fd, max_bytes, keep_bodies[, topic, publisher]): read the non-blocking socket "
+     "fd as stream sid; with the names (and a batch_type), its arrivals come as objects."},
     {"remove", (PyCFunction)Engine_remove, METH_VARARGS,
      "remove(sid) -> messages read, or -1 when unknown; the socket is not closed."},
     {"idle", (PyCFunction)Engine_idle, METH_NOARGS,
      "{sid: seconds since its last receive} of the open streams."},
     {"poll", (PyCFunction)Engine_poll, METH_VARARGS,
-     "poll(timeout, hand_over, coalesce) -> (records, woken)."},
+     "poll(timeout, hand_over, coalesce) -> (records, woken, objects)."},
     {NULL, NULL, 0, NULL},
 };
 

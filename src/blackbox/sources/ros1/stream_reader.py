@@ -148,7 +148,9 @@ class TcprosReader:
         self._sids: dict[int, _Stream] = {}
         self._next_sid = 1
         if self._native is not None:
-            self._engine = self._native.Engine(self._wake_r.fileno(), compact)
+            # compact: the loop builds the ArrivalBatch objects itself (no Python per receive)
+            self._engine = self._native.Engine(self._wake_r.fileno(), compact,
+                                               ArrivalBatch if compact else None)
         else:
             self._selector.register(self._wake_r, selectors.EVENT_READ, None)
         self._pending: list[_Stream] = []
@@ -281,13 +283,20 @@ class TcprosReader:
         stop = self._stop
         while not stop.is_set():
             try:
-                records, woken = engine.poll(1.0, self._hand_over_every, self._coalesce)
+                records, woken, objects = engine.poll(1.0, self._hand_over_every,
+                                                      self._coalesce)
             except OSError:
                 log.exception("TCPROS reader")
                 stop.wait(0.1)  # an epoll that fails must not spin
                 continue
             ended: list[tuple[_Stream, str]] = []
+            if objects == len(records):  # timing-only arrivals, already ArrivalBatch objects
+                held.extend(records)
+                records = ()
             for record in records:
+                if type(record) is ArrivalBatch:  # made by the loop; counted there
+                    held.append(record)
+                    continue
                 kind = record[0]
                 s = sids.get(record[1])
                 if s is None:
@@ -358,9 +367,10 @@ class TcprosReader:
                 continue
             stream.sid, self._next_sid = self._next_sid, self._next_sid + 1
             self._sids[stream.sid] = stream
+            names = (stream.topic, stream.publisher) if stream.decode_as is None else ()
             try:
                 self._engine.add(stream.sid, stream.sock.fileno(), stream.max_bytes,
-                                 stream.decode_as is not None)
+                                 stream.decode_as is not None, *names)
             except (OSError, ValueError) as exc:
                 self._close(stream, f"cannot read the connection: {exc}")
         for key, reason in drops:
