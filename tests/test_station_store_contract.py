@@ -325,3 +325,20 @@ def test_status_changes_are_kept_once_each_and_read_by_window(store: StationStor
     assert track.before[2] == "OPERATIONAL"
     assert [(t - T0, iid, s) for t, iid, s in track.changes if iid == 2] == [
         (5, 2, "DEGRADED"), (9, 2, "NOT_OPERATIONAL")]
+
+
+def test_writes_wait_in_a_bounded_queue_until_a_flush(location: str, clock: Clock) -> None:
+    store = StationStore(location, clock=clock, max_pending=20)
+    try:
+        robot_with_a_failing_camera(store)
+        assert store.pending == 0
+        for i in range(30):  # chart points beyond the bound go first, counted
+            store.put_value(RID, 10, T0 + i, float(i))
+        store.add_event(RID, T0, "failure", dedup="id:b-1")
+        assert 0 < store.pending <= 20 and store.dropped_points > 0
+        assert any("chart points dropped" in p.message for p in store.problems())
+        assert store.count_events() == 0  # queued, not yet written
+        assert store.flush() and store.pending == 0
+        assert store.count_events() == 1
+    finally:
+        store.close()
