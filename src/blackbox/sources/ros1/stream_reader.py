@@ -18,7 +18,8 @@ with a reason; the subscriber decides what happens next.
 
 Where the native loop is built (:mod:`blackbox.sources.ros1.native`, ``_tcpros.c``), the
 waiting, reading and splitting above run in C with the interpreter lock released, and Python
-wakes once per hand-over with one record per receive (the same arrivals, times and reasons);
+wakes once per hand-over with the same arrivals, times and reasons; in compact mode the C
+loop builds the :class:`ArrivalBatch` events itself, so no Python code runs per receive;
 the Python code here stays as the fallback and the reference that both are tested against.
 """
 
