@@ -90,7 +90,7 @@ GREY, GREEN, YELLOW, RED = "#8c959f", "#2da44e", "#d4a72c", "#cf222e"
 
 def fill(store: StationStore) -> None:
     """A known fault schedule, as the follower records it (statuses at the robot's times):
-    every entity heard OPERATIONAL 280 s ago, /odom DEGRADED from 100 to 70 s ago,
+    every entity heard OPERATIONAL 250 s ago, /odom DEGRADED from 100 to 70 s ago,
     /usb_cam killed 40 s ago (its rate drops from 15 Hz to 0), when the robot entity
     reports the UCMS robot health DEGRADED (one node down); 60 older events of long prose,
     35 log requests."""
@@ -98,7 +98,7 @@ def fill(store: StationStore) -> None:
     now = time.time()
     store.heard(rid, now)
     store.put_robot_id(rid, ROBOT)
-    first = now - 280
+    first = now - 250
     store.put_entity(rid, 1, name=ROBOT, kind="robot", status="OPERATIONAL", updated=first)
     store.put_entity(rid, 2, name="/usb_cam", kind="node", parent=1, status="OPERATIONAL",
                      updated=first)
@@ -113,7 +113,7 @@ def fill(store: StationStore) -> None:
     store.put_entity(rid, 1, status="DEGRADED", updated=now - 40)
     store.put_characteristic(rid, 20, entity=2, name="rate /usb_cam/image_raw", unit="Hz",
                              observer="hz")
-    for k in range(57):
+    for k in range(51):
         t = first + 5 * k
         store.put_value(rid, 20, t, 15.0 if t < now - 40 else 0.0, entity=2)
     for i in range(60):
@@ -250,12 +250,18 @@ def test_the_timeline_draws_the_fault_schedule_and_a_span_opens_its_events_and_c
         assert fills("/usb_cam/image_raw") == [GREY, GREEN]
         assert fills(ROBOT) == [GREY, GREEN, YELLOW, GREEN, YELLOW]  # its badge's rule
         assert page.locator("#robot-status").inner_text() == "DEGRADED"  # = the lane's end
-        cam = page.locator("#timeline g.lane[data-entity='/usb_cam'] rect.span")
-        widths = [float(cam.nth(i).get_attribute("width") or 0) for i in range(cam.count())]
-        assert 0.10 < widths[-1] / sum(widths) < 0.17, widths  # 40 s of the last 5 min
-        odom = page.locator("#timeline g.lane[data-entity='/odom'] rect.span")
-        yellow = float(odom.nth(2).get_attribute("width") or 0) / sum(widths)
-        assert 0.08 < yellow < 0.12, yellow  # DEGRADED for 30 s of the 5 min
+        def seconds(lane: str) -> list[float]:
+            """The lane's spans in seconds (the window is 300 s, however late it is drawn:
+            the load on a shared machine may delay the page by seconds)."""
+            spans = page.locator(f"#timeline g.lane[data-entity='{lane}'] rect.span")
+            widths = [float(spans.nth(i).get_attribute("width") or 0)
+                      for i in range(spans.count())]
+            return [300 * w / sum(widths) for w in widths]
+
+        grey, green, red = seconds("/usb_cam")
+        assert abs(green - 210) < 1.5, (grey, green, red)  # heard 250 s ago, killed 40 s ago
+        assert abs(grey + red - 90) < 1.5, (grey, green, red)
+        assert abs(seconds("/odom")[2] - 30) < 1.5  # DEGRADED for 30 s
         page.locator("body[data-live=open]").wait_for()  # live: a new failure is drawn
         rid = robot_resource_id(ROBOT)
         store.put_entity(rid, 4, status="NOT_OPERATIONAL", updated=time.time() - 20)

@@ -12,8 +12,8 @@ from markupsafe import Markup
 
 from blackbox.station.timeline import ZOOMS
 from blackbox.station.web.context import Id, WebContext
+from blackbox.station.web.health_timeline import timeline_of
 from blackbox.station.web.live import Snapshot, StreamQuery
-from blackbox.station.web.routes.robot import timeline_of
 
 
 def router(web: WebContext) -> APIRouter:
