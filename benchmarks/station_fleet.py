@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 HERE = Path(__file__).resolve()
+ROBOTS_PER_ROUTER = 250
 
 
 # ---- simulated black boxes (child) ----------------------------------------------------------
@@ -332,6 +333,9 @@ def main() -> int:
     p.add_argument("--zenoh", nargs="?", const="router", default="",
                    help="robots and station meet through a Zenoh router (in this process, "
                         "on 127.0.0.1) instead of DDS")
+    p.add_argument("--routers", type=int, default=0,
+                   help=f"Zenoh routers of the robots (default: one per {ROBOTS_PER_ROUTER} "
+                        "robots), joined to the station's")
     p.add_argument("--db", default="",
                    help="the station's database: a file (SQLite; default a temporary one) or "
                         "postgresql://... (passed to blackbox station --db as it is)")
@@ -361,14 +365,23 @@ def main() -> int:
         mode = "web" if _has_web_station() else "core"
     work = Path(tempfile.mkdtemp(prefix="station-fleet-"))
     db = args.db or str(work / "station.db")
-    router = None
+    routers: list[Any] = []
     bus_args: list[str] = ["--domain", str(args.domain)]
+    robot_routers: list[str] = []
     if args.zenoh:
         from blackbox.transport.zenoh_router import RouterSettings, open_router
 
-        args.zenoh = f"tcp/127.0.0.1:{free_port()}"
-        router = open_router(RouterSettings((args.zenoh,)))
+        # one Zenoh router here took at most 351 sessions (clients or peers alike), so the
+        # robots spread over several routers joined to the station's one, as sites would
+        for_robots = args.routers or max(1, math.ceil(args.robots / ROBOTS_PER_ROUTER))
+        count = for_robots + 1 if for_robots > 1 else 1
+        endpoints = [f"tcp/127.0.0.1:{free_port()}" for _ in range(count)]
+        for i, endpoint in enumerate(endpoints):
+            routers.append(open_router(RouterSettings((endpoint,),
+                                                      connect=() if i == 0 else (endpoints[0],))))
+        args.zenoh = endpoints[0]
         bus_args = ["--zenoh", args.zenoh]
+        robot_routers = endpoints[1:] or endpoints
     py = sys.executable
     web: WebClient | None = None
     password = "bench-" + os.urandom(8).hex()
@@ -406,8 +419,10 @@ def main() -> int:
     groups = [ids[i::args.processes] for i in range(args.processes) if ids[i::args.processes]]
     robots = []
     for index, group in enumerate(groups):
+        robot_bus = ["--zenoh", robot_routers[index % len(robot_routers)]] if robot_routers \
+            else bus_args
         child = subprocess.Popen([py, str(HERE), "--robots-child", "--ids", ",".join(group),
-                                  *bus_args, "--watch-ids", ",".join(watched),
+                                  *robot_bus, "--watch-ids", ",".join(watched),
                                   *(["--matched"] if args.matched else []), "--duration",
                                   str(args.duration), "--interval", str(args.interval),
                                   "--fault-every", str(args.fault_every), "--fault-length",
@@ -461,7 +476,7 @@ def main() -> int:
     except subprocess.TimeoutExpired:
         station.kill()
 
-    if router is not None:
+    for router in reversed(routers):
         router.close()
     stored = stored_counts(db, ids)
 
@@ -469,7 +484,7 @@ def main() -> int:
     load = os.getloadavg()
     print(f"machine: {os.cpu_count()} cores, {psutil.virtual_memory().total / 2**30:.1f} GiB, "
           f"load average {load[0]:.1f} / {load[1]:.1f} at the end; "
-          f"bus: {'Zenoh via ' + args.zenoh if args.zenoh else f'DDS domain {args.domain}'}; "
+          f"bus: {f'Zenoh, {len(routers)} routers' if args.zenoh else 'DDS'}; "
           f"database: {'PostgreSQL' if str(db).startswith('postgresql') else 'SQLite'}; "
           f"station: {mode}; robots: {args.robots} in {len(groups)} processes; "
           f"measured {elapsed:.0f} s")

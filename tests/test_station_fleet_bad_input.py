@@ -37,10 +37,13 @@ def robots(domain: int, robot_id: str, index: int, *extra: str) -> subprocess.Po
     proc = subprocess.Popen(
         [sys.executable, str(ROBOTS), "--robots-child", "--ids", robot_id, "--domain",
          str(domain), "--duration", "16", "--interval", "0.5", "--fault-every", "5",
-         "--fault-length", "2", "--fault-start", "3", "--index", str(index), *extra],
+         "--fault-length", "2", "--fault-start", "3", "--index", str(index), "--matched",
+         *extra],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert proc.stdout is not None
     line = proc.stdout.readline().strip()
+    # "ready" once the station's readers matched this robot (bounded by the robot: 600 s),
+    # so that what the test counts is delivery, not a discovery still under way
     assert line == "ready", f"robot {robot_id} did not start: {line} {proc.stderr.read()}"
     return proc
 

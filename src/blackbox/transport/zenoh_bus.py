@@ -105,6 +105,7 @@ class ZenohSettings:
             config.insert_json5("mode", '"peer"')
             config.insert_json5("listen/endpoints", "[]")
             config.insert_json5("scouting/gossip/enabled", "false")
+            config.insert_json5("scouting/delay", "0")  # no peers to wait for: open at once
         else:
             config.insert_json5("mode", '"client"')
             config.insert_json5("connect/timeout_ms", str(CONNECT_WAIT_MS))
