@@ -19,10 +19,12 @@ from pathlib import Path
 import pytest
 
 from blackbox.app import RunOptions, build
+from blackbox.events import Interest, MeasurementGap, MessageArrival
 from blackbox.model import BlackBoxEvent, Code, Observation
 from blackbox.sinks import SinkBase
 from blackbox.sources.ros1.source import Ros1Settings, Ros1Source
 from conftest import black_box_running, wait_for
+from ros1_watch import Watch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros1_robot"))
 from robot import ThesisRobot, free_port
@@ -267,39 +269,43 @@ def test_a_stalled_counted_topic_leaves_the_other_counted_topics_rate_alone(
         assert seen.alarms(start, ["/audio", "/signal"]) == []
 
 
+def audio(watch: Watch) -> list[float]:
+    return [e.time for e in watch.events if isinstance(e, MessageArrival) and e.topic == "/audio"]
+
+
 def test_a_slow_round_of_counts_is_waited_for_not_handed_out_as_silence(
         robot: ThesisRobot) -> None:
     """The first round after the camera node is stopped waits the whole probe time-out for
-    it before the audio publisher's counts are queued. The black box's evaluations meanwhile
-    must not take the still uncounted stretch for silence of /audio (a hole, hence a long
-    period, hence a wrong rate: the remaining false alarms of the real campaign during
-    stalls): ``poll`` waits for the round that counts up to its horizon. A probe time-out of
-    1 s makes the slow round twice as long as the default's, so the hole it left before
-    was longer than `hz` on /audio tolerates (50 periods of 0.03 s, |mean - 0.03| < 0.01)."""
-    seen = Seen()
-    uri = f"ros1://127.0.0.1:{robot.port}"
-    box = build(RunOptions(config=THESIS, source=uri, live=False, extra_sinks=[seen]))
-    box.pipeline.source.close()  # built from the URI with the default settings
-    box.pipeline.source = Ros1Source(f"http://127.0.0.1:{robot.port}",
-                                     Ros1Settings(probe_timeout=1.0))
-    stop = threading.Event()
-    thread = threading.Thread(target=box.run, args=(stop,), daemon=True)
-    thread.start()
+    it before the audio publisher's counts are queued. ``poll`` must not hand out its
+    horizon before those counts: the uncounted stretch was silence of /audio at the
+    evaluation, then a hole in its arrivals (a long period, a wrong rate: the remaining
+    false alarms of the real campaign during stalls). A probe time-out of 1 s makes the slow
+    round long; at every 1 s horizon, as the pipeline polls, the last /audio arrival handed
+    out (33 Hz, counted) must be recent."""
+    source = Ros1Source(f"http://127.0.0.1:{robot.port}", Ros1Settings(probe_timeout=1.0))
+    source.start(Interest(topics=frozenset({"/audio", "/usb_cam/image_raw"})))
+    watch = Watch(source)
     try:
-        start = settled(seen)
-        for _ in range(3):
+        assert watch.until(lambda: ("/audio", "/audio_capture") in source.counted
+                           and len(audio(watch)) > 100, 40), \
+            "/audio never counted"
+        silences: list[float] = []
+        for _ in range(6):
             os.kill(robot.pid("/usb_cam"), signal.SIGSTOP)
-            stopped = time.time()
             try:
-                assert wait_for(lambda s=stopped: any(
-                    o.resource.node == "/usb_cam" for o in seen.alarms(s)), 10), \
-                    "the stall was not seen"
-                time.sleep(2.0)  # the stall's length is the input, not a wait
+                for _ in range(2):  # polls while stopped: the input, not a wait
+                    horizon = time.time() + 1.0
+                    watch.events.extend(source.poll(horizon))
+                    heard = audio(watch)
+                    if not any(isinstance(e, MeasurementGap) and e.topic in (None, "/audio")
+                               and e.time >= horizon - 1.0 for e in watch.events):
+                        silences.append(horizon - max(heard))
             finally:
                 os.kill(robot.pid("/usb_cam"), signal.SIGCONT)
-            back = time.time()
-            assert wait_for(lambda b=back: seen.ok(b + 2.0), 30), "not healthy after the stall"
-        assert seen.alarms(start, ["/audio", "/signal"]) == []
+            assert watch.until(lambda: ("/usb_cam/image_raw", "/usb_cam") in source.counted,
+                               20), "the camera never counted again"
+        long = [round(x, 3) for x in silences if x > 0.5]
+        assert len(silences) >= 8, f"only {len(silences)} horizons without a gap"
+        assert long == [], f"/audio silent at the horizon for {long} s"
     finally:
-        stop.set()
-        thread.join(timeout=5)
+        source.close()
