@@ -10,9 +10,9 @@ from __future__ import annotations
 import json
 import math
 import os
+import sqlite3
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +23,7 @@ from blackbox.model import Code, Observation, Resource, State
 from blackbox.record import Store
 from blackbox.record.policy import LoggingPolicy, PolicyTracker, observation_payload
 from blackbox.record.store import FRAME_MIN, KINDS, THINNED, Row, RowTuple
+from conftest import wait_until
 from crash_support import sigkill_after
 
 T0 = 1.7e9
@@ -198,6 +199,20 @@ while True:  # every observation a change: 10 channels x 100 a batch, framed at 
 """
 
 
+def committed_frames(log: Path) -> int:
+    """Frames committed to ``log`` so far, read without disturbing the writer."""
+    if not log.exists():
+        return 0
+    try:
+        db = sqlite3.connect(f"{log.as_uri()}?mode=ro", uri=True, timeout=1.0)
+        try:
+            return int(db.execute("SELECT count(*) FROM frames").fetchone()[0])
+        finally:
+            db.close()
+    except sqlite3.Error:
+        return 0  # not created yet, or its schema not committed yet
+
+
 @pytest.mark.slow
 def test_sigkill_of_a_writer_mid_batch_keeps_every_acknowledged_observation(
         tmp_path: Path) -> None:
@@ -210,10 +225,13 @@ def test_sigkill_of_a_writer_mid_batch_keeps_every_acknowledged_observation(
         proc = subprocess.Popen([sys.executable, "-c", WRITER, str(log), str(handed)],
                                 stdout=subprocess.PIPE, env=env)
 
-        def ready(proc: subprocess.Popen[bytes] = proc) -> None:
+        def ready(proc: subprocess.Popen[bytes] = proc, log: Path = log) -> None:
             assert proc.stdout is not None
             assert proc.stdout.readline().strip() == b"ready"
-            time.sleep(0.3)  # a few commits
+            # the first commit of frames, then the kill's delay (a fixed 0.3 s here once
+            # saw no commit at all on a loaded machine)
+            wait_until(lambda: committed_frames(log) > 0, "a first commit of frames",
+                       timeout=30)
 
         sigkill_after(proc, ready, 0.1 + 0.17 * run)
         acknowledged = [(float(w), int(s)) for w, s in

@@ -27,7 +27,10 @@ from zenoh_support import RouterProcess, free_tcp_port
 
 pytestmark = pytest.mark.dds
 
-STALE_AFTER = 2.0
+STALE_AFTER = 5.0
+"""Seconds unheard before a robot shows UNKNOWN. 2 s was shorter than the time a loaded
+machine (load average 40) took from the robot's state arriving to the station's store
+showing it, so the robot was stale again before the test could see it known."""
 
 
 def event_counts(path: Path) -> dict[str, int]:
