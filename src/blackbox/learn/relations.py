@@ -201,6 +201,11 @@ def signals_of(rec: Recording, notes: list[str]) -> list[Signal]:
                 if wrap:
                     d = _wrapped(d)
                 period = float(np.median(np.diff(t))) if t.size > 1 else math.inf
+                if not period > 0:
+                    # arrivals in bursts (most share a receive time: a loaded machine, a
+                    # replayed log): the mean period, never zero (it divides)
+                    span = float(np.ptp(t)) if t.size > 1 else 0.0
+                    period = span / (t.size - 1) if span > 0 else math.inf
                 noise = _robust(d) / math.sqrt(2)
                 if noise == 0.0:
                     noise = float(np.std(d)) / math.sqrt(2)
@@ -742,6 +747,8 @@ def _longest_run(x: np.ndarray) -> int:
 
 
 def learn_liveness(s: Signal) -> Liveness | None:
+    if not math.isfinite(s.period):
+        return None  # every sample at one time: nothing says how often it moves
     x = s.values
     longest = _longest_run(x)
     repeats = max(5, 2 * longest + 1) if longest <= 3 else None
