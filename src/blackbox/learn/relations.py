@@ -816,10 +816,7 @@ def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict
             **({"track": r.track, "track_rate": _g(r.track_rate or 0.0, 4)}
                if r.track is not None else {}),
             **({} if r.clears else {"clears": False}),
-            # signals that move on their own leave any range two minutes saw (an odometer
-            # climbs, a battery discharges): their relation is judged wherever they are
-            **({} if r.track is not None else
-               {"span": [round_down(r.span[0]), round_up(r.span[1])]}),
+            "span": [round_down(r.span[0]), round_up(r.span[1])],
         })
     return {"type": "relation", "topic": pair[0], "topic_b": pair[1], "step": STEP,
             "block": BLOCK, "window": WINDOW, "fresh": round_up(fresh, 2),
