@@ -161,3 +161,18 @@ def test_a_signal_that_stops_leaves_the_relation_unjudged_not_failed() -> None:
     after = [o for o in out if o.time > 62.0]
     assert after and all(o.code == Code.NOT_AVAILABLE for o in after)
     assert "stale" in after[-1].message or "waiting" in after[-1].message
+
+
+def test_samples_that_arrive_in_bursts_are_learned_not_a_crash() -> None:
+    """Seen on a loaded machine (real ROS 1): most IMU samples reached the learner in
+    bursts with one receive time each, so the median period was zero, which divided.
+    The mean period stands in; the relation and the liveness are still learned."""
+    events = robot(120.0)
+    bursty = [MessageArrival(math.floor(e.time * 4) / 4, e.topic, e.publisher, e.size,
+                             value=e.value)
+              if isinstance(e, MessageArrival) and e.topic == "/imu" else e for e in events]
+    rec = record(MemorySource(sorted(bursty, key=lambda e: e.time)), graph(0.0), 120.0)
+    learned = learn_relations(rec)
+    imu = [live for live in learned.liveness.get("/imu", [])]
+    assert all(live.signal.period > 0 for live in imu)
+    assert all(live.calibration is not None for live in imu if live.z is not None)

@@ -203,6 +203,7 @@ TWO_RELATIONS = RELATION + """  - name: cmd_w
     block_noise: 0.01
     cusum: {k: 0.5, h: 10.0}
     excitation: 0.02
+    span: [-2.0, 2.0]
     clears: false
 """
 

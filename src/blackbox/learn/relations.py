@@ -100,9 +100,6 @@ class Signal:
     topic, when it is significant and would leave the learned range within an hour (a
     battery voltage discharging under a current that moves it more): no band."""
     note: str = ""
-    monotonic: bool = False
-    """Only grows or only falls (an odometer): related on its changes, no liveness check
-    (it stands still with the robot)."""
 
 
 @dataclass
@@ -190,9 +187,7 @@ def signals_of(rec: Recording, notes: list[str]) -> list[Signal]:
                 if x.size < MIN_SIGNAL_SAMPLES:
                     continue
                 kind = classify(x, frec.info.integer).kind
-                # a monotonic signal (an odometer) is no band's but may be related: its
-                # changes follow a speed (a clock's or a counter's changes follow nothing)
-                if kind not in ("numeric", "monotonic"):
+                if kind != "numeric":
                     continue
                 name = f"{topic.name} {path}"
                 d = np.diff(x)
@@ -201,19 +196,16 @@ def signals_of(rec: Recording, notes: list[str]) -> list[Signal]:
                 if wrap:
                     d = _wrapped(d)
                 period = float(np.median(np.diff(t))) if t.size > 1 else math.inf
+                if not period > 0:
+                    # arrivals in bursts (most share a receive time: a loaded machine, a
+                    # replayed log): the mean period, never zero (it divides)
+                    span = float(np.ptp(t)) if t.size > 1 else 0.0
+                    period = span / (t.size - 1) if span > 0 else math.inf
                 noise = _robust(d) / math.sqrt(2)
                 if noise == 0.0:
                     noise = float(np.std(d)) / math.sqrt(2)
-                if kind == "monotonic":
-                    # its steps follow the speed: the noise is what smooth motion does not
-                    # explain (second differences), at least the rounding of whole units
-                    noise = max(_robust(np.diff(d)) / math.sqrt(6),
-                                1 / math.sqrt(12) if frec.info.integer else 0.0)
-                trend = _trend(t, x, noise)
-                if kind == "monotonic" and trend is None and np.ptp(t) > 0:
-                    trend = float((x[-1] - x[0]) / np.ptp(t))
                 sig = Signal(SignalRef(topic.name, path), name, t, x, period, noise, wrap,
-                             trend, frec.info.integer, monotonic=kind == "monotonic")
+                             _trend(t, x, noise), frec.info.integer)
                 out.append(sig)
     return out
 
@@ -507,15 +499,6 @@ def change_r2(fitted: Fit, target: np.ndarray) -> float:
     return 1.0 - float(np.mean(dr[ok] ** 2)) / var if var > 0 else -math.inf
 
 
-def fault_unit(sig: Signal) -> float:
-    """The size a fault of ``sig`` is judged at: its noise, or for a monotonic signal (an
-    odometer in whole centimetres, nearly noise-free) a hundredth of what it climbed while
-    learning: a rounding step is no scale for a fault of a counter of metres."""
-    if sig.monotonic and sig.values.size:
-        return max(sig.noise, 0.01 * float(np.ptp(sig.values)))
-    return sig.noise
-
-
 def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Relation | None:
     """Residual noise per mode, sensitivity and span of a fitted relation; ``None`` when it
     cannot see a fault of four noise std on one of its signals."""
@@ -560,8 +543,8 @@ def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Rela
     per = len(fitted.gains) // n_in
     gains = [fitted.gains[i * per:(i + 1) * per].tolist() for i in range(n_in)]
     noise_mode = max(m_noise, still_mode[1] if still_mode else 0.0)
-    seen_target = 4 * fault_unit(target) / noise_mode
-    seen = [4 * fault_unit(sig) * abs(sum(g)) / noise_mode for sig, g in zip(inputs, gains,
+    seen_target = 4 * target.noise / noise_mode
+    seen = [4 * sig.noise * abs(sum(g)) / noise_mode for sig, g in zip(inputs, gains,
                                                                       strict=True)]
     if seen_target < SENSITIVITY:
         return None
@@ -591,8 +574,6 @@ def learn_relations(rec: Recording) -> RelationsLearned:
                 f"{s.noise:.3g}): no band, it would leave it; checked for being alive")
     liveness: dict[str, list[Liveness]] = {}
     for s in signals:
-        if s.monotonic:
-            continue
         live = learn_liveness(s)
         if live is not None:
             liveness.setdefault(s.ref.topic, []).append(live)
@@ -742,6 +723,8 @@ def _longest_run(x: np.ndarray) -> int:
 
 
 def learn_liveness(s: Signal) -> Liveness | None:
+    if not math.isfinite(s.period):
+        return None  # every sample at one time: nothing says how often it moves
     x = s.values
     longest = _longest_run(x)
     repeats = max(5, 2 * longest + 1) if longest <= 3 else None
@@ -809,10 +792,7 @@ def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict
             **({"track": r.track, "track_rate": _g(r.track_rate or 0.0, 4)}
                if r.track is not None else {}),
             **({} if r.clears else {"clears": False}),
-            # signals that move on their own leave any range two minutes saw (an odometer
-            # climbs, a battery discharges): their relation is judged wherever they are
-            **({} if r.track is not None else
-               {"span": [round_down(r.span[0]), round_up(r.span[1])]}),
+            "span": [round_down(r.span[0]), round_up(r.span[1])],
         })
     return {"type": "relation", "topic": pair[0], "topic_b": pair[1], "step": STEP,
             "block": BLOCK, "window": WINDOW, "fresh": round_up(fresh, 2),

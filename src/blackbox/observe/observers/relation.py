@@ -443,13 +443,10 @@ def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
                                       f"{len(lags)} and {len(gains)}")
         taps.extend(Tap(ref, _steps(lag, step), gain.float())
                     for lag, gain in zip(lags, gains, strict=True))
-    span_node = node.get("span")
-    limits = (-math.inf, math.inf)  # no span: judged wherever the prediction is
-    if span_node is not None:
-        span = span_node.list()
-        if len(span) != 2 or not span[0].float() <= span[1].float():
-            raise span_node.error("span must be [low, high] with low <= high")
-        limits = (span[0].float(), span[1].float())
+    span_node = node["span"]
+    span = span_node.list()
+    if len(span) != 2 or not span[0].float() <= span[1].float():
+        raise span_node.error("span must be [low, high] with low <= high")
     bias = node.get("bias")
     moving = NoiseMode(0.0 if bias is None else bias.float(),
                        node["block_noise"].float(min=0.0, min_exclusive=True))
@@ -460,7 +457,7 @@ def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
         moving=moving, still=None if still is None or still.is_null else _mode(still),
         cusum=CusumSpec.read(node["cusum"]),
         excitation=node["excitation"].float(min=0.0) if node.get("excitation") else 0.0,
-        span=limits,
+        span=(span[0].float(), span[1].float()),
         track=(node["track"].float(min=0.0, min_exclusive=True)
                if node.get("track") is not None else None),
         track_rate=(node["track_rate"].float(min=0.0)
