@@ -1054,12 +1054,19 @@ class StationFollower:
                                     since=since, until=until, kinds=kinds,
                                     max_entries=max_entries, timeout=self.log_timeout,
                                     robot_key=self._robot_key(robot_id))
-        if answer.forged:
-            self.gate.stats.forged += answer.forged
-            self.store.report_problem(f"forged data {robot_id}",
-                                      f"{robot_id}: {answer.forged} log reply chunks without "
-                                      "the robot's signature were dropped")
+        late = client.late_forged()
+        late[robot_id] = late.get(robot_id, 0) + answer.forged
+        self._count_forged_replies(late)
         return answer
+
+    def _count_forged_replies(self, forged: dict[str, int]) -> None:
+        for robot_id, n in forged.items():
+            if n <= 0:
+                continue
+            self.gate.stats.forged += n
+            self.store.report_problem(f"forged data {robot_id}",
+                                      f"{robot_id}: {n} log reply chunks without "
+                                      "the robot's signature were dropped")
 
     def _drop_foreign_replies(self) -> None:
         """Log replies keep all history: between our own requests, replies to other
@@ -1069,7 +1076,7 @@ class StationFollower:
             if client is None or not lane.lock.acquire(blocking=False):
                 continue
             try:
-                client.reader.take(N=256)
+                self._count_forged_replies(client.take_late(256))
             except Exception as exc:
                 self.store.report_problem("dds BlackBox_Log_Reply", f"cannot read: {exc}")
             finally:

@@ -24,6 +24,7 @@ import itertools
 import json
 import secrets
 import time
+from collections import Counter, OrderedDict
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -187,6 +188,10 @@ class LogService:
             yield reply(0, True, f"error: {exc}", [])
 
 
+ANSWERED_REMEMBERED = 64
+"""Recent requests whose late replies are still checked for the robot's signature."""
+
+
 @dataclass
 class LogAnswer:
     status: str
@@ -212,6 +217,32 @@ class LogClient:
         self.reader = bus.reader("BlackBox_Log_Reply")
         self._numbers = itertools.count(secrets.randbits(20))
         self._waiter = bus.waiter([self.reader])
+        self._answered: OrderedDict[tuple[int, int], tuple[str, Ed25519PublicKey]] = \
+            OrderedDict()
+        self._late_forged: Counter[str] = Counter()
+
+    def _check_late(self, reply: C_Log_Reply) -> None:
+        """A reply to one of our recent requests that came after its answer was complete
+        (or while another request was waiting): dropped, but counted as forged for its robot
+        when the robot did not sign it, so a forgery that loses the race is still seen."""
+        rid = reply.A_requestID
+        known = self._answered.get((int(rid.A_resourceId), int(rid.A_instanceId)))
+        if known is not None and not reply_signed_by(known[1], known[0], REPLY_TOPIC, reply):
+            self._late_forged[known[0]] += 1
+
+    def take_late(self, max_replies: int = 256) -> dict[str, int]:
+        """Take replies waiting between requests (replies to other stations, late chunks of
+        ours) so they do not pile up in the reader; returns the forged ones among ours per
+        robot, as :meth:`late_forged` does."""
+        for reply in self.reader.take(N=max_replies):
+            if isinstance(reply, C_Log_Reply):
+                self._check_late(reply)
+        return self.late_forged()
+
+    def late_forged(self) -> dict[str, int]:
+        """Forged replies to recent requests counted since the last call, per robot."""
+        counts, self._late_forged = dict(self._late_forged), Counter()
+        return counts
 
     def wait_for_robot(self, timeout: float) -> bool:
         """Wait until some black box is matched both ways (requests and replies)."""
@@ -252,7 +283,10 @@ class LogClient:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             for reply in self.reader.take(N=64):
-                if not isinstance(reply, C_Log_Reply) or reply.A_requestID != request_id:
+                if not isinstance(reply, C_Log_Reply):
+                    continue
+                if reply.A_requestID != request_id:
+                    self._check_late(reply)
                     continue
                 if robot_key is not None and not reply_signed_by(robot_key, robot_id,
                                                                  REPLY_TOPIC, reply):
@@ -265,6 +299,10 @@ class LogClient:
                 break
             self._waiter.wait(0.1)
         complete = last is not None and all(i in chunks for i in range(last + 1))
+        if robot_key is not None:
+            self._answered[(self.station, number)] = (robot_id, robot_key)
+            while len(self._answered) > ANSWERED_REMEMBERED:
+                self._answered.popitem(last=False)
         entries: list[dict[str, Any]] = []
         status = "timeout: no complete answer" if not complete else "ok"
         for i in sorted(chunks):
