@@ -161,6 +161,9 @@ class _Char:
     observer: str = ""
     resource: str = ""
     entity: int | None = None
+    last_sample: tuple[float, float] | None = None
+    """The robot's time and value of the last sample taken: a durable sample delivered again
+    (a reader that matched the robot anew) is not a new chart point."""
 
 
 @dataclass(slots=True)
@@ -578,8 +581,10 @@ class StationFollower:
             value = float(s.A_value)
             robot_time = seconds_of(s.A_timeOfDataGeneration)
             self.clocks.observe(robot.name, robot_time, now)
-            self.store.put_value(rid, iid, self.clocks.time_of(robot.name, robot_time, now),
-                                 value, c.entity)
+            if c.last_sample != (robot_time, value):
+                c.last_sample = (robot_time, value)
+                self.store.put_value(rid, iid, self.clocks.time_of(robot.name, robot_time, now),
+                                     value, c.entity)
             self.store.put_characteristic(rid, iid,
                                           exceeded=bool(s.A_thresholdExceedenceEvents_sourceID))
         elif isinstance(s, C_Monitored_Characteristic_Specification):
