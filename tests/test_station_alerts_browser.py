@@ -120,8 +120,8 @@ def logged_in(browser: Any, site: Site, user: str) -> Any:
     page.goto("/login")
     page.fill("input[name=username]", user)
     page.fill("input[name=password]", PASSWORD)
-    page.click("button[type=submit]")
-    page.wait_for_load_state()
+    with page.expect_navigation():
+        page.click("button[type=submit]")
     return page
 
 
@@ -140,17 +140,21 @@ def reload_until(page: Any, selector: str, text: str, timeout: float = 20) -> No
 
 def test_an_admin_adds_a_rule_and_sends_a_test_notification(browser: Any, site: Site) -> None:
     page = logged_in(browser, site, "ada")
-    page.click("text=Alerts")
+    with page.expect_navigation():
+        page.click("text=Alerts")
     assert page.locator("h1").inner_text() == "Alerts"
     page.fill("#add-rule textarea", "name: robots gone quiet\nsend: nope\n")
-    page.click("#add-rule button")
+    with page.expect_navigation():
+        page.click("#add-rule button")
     assert "at send: unknown channel 'nope'" in page.locator("#alerts-message").inner_text()
     page.fill("#add-rule textarea", "name: robots gone quiet\nsend: [hook]\n"
                                     "match: {kind: robot_silent}\n")
-    page.click("#add-rule button")
+    with page.expect_navigation():
+        page.click("#add-rule button")
     row = page.locator("tr[data-rule='robots gone quiet']")
     assert "page" in row.inner_text()
-    page.locator("tr[data-rule='cameras'] >> text=Send a test notification").click()
+    with page.expect_navigation():
+        page.locator("tr[data-rule='cameras'] >> text=Send a test notification").click()
     assert "Test notification queued" in page.locator("#alerts-message").inner_text()
     got = site.hook.wait_for(1, timeout=15)[0].json
     assert (got["type"], got["rule"]) == ("test", "cameras")
@@ -171,8 +175,8 @@ def test_the_page_shows_escalation_acknowledgement_and_unmatched_events(
     assert camera.locator("td").nth(8).inner_text() == "1"  # one escalation step taken
     lidar = page.locator("#alerts tr", has_text="/lidar")
     assert "firing" in lidar.inner_text()
-    lidar.locator("text=Acknowledge").click()
-    page.wait_for_load_state()
+    with page.expect_navigation():
+        lidar.locator("text=Acknowledge").click()
     lidar = page.locator("#alerts tr", has_text="/lidar")
     assert "acknowledged by otto" in lidar.locator(".alert-state").inner_text()
     reload_until(page, "#unmatched", "1 failure event in the last hour matched no alert rule")

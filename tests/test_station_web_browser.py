@@ -146,8 +146,8 @@ def log_in(page: object, user: str, password: str, *, here: bool = False) -> Non
         page.goto("/login")  # type: ignore[attr-defined]
     page.fill("input[name=username]", user)  # type: ignore[attr-defined]
     page.fill("input[name=password]", password)  # type: ignore[attr-defined]
-    page.click("button[type=submit]")  # type: ignore[attr-defined]
-    page.wait_for_load_state()  # type: ignore[attr-defined]
+    with page.expect_navigation():  # type: ignore[attr-defined]
+        page.click("button[type=submit]")  # type: ignore[attr-defined]
 
 
 def utc_input(t: float) -> str:
@@ -306,7 +306,8 @@ def test_a_log_downloaded_from_the_page_equals_the_robots_own_health_log(
 def test_entity_ibit_and_events_pages(browser: object, fleet: Fleet) -> None:
     page = new_page(browser, fleet, "otto")
     page.goto("/robot?r=thesis-robot")
-    page.click("li.entity[data-name='/usb_cam/image_raw'] a.name")
+    with page.expect_navigation():
+        page.click("li.entity[data-name='/usb_cam/image_raw'] a.name")
     page.locator("body[data-live=open]").wait_for()
     assert page.locator("h1").inner_text().startswith("/usb_cam/image_raw")
     page.locator("figure.chart .uplot").first.wait_for()

@@ -81,8 +81,8 @@ def test_robot_supplied_markup_is_shown_as_text_and_never_runs(
         page.goto("/login")
         page.fill("input[name=username]", "vera")
         page.fill("input[name=password]", PASSWORD)
-        page.click("button[type=submit]")
-        page.wait_for_load_state()
+        with page.expect_navigation():
+            page.click("button[type=submit]")
         page.goto("/robot?r=evil-bot")
         page.locator("body[data-live=open]").wait_for()
         assert page.locator("li.entity[data-entity='2'] a.name").inner_text() == EVIL
@@ -103,8 +103,8 @@ def test_robot_supplied_markup_is_shown_as_text_and_never_runs(
         assert f"{EVIL} is not working" in page.locator("table.events").inner_text()
         assert page.locator("main script, main img").count() == 0
 
-        page.click("li.entity[data-entity='2'] a.name")
-        page.wait_for_load_state()
+        with page.expect_navigation():
+            page.click("li.entity[data-entity='2'] a.name")
         assert page.locator("h1").inner_text().startswith(EVIL)
         assert IMG_EVIL in page.locator("table.chars").inner_text()
         assert page.locator("main img").count() == 0

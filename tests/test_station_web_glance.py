@@ -137,8 +137,8 @@ def open_page(browser: Any, url: str, width: int, height: int, user: str = "otto
     page.goto("/login")
     page.fill("input[name=username]", user)
     page.fill("input[name=password]", PASSWORD)
-    page.click("button[type=submit]")
-    page.wait_for_load_state()
+    with page.expect_navigation():
+        page.click("button[type=submit]")
     return page
 
 
@@ -311,8 +311,8 @@ def test_the_entity_page_has_its_own_timeline_exported_as_svg_and_png(
         page.goto("/login")
         page.fill("input[name=username]", "otto")
         page.fill("input[name=password]", PASSWORD)
-        page.click("button[type=submit]")
-        page.wait_for_load_state()
+        with page.expect_navigation():
+            page.click("button[type=submit]")
         page.goto(f"/entity?r={ROBOT}&id=2&zoom=5m")
         lanes = page.locator("#timeline svg g.lane")
         assert [lanes.nth(i).get_attribute("data-entity") for i in range(lanes.count())] == \
@@ -357,8 +357,8 @@ def test_tables_keep_their_columns_and_no_page_is_wider_than_the_viewport(
             f"the Acknowledged header wraps: {box} vs one line {line}"
         assert page.locator("table.events tbody tr").count() == 50  # a page of 50
         older = page.locator("a", has_text="Older events")
-        older.click()
-        page.wait_for_load_state()
+        with page.expect_navigation():
+            older.click()
         assert page.locator("table.events tbody tr").count() == 11
         assert page.locator("a", has_text="Newest events").count() == 1
         # a long text is one line, its full text on demand
@@ -371,8 +371,8 @@ def test_tables_keep_their_columns_and_no_page_is_wider_than_the_viewport(
 
         page.goto("/logs")
         assert page.locator("table.logs tbody tr").count() == 30
-        page.locator("a", has_text="Older requests").click()
-        page.wait_for_load_state()
+        with page.expect_navigation():
+            page.locator("a", has_text="Older requests").click()
         assert page.locator("table.logs tbody tr").count() == 5
         browser.close()
 

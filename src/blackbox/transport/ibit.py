@@ -44,6 +44,7 @@ from blackbox.transport.auth import (
 )
 from blackbox.transport.participant import HealthBus, matched_both_ways
 from blackbox.transport.provenance import SampleSigner, reply_signed_by
+from blackbox.transport.resend import RecentAnswers, Resend
 
 RESULT_TOPIC = "BlackBox_IBIT_Result"
 
@@ -76,6 +77,7 @@ class IbitService:
         self.readers = (self.reader, self.signed_reader)
         self.writer = bus.writer("BlackBox_IBIT_Result")
         self.refused = 0
+        self._recent: RecentAnswers[tuple[int, int, int], C_IBIT_Result] = RecentAnswers()
 
     def poll(self) -> int:
         count = 0
@@ -84,19 +86,33 @@ class IbitService:
                 continue
             if command.A_recipientID.A_resourceId != self.resource_id:
                 continue
+            key = (int(command.A_sourceID.A_resourceId), int(command.A_referenceNum),
+                   int(command.A_recipientID.A_instanceId))
+            now = time.monotonic()
+            if self._recent.crossing(key, now):
+                continue  # the station's resend crossed our answer
+            earlier = self._recent.get(key)
+            if earlier is not None:  # our answer was lost: the same result, not a new test
+                self._answer(earlier)
+                self._recent.answered(key, now, earlier)
+                continue
             signed = from_wire(command.A_signed) if isinstance(command, C_IBIT_Request) \
                 else None
             verdict = self.verifier.verify("ibit", ibit_fields(command), signed)
             if not verdict.allowed:
                 self.refused += 1
-                self._answer(self._refusal(command, verdict.reason))
+                refusal = self._refusal(command, verdict.reason)
+                self._answer(refusal)
+                self._recent.answered(key, time.monotonic(), refusal)
                 continue
             plain = command if isinstance(command, C_Monitored_Entity_run_IBIT) else \
                 C_Monitored_Entity_run_IBIT(
                     A_recipientID=command.A_recipientID, A_sourceID=command.A_sourceID,
                     A_referenceNum=command.A_referenceNum,
                     A_timeOfDataGeneration=command.A_timeOfDataGeneration)
-            self._answer(self.run(plain))
+            result = self.run(plain)
+            self._answer(result)
+            self._recent.answered(key, time.monotonic(), result)
             count += 1
         return count
 
@@ -142,14 +158,17 @@ def request_ibit(bus: HealthBus, robot_id: str, *, entity: str = "", timeout: fl
     command = C_Monitored_Entity_run_IBIT(A_recipientID=recipient, A_sourceID=station,
                                           A_referenceNum=reference,
                                           A_timeOfDataGeneration=datetime_of(time.time()))
+    request: C_IBIT_Request | C_Monitored_Entity_run_IBIT = command
     if signer is not None:
-        writer.write(C_IBIT_Request(
+        request = C_IBIT_Request(
             A_recipientID=recipient, A_sourceID=station, A_referenceNum=reference,
             A_timeOfDataGeneration=command.A_timeOfDataGeneration,
-            A_signed=to_wire(signer.sign("ibit", robot_id, ibit_fields(command)))))
-    else:
-        writer.write(command)
+            A_signed=to_wire(signer.sign("ibit", robot_id, ibit_fields(command))))
+    writer.write(request)
+    resend = Resend(time.monotonic())
     while time.monotonic() < deadline:
+        if resend.due(time.monotonic()):
+            writer.write(request)  # nothing yet: the first may have gone to nobody
         for result in reader.take(N=16):
             if (isinstance(result, C_IBIT_Result) and result.A_referenceNum == reference
                     and result.A_recipientID == recipient):

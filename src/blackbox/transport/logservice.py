@@ -49,6 +49,7 @@ from blackbox.transport.auth import (
 )
 from blackbox.transport.participant import HealthBus, matched_both_ways
 from blackbox.transport.provenance import SampleSigner, reply_signed_by
+from blackbox.transport.resend import RecentAnswers, Resend
 
 REPLY_TOPIC = "BlackBox_Log_Reply"
 
@@ -131,6 +132,7 @@ class LogService:
         self.writer = bus.writer("BlackBox_Log_Reply")
         self.answered = 0
         self.refused = 0
+        self._recent: RecentAnswers[tuple[int, int], None] = RecentAnswers()
 
     def poll(self) -> int:
         """Answer every pending request; returns how many were answered."""
@@ -140,10 +142,15 @@ class LogService:
                 continue
             if request.A_recipientID.A_resourceId != self.robot.A_resourceId:
                 continue
+            key = (int(request.A_requestID.A_resourceId),
+                   int(request.A_requestID.A_instanceId))
+            if self._recent.crossing(key, time.monotonic()):
+                continue  # the station's resend crossed our answer
             for reply in self.replies(request):
                 if self.signer is not None:
                     self.signer.seal(REPLY_TOPIC, reply)
                 self.writer.write(reply)
+            self._recent.answered(key, time.monotonic(), None)
             count += 1
         self.answered += count
         return count
@@ -280,8 +287,12 @@ class LogClient:
         chunks: dict[int, C_Log_Reply] = {}
         last: int | None = None
         forged = 0
-        deadline = time.monotonic() + timeout
+        now = time.monotonic()
+        deadline = now + timeout
+        resend = Resend(now)
         while time.monotonic() < deadline:
+            if not chunks and resend.due(time.monotonic()):
+                self.writer.write(request)
             for reply in self.reader.take(N=64):
                 if not isinstance(reply, C_Log_Reply):
                     continue
