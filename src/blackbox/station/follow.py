@@ -35,7 +35,7 @@ import math
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -370,14 +370,15 @@ class StationFollower:
         started = time.monotonic()
         self._take_signatures()
         taken: list[tuple[str, Any]] = []
-        full = False
+        behind: set[str] = set()
         for name, reader in self._readers.items():
             try:
                 samples = reader.take(N=TAKE)
             except Exception as exc:
                 self._reject(name, f"cannot read: {exc}")
                 continue
-            full = full or len(samples) >= TAKE
+            if len(samples) >= TAKE:
+                behind.add(name)
             for sample in samples:
                 info = getattr(sample, "sample_info", None)
                 if info is not None and not info.valid_data:
@@ -385,9 +386,24 @@ class StationFollower:
                 if self._admit(name, reader, sample, now):
                     taken.append((name, sample))
         taken.extend(self.gate.released(now))
+        self.ingest(taken, now, behind=behind)
+        self._drop_foreign_replies()
+        self.store.flush()
+        self._start_backfills()
+        self.delivery.check(self._readers, now)
+        self.delivery.took(bool(behind), now, time.monotonic() - started)
+        return len(taken)
+
+    def ingest(self, taken: Sequence[tuple[str, Any]], now: float, *,
+               behind: Collection[str] = ()) -> None:
+        """Handle one poll's samples (``(topic, sample)``, admitted by the gate) taken at
+        ``now``; ``behind`` names the topics whose reader held more than one take.
+        :meth:`poll` reads them from DDS; kept apart so the bookkeeping of one batch
+        (events waiting for their extensions, holes in a robot's numbers) can be driven
+        batch by batch."""
         # Names and event extensions first: the samples they describe may come in the
         # same batch.
-        taken.sort(key=lambda item: _ORDER.get(item[0], 3))
+        taken = sorted(taken, key=lambda item: _ORDER.get(item[0], 3))
         heard: set[int] = set()
         for name, sample in taken:
             self.stats.by_topic[name] = self.stats.by_topic.get(name, 0) + 1
@@ -403,12 +419,6 @@ class StationFollower:
         self._resolve_waiting(now)
         self._check_sequences(now)
         self._expire_held(now)
-        self._drop_foreign_replies()
-        self.store.flush()
-        self._start_backfills()
-        self.delivery.check(self._readers, now)
-        self.delivery.took(full, now, time.monotonic() - started)
-        return len(taken)
 
     # ---- authentication -------------------------------------------------------------------
 
@@ -884,8 +894,7 @@ class StationFollower:
 
         def take(entries: Sequence[LogEntry]) -> None:
             nonlocal added
-            for entry in entries:
-                added += self._log_event(robot, entry)
+            added += self.take_logged(robot.resource_id, entries)
 
         status, _, _, _ = self._page_log(self._backfills, robot.robot_id, since=since,
                                          until=None, entity=None, characteristic=None,
@@ -896,6 +905,13 @@ class StationFollower:
             self.store.report_problem("backfill", f"{robot.name}: missed events not fetched: "
                                                   f"{status}")
         self.store.flush(force=True)
+
+    def take_logged(self, resource_id: int, entries: Iterable[LogEntry]) -> int:
+        """Store what a backfill fetched from robot ``resource_id``'s log (exceedances and
+        failures) as events; returns how many events were offered to the store (one the
+        store already holds under the same key is not added again)."""
+        robot = self._robot(resource_id)
+        return sum(self._log_event(robot, entry) for entry in entries)
 
     def _log_event(self, robot: _Robot, entry: LogEntry) -> int:
         """Store one backfilled log entry as an event; returns how many events were queued."""
