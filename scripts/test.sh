@@ -6,6 +6,9 @@ set -uo pipefail
 cd "$(dirname "$0")/.."
 bin=${VENV:-.venv}/bin
 workers=${PYTEST_WORKERS:-3}
+# Byte-code caches on (tests/conftest.py says why): a shell's PYTHONDONTWRITEBYTECODE made
+# every worker and every `blackbox` subprocess compile the sources again.
+unset PYTHONDONTWRITEBYTECODE
 "$bin/ruff" check src tests benchmarks || exit 1
 mypy_log=$(mktemp)
 "$bin/mypy" >"$mypy_log" 2>&1 &
