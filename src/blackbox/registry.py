@@ -3,7 +3,8 @@
 A plug-in is one module that defines its kind and registers it at import with
 ``REGISTRY.add(name, entry)``. A registry that names a ``package`` imports every module of
 that package the first time it is read, the way the command line finds its commands, so a
-built-in plug-in needs no import line anywhere else. A plug-in outside the package (a
+built-in plug-in needs no import line anywhere else; looking up one name imports the module
+of that name first and the rest only if it does not register it. A plug-in outside the package (a
 test's throw-away observer, a site's own source) registers the same way: importing its
 module is enough.
 
