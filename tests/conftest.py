@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import inspect
+import os
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -15,6 +17,15 @@ import pytest
 from blackbox.app import RunOptions, build
 from blackbox.model import Observation, Resource
 from blackbox.sinks import SinkBase
+
+pytest_plugins = ["cpu_time"]  # BLACKBOX_TEST_CPU=FILE: CPU seconds per test
+
+# Byte-code caches on, for this process and every process a test starts: with
+# PYTHONDONTWRITEBYTECODE set (as in some shells and containers) every `blackbox`
+# subprocess compiled the package from source again (0.3 s of CPU a start) and every
+# worker compiled and assertion-rewrote the test modules again (5 s of CPU each).
+sys.dont_write_bytecode = False
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT / "data" / "shared"
@@ -111,8 +122,6 @@ receive_path = pytest.fixture(params=RECEIVE_PATHS)(_receive_path)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """In parallel workers, the tests measured slowest start first (tests/ordering.py);
     a run in one process keeps the file order, where module fixtures are set up once."""
-    import os
-
     from ordering import expected_seconds, longest_first
 
     if os.environ.get("PYTEST_XDIST_WORKER"):

@@ -28,7 +28,8 @@ from station_support import Unreachable, quick_auth
 CHROMIUM = Path("/usr/bin/chromium")
 playwright_api = pytest.importorskip("playwright.sync_api")
 pytestmark = [pytest.mark.slow,
-              pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium")]
+              pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium"),
+              pytest.mark.xdist_group("test_station_alerts_browser")]  # one Chromium
 PASSWORD = "station password 1"
 
 
@@ -92,12 +93,22 @@ rules:
             store.close()
 
 
-@pytest.fixture
-def browser() -> Iterator[Any]:
+@pytest.fixture(scope="module")
+def chromium() -> Iterator[Any]:
+    """One Chromium for the module (Playwright's driver and the browser cost about 2 s of
+    CPU to start); each test's pages get contexts of their own."""
     with playwright_api.sync_playwright() as p:
-        chromium = p.chromium.launch(executable_path=str(CHROMIUM))
-        yield chromium
-        chromium.close()
+        started = p.chromium.launch(executable_path=str(CHROMIUM))
+        yield started
+        started.close()
+
+
+@pytest.fixture
+def browser(chromium: Any) -> Iterator[Any]:
+    """The module's Chromium; the contexts a test opened are closed after it."""
+    yield chromium
+    for context in list(chromium.contexts):
+        context.close()
 
 
 SCRIPT_ERRORS: list[str] = []

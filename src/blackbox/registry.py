@@ -3,7 +3,8 @@
 A plug-in is one module that defines its kind and registers it at import with
 ``REGISTRY.add(name, entry)``. A registry that names a ``package`` imports every module of
 that package the first time it is read, the way the command line finds its commands, so a
-built-in plug-in needs no import line anywhere else. A plug-in outside the package (a
+built-in plug-in needs no import line anywhere else; looking up one name imports the module
+of that name first and the rest only if it does not register it. A plug-in outside the package (a
 test's throw-away observer, a site's own source) registers the same way: importing its
 module is enough.
 
@@ -15,6 +16,7 @@ and check the behaviour all kinds share, so a kind registered without one fails 
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import pkgutil
 from collections.abc import Iterator, Mapping
 from typing import Generic, TypeVar
@@ -53,7 +55,27 @@ class Registry(Generic[T]):
         self._examples.pop(name, None)
 
     def get(self, name: str) -> T | None:
+        """The entry ``name``. A plug-in usually lives in the package's module of its own
+        name (``sim`` in ``blackbox.sources.sim``): that module alone is imported first, and
+        the whole package only when it does not register ``name``. A ``blackbox run`` of the
+        simulator then does not import the ROS 2 source and Cyclone DDS (0.2 s of CPU at
+        every start of a process)."""
+        if not self._loaded and name not in self._entries:
+            self._load_own_module(name)
+        if name in self._entries:
+            return self._entries[name]
         return self._all().get(name)
+
+    def _load_own_module(self, name: str) -> None:
+        if self._package is None or not name.isidentifier():
+            return
+        module = f"{self._package}.{name}"
+        try:
+            found = importlib.util.find_spec(module) is not None
+        except ModuleNotFoundError:
+            found = False
+        if found:
+            importlib.import_module(module)
 
     def __getitem__(self, name: str) -> T:
         return self._all()[name]

@@ -363,7 +363,10 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
     print(f"station: serving {url} ({bus}, database {store.path})",
           file=sys.stderr)
     if args.ready_file is not None:
-        args.ready_file.write_text(url + "\n")
+        # Whole or not at all: a script that sees the file reads the URL, never an empty one.
+        partial = args.ready_file.with_name(args.ready_file.name + ".partial")
+        partial.write_text(url + "\n")
+        os.replace(partial, args.ready_file)
     timer = None
     if args.duration is not None:
         def finish() -> None:

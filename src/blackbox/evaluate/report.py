@@ -15,11 +15,6 @@ import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
-
 from blackbox.evaluate.campaign import CampaignResult, CampaignSettings
 from blackbox.evaluate.filter_experiments import (
     FILTER_TYPES,
@@ -32,6 +27,15 @@ from blackbox.evaluate.metrics import percentile
 from blackbox.evaluate.real_campaign import run_real
 
 Progress = Callable[[str], None]
+
+
+def _use_agg() -> None:
+    """matplotlib draws without a display. Imported when a figure is drawn, not with the
+    module: pyplot takes 0.4 s of CPU to import, paid by every process that imports this
+    module (each test worker collecting the report's tests) and draws nothing."""
+    import matplotlib
+
+    matplotlib.use("Agg")
 
 # Thesis section 6.2.1.1 reports its filter experiments only as figures (Figs. 6.10, 6.11),
 # in words: false positives fall with the window for every filter, the mean filter had the
@@ -87,6 +91,9 @@ def make_report(settings: CampaignSettings, result: CampaignResult, out: Path,
 
 
 def _kinds_figure(result: CampaignResult, path: Path) -> str:
+    _use_agg()
+    import matplotlib.pyplot as plt
+
     kinds = result.kinds
     names = [k.kind for k in kinds]
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.6))
@@ -112,6 +119,9 @@ def _kinds_figure(result: CampaignResult, path: Path) -> str:
 
 
 def _delay_distribution(result: CampaignResult, path: Path) -> str:
+    _use_agg()
+    import matplotlib.pyplot as plt
+
     kinds = [k for k in result.kinds if k.delays]
     fig, ax = plt.subplots(figsize=(8, 3.6))
     if kinds:
@@ -127,6 +137,9 @@ def _delay_distribution(result: CampaignResult, path: Path) -> str:
 
 def _filter_figure(sim: Sequence[FilterPoint], real: Sequence[FilterPoint] | None, path: Path,
                    what: str) -> str:
+    _use_agg()
+    import matplotlib.pyplot as plt
+
     panels: list[tuple[str, Sequence[FilterPoint]]] = [("simulator", sim)]
     if real is not None:
         panels.append(("real ROS 1 (replayed)", real))
