@@ -66,6 +66,10 @@ MIN_STILL_BLOCKS = 40
 FALSE_ALARMS_PER_HOUR = 0.1
 MIN_SIGNAL_SAMPLES = 100
 MIN_GRID_BLOCKS = 60
+MIN_RELATION_SAMPLES = 300
+"""Samples of a signal while learning below which it is not related: its residual blocks
+are few and strongly dependent, and neither the fit nor the bootstrap of ``h`` can be
+trusted for one false alarm in many hours."""
 """A relation needs at least this many blocks (30 s) of both signals to be learned."""
 TRACK = 2.5
 """Seconds over which a relation of trending signals follows its residual's bias. Short:
@@ -624,6 +628,14 @@ def learn_relations(rec: Recording) -> RelationsLearned:
         if live is not None:
             liveness.setdefault(s.ref.topic, []).append(live)
     related = [s for s in signals if not s.wrap]
+    few = [s for s in related if s.values.size < MIN_RELATION_SAMPLES]
+    if few:
+        notes.append(f"{', '.join(s.ref.label() for s in few)}: fewer than "
+                     f"{MIN_RELATION_SAMPLES} samples while learning, not related (too few to "
+                     "calibrate a relation's threshold for its false-alarm rate: a 1 Hz battery "
+                     "voltage related to its current from two minutes raised 11 false alarms in "
+                     "a healthy hour); checked for being alive")
+        related = [s for s in related if s.values.size >= MIN_RELATION_SAMPLES]
     relations: list[Relation] = []
     if rec.duration > 0:
         g0 = math.ceil(rec.started / STEP) * STEP
