@@ -40,6 +40,11 @@ pytestmark = [pytest.mark.ros1, pytest.mark.slow,
               pytest.mark.skipif(shutil.which("rosbag") is None, reason="needs Debian's ROS 1")]
 
 TOPICS = ["/audio", "/signal"]
+WINDOW = 10
+"""Periods in the rate observers' mean filter (the configuration below)."""
+LAG = 0.075
+"""How much later than the bag's recorder the live black box may take a message under load
+(a little more than one period of /signal, the slower topic)."""
 CONFIG = """
 version: 1
 robot: {id: thesis-robot}
@@ -197,7 +202,14 @@ def test_replaying_the_bag_of_a_live_run_gives_its_observations_and_diagnoses(
             # a message that landed within the live delivery lag before an evaluation is
             # counted there in the bag but at the next evaluation live: ``silent_for`` may
             # then differ by one period of the topic (at most 0.0667 s here)
-            slack = 0.075 if name == "silent_for" else 0.05
+            if name == "rate_hz":
+                # the mean of ten periods: live delivery lag under load moves the window's
+                # edge messages by up to that lag (37.4 live vs 33.3 replayed Hz on /audio
+                # seen at load 12: spans of 0.268 and 0.300 s), so the spans are compared
+                span, span_again = WINDOW / value, WINDOW / replayed
+                assert span_again == pytest.approx(span, abs=LAG), (key, name, value, replayed)
+                continue
+            slack = LAG if name == "silent_for" else 0.05
             assert replayed == pytest.approx(value, rel=0.05, abs=slack), (key, name)
     print(f"{len(live)} observations compared, {tipped} verdicts differ within "
           f"{TRANSITION} s of a live verdict change")

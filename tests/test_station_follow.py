@@ -105,6 +105,13 @@ def following(path: Path, domain: int,
         store.close()
 
 
+def period_series(store: StationStore) -> list[float]:
+    chars = {c.name: c for c in store.characteristics("thesis")}
+    period = chars.get("hz /usb_cam/image_raw [/usb_cam] period")
+    return [] if period is None else [p.value for p in store.series("thesis",
+                                                                    period.instance_id)]
+
+
 def test_live_state_events_and_a_rectification_reach_the_station_database(
         tmp_path: Path, new_box: NewBox) -> None:
     domain = fresh_domain()
@@ -115,6 +122,9 @@ def test_live_state_events_and_a_rectification_reach_the_station_database(
         wait(lambda: ("failure", "live") in kinds(store, "thesis"))
         # the diagnosis is state on its own topic: it may land just after the event
         wait(lambda: store.diagnosis("thesis").components == ("/usb_cam",))
+        # a characteristic is state (the latest sample per instance): the slow period must
+        # have been taken before the next one replaces it in the reader
+        wait(lambda: 0.5 in period_series(store))
         box.send("ok")  # the diagnosis no longer names the camera: a rectification
         wait(lambda: ("rectification", "live") in kinds(store, "thesis"))
         wait(lambda: store.diagnosis("thesis").components == ())

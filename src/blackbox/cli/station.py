@@ -298,6 +298,7 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
 
     from blackbox.station.alerts.rules import AlertConfig
     from blackbox.station.alerts.service import AlertService
+    from blackbox.station.database import without_password
     from blackbox.station.enrolment import EnrolmentError, RobotKeys, read_robots_file
     from blackbox.station.follow import StationFollower
     from blackbox.station.web.app import WebSettings, create_app
@@ -306,7 +307,7 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
 
     if not auth.users():
         print(f"station: no account yet; add one with: blackbox station user add NAME "
-              f"--role admin --db {args.db}", file=sys.stderr)
+              f"--role admin --db {without_password(str(args.db))}", file=sys.stderr)
     from blackbox.transport.auth import RequestAuthError, RequestSigner
 
     try:

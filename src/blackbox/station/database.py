@@ -295,7 +295,7 @@ class PostgresDatabase:
         return int(db.execute("SELECT pg_database_size(current_database())").fetchone()[0])
 
     def describe(self) -> str:
-        return re.sub(r"://([^:@/]*):[^@/]*@", r"://\1:***@", self.url)
+        return without_password(self.url)
 
 
 class ReconnectingConnection:
@@ -381,6 +381,12 @@ class ReconnectingConnection:
         if self._db is not None:
             self._db.close()
             self._db = None
+
+
+def without_password(location: str) -> str:
+    """``location`` with the password of a database URL replaced by ``***`` (for messages,
+    logs and hints printed to a terminal others may see)."""
+    return re.sub(r"://([^:@/]*):[^@/]*@", r"://\1:***@", location)
 
 
 def open_database(location: str | Path | Database) -> Database:

@@ -35,7 +35,7 @@ import math
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -102,12 +102,22 @@ MAX_LOG_ROWS = 200_000
 LOG_PAGE = 2000
 MAX_LOG_RANGE_DAYS = 3660
 EXT_WAIT = 1.0
+"""Seconds an event waits for its extension (its identity, on another topic) once the
+extension reader has nothing more queued."""
+EXT_WAIT_MAX = 30.0
+"""Seconds an event waits for its extension at most, even while the extension reader is
+behind (a flood must not hold events, or memory, for ever): then it is stored under its
+time key."""
+MAX_WAITING = 100_000
+"""Events (and inferred rectifications) waiting for extensions at most; beyond, the oldest
+is stored without one."""
+EXTENSION_TOPIC = "BlackBox_Event_Extension"
 BACKFILL_REPEAT = 5.0
 STATE_DEPTH = 64
 TAKE = 512
 """Samples taken from one reader per poll; a full take means more were waiting."""
 _ON = T_Monitored_Entity_StateType.L_Monitored_Entity_StateType_ON
-_ORDER = {"BlackBox_Entity_Description": 0, "BlackBox_Event_Extension": 1,
+_ORDER = {"BlackBox_Entity_Description": 0, EXTENSION_TOPIC: 1,
           "C_Failure_Event": 2}
 
 
@@ -190,6 +200,17 @@ class _Robot:
         return self.robot_id or f"#{self.resource_id}"
 
 
+@dataclass(frozen=True, slots=True)
+class _InferredRectification:
+    """An entity whose failures went to none, of a robot not (yet) seen naming its events:
+    a rectification unless the robot turns out to announce its own (extensions late)."""
+
+    arrived: float
+    resource_id: int
+    time: float
+    entity: str
+
+
 @dataclass(slots=True)
 class _Lane:
     """A worker thread with its own job queue and log client: operators' requests and the
@@ -268,8 +289,12 @@ class StationFollower:
         self._robots: dict[int, _Robot] = {}
         self._ext: dict[tuple[int, int], C_Event_Extension] = {}
         self._waiting: list[tuple[float, C_Threshold_Exceedence_Event | C_Failure_Event]] = []
-        """Events waiting (``EXT_WAIT`` at most) for their extension, which travels on
-        another topic."""
+        """Events waiting for their extension, which travels on another topic (see
+        :meth:`_extension_overdue`)."""
+        self._inferred: list[_InferredRectification] = []
+        self._extensions_drained = -math.inf
+        """When the extension reader last had nothing more queued (a take below ``TAKE``):
+        an extension not taken by then had not arrived."""
         self._sequence_lock = threading.Lock()
         self._requests = _Lane("requests")
         self._backfills = _Lane("backfill")
@@ -370,14 +395,15 @@ class StationFollower:
         started = time.monotonic()
         self._take_signatures()
         taken: list[tuple[str, Any]] = []
-        full = False
+        behind: set[str] = set()
         for name, reader in self._readers.items():
             try:
                 samples = reader.take(N=TAKE)
             except Exception as exc:
                 self._reject(name, f"cannot read: {exc}")
                 continue
-            full = full or len(samples) >= TAKE
+            if len(samples) >= TAKE:
+                behind.add(name)
             for sample in samples:
                 info = getattr(sample, "sample_info", None)
                 if info is not None and not info.valid_data:
@@ -385,9 +411,26 @@ class StationFollower:
                 if self._admit(name, reader, sample, now):
                     taken.append((name, sample))
         taken.extend(self.gate.released(now))
+        self.ingest(taken, now, behind=behind)
+        self._drop_foreign_replies()
+        self.store.flush()
+        self._start_backfills()
+        self.delivery.check(self._readers, now)
+        self.delivery.took(bool(behind), now, time.monotonic() - started)
+        return len(taken)
+
+    def ingest(self, taken: Sequence[tuple[str, Any]], now: float, *,
+               behind: Collection[str] = ()) -> None:
+        """Handle one poll's samples (``(topic, sample)``, admitted by the gate) taken at
+        ``now``; ``behind`` names the topics whose reader held more than one take.
+        :meth:`poll` reads them from DDS; kept apart so the bookkeeping of one batch
+        (events waiting for their extensions, holes in a robot's numbers) can be driven
+        batch by batch."""
         # Names and event extensions first: the samples they describe may come in the
         # same batch.
-        taken.sort(key=lambda item: _ORDER.get(item[0], 3))
+        taken = sorted(taken, key=lambda item: _ORDER.get(item[0], 3))
+        if EXTENSION_TOPIC not in behind:
+            self._extensions_drained = now
         heard: set[int] = set()
         for name, sample in taken:
             self.stats.by_topic[name] = self.stats.by_topic.get(name, 0) + 1
@@ -403,12 +446,6 @@ class StationFollower:
         self._resolve_waiting(now)
         self._check_sequences(now)
         self._expire_held(now)
-        self._drop_foreign_replies()
-        self.store.flush()
-        self._start_backfills()
-        self.delivery.check(self._readers, now)
-        self.delivery.took(full, now, time.monotonic() - started)
-        return len(taken)
 
     # ---- authentication -------------------------------------------------------------------
 
@@ -571,7 +608,7 @@ class StationFollower:
                                   if int(parent.A_resourceId) == rid else None,
                                   updated=seconds_of(s.A_timeOfDataGeneration))
         elif isinstance(s, C_Monitored_Entity):
-            self._entity(robot, s)
+            self._entity(robot, s, now)
         elif isinstance(s, C_Monitored_Characteristic):
             iid = int(s.A_sourceID.A_instanceId)
             c = robot.chars.setdefault(iid, _Char())
@@ -638,7 +675,7 @@ class StationFollower:
             return value[:limit]
         return value
 
-    def _entity(self, robot: _Robot, s: C_Monitored_Entity) -> None:
+    def _entity(self, robot: _Robot, s: C_Monitored_Entity, now: float) -> None:
         rid = robot.resource_id
         iid = int(s.A_sourceID.A_instanceId)
         e = robot.entities.setdefault(iid, _Entity())
@@ -662,9 +699,9 @@ class StationFollower:
         component = e.kind not in ("robot", "") and bool(e.name)
         if component and not first and e.failures > 0 and failures == 0 and online \
                 and not robot.sends_ids:
-            self.store.add_event(rid, t, "rectification",
-                                 dedup=f"rectification|{_stamp(t)}|{e.name}", entity=e.name,
-                                 text=f"{e.name} is no longer diagnosed faulty")
+            # Stored once it is clear the robot does not announce rectifications itself
+            # (its extensions may be behind this state sample): _resolve_waiting.
+            self._inferred.append(_InferredRectification(now, rid, t, e.name))
         e.failures = failures
         if component and online:
             self._set_diagnosis(robot, frozenset(x.name for x in robot.entities.values()
@@ -750,11 +787,23 @@ class StationFollower:
         """The robot's own time of an event placed at the station's time (clock skew)."""
         return {"robot_time": t} if self.clocks.skewed(robot.name) else {}
 
+    def _extension_overdue(self, arrived: float, now: float) -> bool:
+        """Whether the extension of what arrived at ``arrived`` can no longer be expected:
+        the extension reader had nothing more queued ``EXT_WAIT`` after it arrived, or
+        ``EXT_WAIT_MAX`` passed. A burst carries about three extensions per event sample
+        and the reader takes ``TAKE`` per poll, so extensions lag several polls behind
+        their events: an event stored without its identity meanwhile is keyed by its time
+        (two in one millisecond collide), its number looks missing, and the copy the
+        robot's log then supplies is keyed by the identity: stored twice."""
+        return self._extensions_drained - arrived >= EXT_WAIT \
+            or now - arrived >= EXT_WAIT_MAX
+
     def _resolve_waiting(self, now: float) -> None:
         waiting: list[tuple[float, C_Threshold_Exceedence_Event | C_Failure_Event]] = []
-        for arrived, s in self._waiting:
+        excess = len(self._waiting) - MAX_WAITING
+        for i, (arrived, s) in enumerate(self._waiting):
             ext = self._ext.pop(_key(s.A_sourceID), None)
-            if ext is None and now - arrived < EXT_WAIT:
+            if ext is None and i >= excess and not self._extension_overdue(arrived, now):
                 waiting.append((arrived, s))
                 continue
             robot = self._robot(int(s.A_sourceID.A_resourceId))
@@ -763,6 +812,25 @@ class StationFollower:
             else:
                 self._exceedance(robot, s, ext, now)
         self._waiting = waiting
+        self._resolve_inferred(now)
+
+    def _resolve_inferred(self, now: float) -> None:
+        """Store inferred rectifications of robots that turned out not to name their
+        events; drop those of robots that do (they announce every rectification)."""
+        keep: list[_InferredRectification] = []
+        excess = len(self._inferred) - MAX_WAITING
+        for i, r in enumerate(self._inferred):
+            robot = self._robots.get(r.resource_id)
+            if robot is None or robot.sends_ids:
+                continue
+            if i >= excess and not self._extension_overdue(r.arrived, now):
+                keep.append(r)
+                continue
+            self.store.add_event(r.resource_id, r.time, "rectification",
+                                 dedup=f"rectification|{_stamp(r.time)}|{r.entity}",
+                                 entity=r.entity,
+                                 text=f"{r.entity} is no longer diagnosed faulty")
+        self._inferred = keep
 
     def _check_sequences(self, now: float) -> None:
         """Tell the operator about events a robot published that never arrived, and fetch
@@ -884,8 +952,7 @@ class StationFollower:
 
         def take(entries: Sequence[LogEntry]) -> None:
             nonlocal added
-            for entry in entries:
-                added += self._log_event(robot, entry)
+            added += self.take_logged(robot.resource_id, entries)
 
         status, _, _, _ = self._page_log(self._backfills, robot.robot_id, since=since,
                                          until=None, entity=None, characteristic=None,
@@ -896,6 +963,13 @@ class StationFollower:
             self.store.report_problem("backfill", f"{robot.name}: missed events not fetched: "
                                                   f"{status}")
         self.store.flush(force=True)
+
+    def take_logged(self, resource_id: int, entries: Iterable[LogEntry]) -> int:
+        """Store what a backfill fetched from robot ``resource_id``'s log (exceedances and
+        failures) as events; returns how many events were offered to the store (one the
+        store already holds under the same key is not added again)."""
+        robot = self._robot(resource_id)
+        return sum(self._log_event(robot, entry) for entry in entries)
 
     def _log_event(self, robot: _Robot, entry: LogEntry) -> int:
         """Store one backfilled log entry as an event; returns how many events were queued."""

@@ -86,6 +86,13 @@ class IbitService:
                 continue
             if command.A_recipientID.A_resourceId != self.resource_id:
                 continue
+            signed = from_wire(command.A_signed) if isinstance(command, C_IBIT_Request) \
+                else None
+            verdict = self.verifier.verify("ibit", ibit_fields(command), signed)
+            if not verdict.allowed:
+                self.refused += 1
+                self._answer(self._refusal(command, verdict.reason))
+                continue
             key = (int(command.A_sourceID.A_resourceId), int(command.A_referenceNum),
                    int(command.A_recipientID.A_instanceId))
             now = time.monotonic()
@@ -95,15 +102,6 @@ class IbitService:
             if earlier is not None:  # our answer was lost: the same result, not a new test
                 self._answer(earlier)
                 self._recent.answered(key, now, earlier)
-                continue
-            signed = from_wire(command.A_signed) if isinstance(command, C_IBIT_Request) \
-                else None
-            verdict = self.verifier.verify("ibit", ibit_fields(command), signed)
-            if not verdict.allowed:
-                self.refused += 1
-                refusal = self._refusal(command, verdict.reason)
-                self._answer(refusal)
-                self._recent.answered(key, time.monotonic(), refusal)
                 continue
             plain = command if isinstance(command, C_Monitored_Entity_run_IBIT) else \
                 C_Monitored_Entity_run_IBIT(
@@ -158,17 +156,20 @@ def request_ibit(bus: HealthBus, robot_id: str, *, entity: str = "", timeout: fl
     command = C_Monitored_Entity_run_IBIT(A_recipientID=recipient, A_sourceID=station,
                                           A_referenceNum=reference,
                                           A_timeOfDataGeneration=datetime_of(time.time()))
-    request: C_IBIT_Request | C_Monitored_Entity_run_IBIT = command
-    if signer is not None:
-        request = C_IBIT_Request(
+    def signed() -> C_IBIT_Request | C_Monitored_Entity_run_IBIT:
+        """The command, signed anew each time it is written (a nonce is taken once)."""
+        if signer is None:
+            return command
+        return C_IBIT_Request(
             A_recipientID=recipient, A_sourceID=station, A_referenceNum=reference,
             A_timeOfDataGeneration=command.A_timeOfDataGeneration,
             A_signed=to_wire(signer.sign("ibit", robot_id, ibit_fields(command))))
-    writer.write(request)
+
+    writer.write(signed())
     resend = Resend(time.monotonic())
     while time.monotonic() < deadline:
         if resend.due(time.monotonic()):
-            writer.write(request)  # nothing yet: the first may have gone to nobody
+            writer.write(signed())  # nothing yet: the first may have gone to nobody
         for result in reader.take(N=16):
             if (isinstance(result, C_IBIT_Result) and result.A_referenceNum == reference
                     and result.A_recipientID == recipient):

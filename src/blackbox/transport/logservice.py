@@ -144,8 +144,6 @@ class LogService:
                 continue
             key = (int(request.A_requestID.A_resourceId),
                    int(request.A_requestID.A_instanceId))
-            if self._recent.crossing(key, time.monotonic()):
-                continue  # the station's resend crossed our answer
             for reply in self.replies(request):
                 if self.signer is not None:
                     self.signer.seal(REPLY_TOPIC, reply)
@@ -174,6 +172,9 @@ class LogService:
             self.refused += 1
             yield reply(0, True, f"refused: {verdict.reason}", [])
             return
+        key = (int(request.A_requestID.A_resourceId), int(request.A_requestID.A_instanceId))
+        if self._recent.crossing(key, time.monotonic()):
+            return  # the station's resend crossed our answer
         start, end = _time_or_none(request.A_since), _time_or_none(request.A_until)
         limit = request.A_maxEntries or MAX_ENTRIES
         try:
@@ -272,18 +273,24 @@ class LogClient:
         number = next(self._numbers) & 0x7FFF_FFFF
         request_id = T_IdentifierType(self.station, number)
         self.wait_for_robot(min(timeout, 5.0))
-        request = C_Log_Request(
-            A_requestID=request_id,
-            A_recipientID=T_IdentifierType(robot_resource_id(robot_id), 0),
-            A_timeOfDataGeneration=datetime_of(time.time()),
-            A_entity=entity or "", A_characteristic=characteristic or "",
-            A_since=datetime_of(since) if since is not None else T_DateTimeType(),
-            A_until=datetime_of(until) if until is not None else T_DateTimeType(),
-            A_kinds=list(kinds), A_maxEntries=max_entries)
-        if self.signer is not None:
-            request.A_signed = to_wire(self.signer.sign("logs", robot_id,
-                                                        request_fields(request)))
-        self.writer.write(request)
+
+        def signed() -> C_Log_Request:
+            """The request, signed anew each time it is written (a signature's nonce is
+            taken once: the same bytes again would be refused as a replay)."""
+            request = C_Log_Request(
+                A_requestID=request_id,
+                A_recipientID=T_IdentifierType(robot_resource_id(robot_id), 0),
+                A_timeOfDataGeneration=datetime_of(time.time()),
+                A_entity=entity or "", A_characteristic=characteristic or "",
+                A_since=datetime_of(since) if since is not None else T_DateTimeType(),
+                A_until=datetime_of(until) if until is not None else T_DateTimeType(),
+                A_kinds=list(kinds), A_maxEntries=max_entries)
+            if self.signer is not None:
+                request.A_signed = to_wire(self.signer.sign("logs", robot_id,
+                                                            request_fields(request)))
+            return request
+
+        self.writer.write(signed())
         chunks: dict[int, C_Log_Reply] = {}
         last: int | None = None
         forged = 0
@@ -292,7 +299,7 @@ class LogClient:
         resend = Resend(now)
         while time.monotonic() < deadline:
             if not chunks and resend.due(time.monotonic()):
-                self.writer.write(request)
+                self.writer.write(signed())
             for reply in self.reader.take(N=64):
                 if not isinstance(reply, C_Log_Reply):
                     continue

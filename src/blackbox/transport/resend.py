@@ -5,7 +5,9 @@ reader before the robot has seen the station's answer reader. Command topics are
 so the robot's first answer (or the command itself) can go to nobody and the station would
 wait out its whole time-out. The station therefore writes the same command again (same
 identifier) while nothing has come back, and the robot answers a repeat only when it is not
-merely crossing the answer just sent.
+merely crossing the answer just sent. A signed command is signed anew for each write (the
+robot takes a nonce once), and the robot checks the signature before it looks for repeats,
+so a captured command written again is still refused as a replay.
 """
 
 from __future__ import annotations
