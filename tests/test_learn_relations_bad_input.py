@@ -176,3 +176,12 @@ def test_samples_that_arrive_in_bursts_are_learned_not_a_crash() -> None:
     imu = [live for live in learned.liveness.get("/imu", [])]
     assert all(live.signal.period > 0 for live in imu)
     assert all(live.calibration is not None for live in imu if live.z is not None)
+
+
+def test_a_slow_signal_with_too_few_samples_is_not_related_and_says_why() -> None:
+    """Two minutes of a 2 Hz IMU: 240 samples cannot calibrate a threshold for one false
+    alarm in many hours (a 1 Hz battery so related raised 11 in a healthy hour)."""
+    _, text = learned_text(robot(120.0, rate=2.0), 120.0)
+    assert relations_of(text) == []
+    assert "fewer than 300 samples while learning, not related" in text
+    assert "/imu z" in text.split("fewer than 300")[0].splitlines()[-1]

@@ -66,6 +66,10 @@ MIN_STILL_BLOCKS = 40
 FALSE_ALARMS_PER_HOUR = 0.1
 MIN_SIGNAL_SAMPLES = 100
 MIN_GRID_BLOCKS = 60
+MIN_RELATION_SAMPLES = 300
+"""Samples of a signal while learning below which it is not related: its residual blocks
+are few and strongly dependent, and neither the fit nor the bootstrap of ``h`` can be
+trusted for one false alarm in many hours."""
 """A relation needs at least this many blocks (30 s) of both signals to be learned."""
 TRACK = 2.5
 """Seconds over which a relation of trending signals follows its residual's bias. Short:
@@ -128,6 +132,8 @@ class Relation:
     its current, two climbing wheel angles), ``None`` for a fixed bias."""
     track_rate: float | None = None
     """The most the followed bias moves per second (residual units)."""
+    on_changes: tuple[str, ...] = ()
+    """Labels of trending inputs related on their changes, not their level."""
 
     @property
     def topics(self) -> tuple[str, str]:
@@ -375,6 +381,8 @@ class Fit:
     lags: list[list[int]]
     slope: float = 0.0
     """The time regressor's gain (a ``trend`` fit): how fast the bias moved, per second."""
+    on_changes: tuple[str, ...] = ()
+    """Labels of the inputs related on their changes (taps summing to zero)."""
 
 
 def _ridge(a: np.ndarray, y: np.ndarray, lam: float) -> tuple[np.ndarray, float]:
@@ -394,16 +402,23 @@ def _r2(y: np.ndarray, p: np.ndarray) -> float:
 
 
 def fit(target: np.ndarray, inputs: Sequence[np.ndarray], lags: Sequence[Sequence[int]],
-        trend: bool = False) -> Fit | None:
+        trend: bool = False, on_changes: Sequence[bool] = ()) -> Fit | None:
     """``target[k - s]`` from ``inputs[i][k - s - lag]`` for each lag, ridge chosen by the
     forward held-out R²; ``s`` makes every lag >= 0 (a target leading its input).
     ``trend``: time is one more regressor (signals that move on their own: the gains are
     not bent by a discharge that happens to follow the load), left out of ``gains`` (the
-    observer follows that bias instead)."""
+    observer follows that bias instead). ``on_changes[i]``: the taps of input ``i`` sum to
+    zero, so the fit uses its changes (a rate), never its level (:func:`_climbing_choice`)."""
     low = min(min(ls) for ls in lags)
     shift = max(0, -low)
     y = _shifted(target, shift)
-    cols = [_shifted(x, lag + shift) for x, ls in zip(inputs, lags, strict=True) for lag in ls]
+    differenced = [bool(on_changes[i]) if i < len(on_changes) else False
+                   for i in range(len(inputs))]
+    cols: list[np.ndarray] = []
+    for x, ls, diff in zip(inputs, lags, differenced, strict=True):
+        taps = [_shifted(x, lag + shift) for lag in ls]
+        # taps summing to zero: x(t - l_j) - x(t - l_last) for all but the last tap
+        cols += [tap - taps[-1] for tap in taps[:-1]] if diff and len(taps) > 1 else taps
     if trend:
         cols.append(np.arange(target.size, dtype=np.float64) * STEP)
     a_all = np.stack(cols, axis=1)
@@ -438,8 +453,34 @@ def fit(target: np.ndarray, inputs: Sequence[np.ndarray], lags: Sequence[Sequenc
     slope = 0.0
     if trend:
         gains, slope = gains[:-1], float(gains[-1])
+    gains = _tap_gains(gains, [len(ls) for ls in lags], differenced)
     shifted_lags = [[lag + shift for lag in ls] for ls in lags]
     return Fit(gains, intercept, best_r2, residual, predicted, shift, shifted_lags, slope)
+
+
+def _tap_gains(gains: np.ndarray, taps: Sequence[int],
+               differenced: Sequence[bool]) -> np.ndarray:
+    """Gains per tap from the fitted ones: an input fitted on its changes has one gain fewer
+    (its last tap's is minus the sum of the others)."""
+    out: list[float] = []
+    i = 0
+    for n, diff in zip(taps, differenced, strict=True):
+        if diff and n > 1:
+            part = [float(g) for g in gains[i:i + n - 1]]
+            out += [*part, -sum(part)]
+            i += n - 1
+        else:
+            out += [float(g) for g in gains[i:i + n]]
+            i += n
+    return np.asarray(out, dtype=np.float64)
+
+
+def _wide_taps(lags: Sequence[int], period: float) -> list[int]:
+    """``lags`` spread so that consecutive taps are at least half of ``period`` apart."""
+    center = lags[len(lags) // 2]
+    spacing = max(1, round(period / STEP / 2)) if math.isfinite(period) else 1
+    half = TAPS // 2
+    return [center + spacing * j for j in range(-half, TAPS - half)]
 
 
 def _taps(center: int) -> list[int]:
@@ -485,6 +526,15 @@ def change(x: np.ndarray, steps: int = CHANGE_STEPS) -> np.ndarray:
     out = np.full_like(x, np.nan)
     out[steps:] = x[steps:] - x[:-steps]
     return out
+
+
+RATE_STEPS = 10
+"""Grid steps a climbing signal's rate is screened over (half a second)."""
+
+
+def rate(x: np.ndarray) -> np.ndarray:
+    """``x[k] - x[k - RATE_STEPS]``: a climbing signal's speed, for screening."""
+    return change(x, RATE_STEPS)
 
 
 def change_r2(fitted: Fit, target: np.ndarray) -> float:
@@ -560,7 +610,7 @@ def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Rela
                     gains, fitted.intercept, fitted.target_steps, fitted.r2,
                     float(np.std(residual)), (m_bias, m_noise), still_mode, excitation,
                     (lo - margin, hi + margin), z_all, sensitivity, track=track,
-                    track_rate=track_rate, clears=clears)
+                    track_rate=track_rate, clears=clears, on_changes=fitted.on_changes)
 
 
 def learn_relations(rec: Recording) -> RelationsLearned:
@@ -578,6 +628,14 @@ def learn_relations(rec: Recording) -> RelationsLearned:
         if live is not None:
             liveness.setdefault(s.ref.topic, []).append(live)
     related = [s for s in signals if not s.wrap]
+    few = [s for s in related if s.values.size < MIN_RELATION_SAMPLES]
+    if few:
+        notes.append(f"{', '.join(s.ref.label() for s in few)}: fewer than "
+                     f"{MIN_RELATION_SAMPLES} samples while learning, not related (too few to "
+                     "calibrate a relation's threshold for its false-alarm rate: a 1 Hz battery "
+                     "voltage related to its current from two minutes raised 11 false alarms in "
+                     "a healthy hour); checked for being alive")
+        related = [s for s in related if s.values.size >= MIN_RELATION_SAMPLES]
     relations: list[Relation] = []
     if rec.duration > 0:
         g0 = math.ceil(rec.started / STEP) * STEP
@@ -616,6 +674,30 @@ def learn_relations(rec: Recording) -> RelationsLearned:
     return RelationsLearned(relations, liveness, trends, notes, len(signals), related_fields)
 
 
+LEVEL_IDENTITY = 0.98
+"""The R² (of the target's changes) above which a trending input's level may be the
+relation: two encoders of one wheel side, two odometers."""
+
+
+def _climbing_choice(rates_r2: float, level_r2: float) -> str | None:
+    """How to relate inputs that climb: ``"changes"`` (taps summing to zero) whenever their
+    changes explain the target, else ``"level"`` only for a near-identity (two encoders of
+    one wheel: their changes say nothing of the level), else ``None``: not related.
+
+    Two signals that climb or wander over a run correlate in level whatever their relation
+    (a spurious regression): on sim:skidsteer the battery voltage was fitted on the four
+    wheel angles, whose left-right difference is the heading, a random walk; the level fit
+    explained more of the two minutes (R² 0.89 against 0.72 on changes) because it could
+    use that chance, and hours later its prediction had wandered off with the heading. Even
+    a fit that is a rate in all but name keeps a small level term (a motor current against
+    a wheel angle: taps 30.7, -1.5, -29.2), which an hour of driving multiplies."""
+    if rates_r2 >= R2_MIN:
+        return "changes"
+    if level_r2 >= LEVEL_IDENTITY:
+        return "level"
+    return None
+
+
 def _trending(s: Signal) -> bool:
     return s.trend is not None or s.drift is not None
 
@@ -634,6 +716,16 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
                 ga = changes.get(i, change(a.grid)) if j in changes else a.grid
                 gb = changes.get(j, change(b.grid)) if i in changes else b.grid
                 corr[(i, j)] = best_lag(ga, gb, max_steps)
+                climbing = [k for k in (i, j) if signals[k].trend is not None]
+                if len(climbing) == 1 and not _trending(signals[i + j - climbing[0]]):
+                    # a level beside a climbing signal's rate (a current beside a wheel
+                    # angle's speed); the lag is the rate's: RATE_STEPS // 2 later
+                    up = climbing[0]
+                    lag, c_rate = best_lag(signals[i + j - up].grid, rate(signals[up].grid),
+                                           max_steps)
+                    lag += RATE_STEPS // 2
+                    if abs(c_rate) > abs(corr[(i, j)][1]):
+                        corr[(i, j)] = (lag if up == j else -lag, c_rate)
             else:
                 corr[(i, j)] = best_lag(a.grid, b.grid, max_steps)
 
@@ -649,6 +741,44 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
             return change_r2(fitted, target.grid)
         return fitted.r2
 
+    def fitted_for(target: Signal, inputs: list[Signal], lags: list[list[int]]) -> Fit | None:
+        """The fit of ``target`` from ``inputs``, its ``r2`` the quality it is judged by;
+        climbing inputs are related on their changes unless only their level, as an
+        identity, explains the target (:func:`_climbing_choice`); a relation that holds
+        only on the levels of climbing inputs is left out, with the reason in the learned
+        file's notes."""
+        trend = _trending(target) or any(_trending(x) for x in inputs)
+        grids = [x.grid for x in inputs]
+        level = fit(target.grid, grids, lags, trend)
+        if level is not None:
+            level.r2 = quality(target, inputs, level)
+        # inputs that climb over the run (a line explains most of them: wheel angles, an
+        # odometer); one that only drifts beside its topic's other signals (a current over
+        # two minutes of one driving pattern) keeps its level, which may be the relation
+        # (a voltage sagging with the current)
+        moving = [x.trend is not None for x in inputs]
+        if not any(moving):
+            return level
+        rates = fit(target.grid, grids, lags, trend, moving)
+        if rates is not None:
+            rates.r2 = quality(target, inputs, rates)
+            rates.on_changes = tuple(x.ref.label() for x, m in zip(inputs, moving, strict=True)
+                                     if m)
+        choice = _climbing_choice(-math.inf if rates is None else rates.r2,
+                                  -math.inf if level is None else level.r2)
+        if choice == "changes":
+            return rates
+        if choice == "level" or level is None or level.r2 < R2_MIN:
+            return level
+        why = (f"{target.ref.label()} from {', '.join(x.ref.label() for x in inputs)}: not "
+               f"related: R2 {level.r2:.3f} on the climbing inputs' levels, "
+               f"{-math.inf if rates is None else rates.r2:.3f} on their changes (a level "
+               "that climbs or wanders relates anything that climbs with it; only an "
+               f"identity, R2 >= {LEVEL_IDENTITY:g}, is related on levels)")
+        if why not in notes:
+            notes.append(why)
+        return rates
+
     def from_topic(ti: int, topic: str) -> Relation | None:
         target = signals[ti]
         peers = [(xi, *lag_corr(ti, xi)) for xi, s in enumerate(signals)
@@ -656,14 +786,11 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
         peers.sort(key=lambda p: -abs(p[2]))
         if peers and abs(peers[0][2]) >= SCREEN:
             xi, lag, _ = peers[0]
-            fitted = fit(target.grid, [signals[xi].grid], [_taps(lag)],
-                         _trending(target) or _trending(signals[xi]))
-            if fitted is not None:
-                fitted.r2 = quality(target, [signals[xi]], fitted)
-                if fitted.r2 >= R2_MIN:
-                    relation = relation_from_fit(target, [signals[xi]], fitted)
-                    if relation is not None:
-                        return relation
+            fitted = fitted_for(target, [signals[xi]], [_taps(lag)])
+            if fitted is not None and fitted.r2 >= R2_MIN:
+                relation = relation_from_fit(target, [signals[xi]], fitted)
+                if relation is not None:
+                    return relation
         # together, signals may explain what none does alone (a yaw rate from the left and
         # right wheel speeds, each mostly the forward speed): the best few of the same kind
         # (trending or not) as the target, whatever their single correlation
@@ -671,12 +798,9 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
                  if _trending(signals[p[0]]) == _trending(target)][:MAX_JOINT]
         if len(joint) >= 2:
             inputs = [signals[p[0]] for p in joint]
-            fitted = fit(target.grid, [x.grid for x in inputs], [_taps(p[1]) for p in joint],
-                         _trending(target) or any(_trending(x) for x in inputs))
-            if fitted is not None:
-                fitted.r2 = quality(target, inputs, fitted)
-                if fitted.r2 >= R2_MIN:
-                    return relation_from_fit(target, inputs, fitted)
+            fitted = fitted_for(target, inputs, [_taps(p[1]) for p in joint])
+            if fitted is not None and fitted.r2 >= R2_MIN:
+                return relation_from_fit(target, inputs, fitted)
         return None
 
     by_target: dict[int, list[Relation]] = {}
@@ -763,6 +887,17 @@ def _g(x: float, digits: int = 6) -> float:
     return float(f"{x:.{digits}g}")
 
 
+def _zero_sum(gains: Sequence[float], digits: int = 7) -> list[float]:
+    """Gains of an input related on its changes, written so that they still sum to zero:
+    rounded to significant digits they would not, and the remainder times a wheel angle an
+    hour of driving later is a false alarm (a sum of 3e-5 times 3600 rad: seven noise std
+    of a motor current)."""
+    top = max((abs(g) for g in gains), default=0.0)
+    decimals = digits - 1 - (math.floor(math.log10(top)) if top > 0 else 0)
+    head = [round(float(g), decimals) for g in gains[:-1]]
+    return [*head, -sum(head)]
+
+
 def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict[str, Any]:
     signals = [s for r in relations for s in (r.target, *(i for i, _ in r.inputs))]
     fresh = max(freshness(s) for s in signals)
@@ -780,7 +915,8 @@ def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict
             **({"target_lag": _g(r.target_steps * STEP)} if r.target_steps else {}),
             "inputs": [{"topic": s.ref.topic, "field": s.ref.field,
                         "lags": [_g(lag * STEP) for lag in lags],
-                        "gains": [_g(g) for g in gains]}
+                        "gains": (_zero_sum(gains) if s.ref.label() in r.on_changes
+                                  else [_g(g) for g in gains])}
                        for (s, lags), gains in zip(r.inputs, r.gains, strict=True)],
             "intercept": _g(r.intercept),
             "bias": _g(r.moving[0], 4),
@@ -810,6 +946,10 @@ def relation_comments(relations: Sequence[Relation]) -> list[str]:
         if r.track is not None:
             mode += (f"; its signals move on their own: R2 of five-second changes, the bias "
                      f"followed over {r.track:g} s, at most {r.track_rate or 0.0:.3g} a second")
+        if r.on_changes:
+            mode += (f"; related on the changes of {', '.join(r.on_changes)} (taps summing "
+                     "to zero: they trend, and a level that climbs would relate anything that "
+                     "climbs with it)")
         seen = (f"a 4-noise-std fault on any of its signals moves the residual >= "
                 f"{r.sensitivity:.1f} block noise" if r.clears else
                 f"its inputs' faults of 4 noise std move the residual less than {SENSITIVITY:g} "
