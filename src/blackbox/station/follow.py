@@ -13,10 +13,10 @@ names a robot whose id does not hash to the sample's resource id is refused.
 
 Nothing is lost across a station restart: durable state (entities, characteristics,
 thresholds) comes back from the robots' transient-local writers, and on first sight of
-each robot a log request (:meth:`_fetch_log`) fetches the exceedances and failures
-recorded since the station last heard it (at most ``backfill`` seconds back). An event
-fetched from the log and the same event heard live have the same key in the store, so
-neither path duplicates the other.
+each robot a log request (:meth:`_fetch_log`) fetches the exceedances, failures and
+announced changes of state recorded since the station last heard it (at most ``backfill``
+seconds back). An event fetched from the log and the same event heard live have the same
+key in the store, so neither path duplicates the other.
 
 Operations for the web (``request_logs``, ``run_ibit``) return at once with a record id and
 run on a worker thread; their progress and results are in the store.
@@ -95,7 +95,12 @@ FOLLOWED = ("C_Monitored_Entity", "C_Monitored_Characteristic",
             "BlackBox_Characteristic_Extension", "BlackBox_Event_Extension")
 """Topics the station reads (all published UCMS topics plus the extension topics)."""
 
-BACKFILL_KINDS = ("exceedance", "failure")
+BACKFILL_KINDS = ("exceedance", "failure", "observation")
+"""Log kinds a backfill fetches: every kind a numbered event is logged as. Faults start as
+``exceedance`` rows, failures and rectifications are named on ``failure`` rows, and a
+change of state the robot announced (a numbered ``state_change`` event) is an
+``observation`` row carrying its ``event_id``: without it such an event missed live would
+be reported lost although the robot's log has it."""
 MAX_STRING = 2000
 MAX_IDS = 1000
 MAX_LOG_ROWS = 200_000
@@ -239,7 +244,7 @@ class FollowerStats:
 class StationFollower:
     """Follows every robot on one DDS domain/partition into ``store``.
 
-    ``backfill``: on first sight of a robot, fetch its recorded exceedances and failures
+    ``backfill``: on first sight of a robot, fetch its recorded events (``BACKFILL_KINDS``)
     since the station last heard it, at most this many seconds back (0 = never).
     ``station_id``: names this station in log requests.
     ``start()`` opens the participant and starts the reading and the worker threads;
@@ -965,9 +970,10 @@ class StationFollower:
         self.store.flush(force=True)
 
     def take_logged(self, resource_id: int, entries: Iterable[LogEntry]) -> int:
-        """Store what a backfill fetched from robot ``resource_id``'s log (exceedances and
-        failures) as events; returns how many events were offered to the store (one the
-        store already holds under the same key is not added again)."""
+        """Store what a backfill fetched from robot ``resource_id``'s log (exceedances,
+        failures, announced changes of state) as events; returns how many events were
+        offered to the store (one the store already holds under the same key is not added
+        again)."""
         robot = self._robot(resource_id)
         return sum(self._log_event(robot, entry) for entry in entries)
 
@@ -1026,7 +1032,35 @@ class StationFollower:
                                  text=text, origin="log",
                                  details={"components": sorted(now_components)})
             return n + 1
+        if entry.kind == "observation":
+            return self._logged_state_change(robot, entry, payload, t)
         return 0
+
+    def _logged_state_change(self, robot: _Robot, entry: LogEntry, payload: dict[str, Any],
+                             t: float) -> int:
+        """A logged observation row that the robot announced as a change of state (it
+        carries the event's identity); other observation rows (recoveries, changes of
+        code) are no events and are not stored."""
+        event_id = payload.get("event_id")
+        if not isinstance(event_id, str) or EventId.parse(event_id) is None:
+            return 0
+        entity = str(entry.entity or "")
+        observer = str(entry.characteristic or "")
+        dedup = self._identity(robot, event_id, f"state_change|{_stamp(t)}|{observer}|{entity}",
+                               t, self.clock(), live=False)
+        names = payload.get("state_names")
+        states = [str(x)[:100] for x in names[:4]] if isinstance(names, list) else []
+        message = str(payload.get("message") or payload.get("code_name") or "")[:500]
+        text = f"{observer} {entity}: {message}".strip()
+        if states:
+            text += f" (state -> {', '.join(states)})"
+        self.store.add_event(robot.resource_id, t, "state_change", dedup=dedup,
+                             entity=self._owner_of(robot, observer, entity) or entity,
+                             characteristic=f"{observer} {entity}", text=text, origin="log",
+                             details={"log_id": entry.id, "code": entry.code,
+                                      "values": payload.get("values"), "to_states": states,
+                                      "event_id": event_id[:40]})
+        return 1
 
     def _logged_diagnosis_events(self, robot: _Robot, named: list[Any], t: float,
                                  explanation: str, log_id: int, snapshot: Any) -> int:

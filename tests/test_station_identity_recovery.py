@@ -1,0 +1,174 @@
+"""Events have identities, and a station stores each event a robot numbered exactly once,
+whatever arrived late or not at all:
+
+* a numbered change of state missed live is in the robot's log as an ``observation`` row:
+  the backfill fetches it, the hole in the numbers closes, and only numbers the log lacks
+  too are reported missing;
+* an identity (extension sample) that arrives after its event was stored under its time
+  key is matched back to that row, so the copy the robot's log supplies meets it.
+
+Everything but DDS is real: the robot's health mapper and recorder share one event ledger
+and write a real log file; the station follower writes a real SQLite station database and
+is handed the samples batch by batch (``ingest``) and the robot's log as a backfill fetches
+it (``take_logged``: the rows of ``BACKFILL_KINDS``).
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from blackbox.health.extension import C_Event_Extension
+from blackbox.health.identity import EventId, EventLedger
+from blackbox.health.mapping import HealthMapper
+from blackbox.model import Code, Diagnosis, Observation, State
+from blackbox.record import Recorder, Store
+from blackbox.record.settings import RecorderSettings
+from blackbox.record.store import LogEntry
+from blackbox.station.follow import BACKFILL_KINDS, FOLLOWED, StationFollower
+from blackbox.station.store import StationStore
+from blackbox.transport.topics import TOPIC_OF_TYPE
+from dds_blackbox_driver import CAMERA, faulty, healthy
+
+EXTENSION = "BlackBox_Event_Extension"
+KINDS = ("failure", "rectification", "exceedance", "state_change")
+
+
+class Robot:
+    """A black box's health mapper (publishes, assigns the numbers) and recorder (logs),
+    sharing one event ledger, as ``blackbox.app`` composes them."""
+
+    def __init__(self, directory: Path) -> None:
+        self.ledger = EventLedger()
+        self.mapper = HealthMapper("burst", ledger=self.ledger)
+        self.path = directory / "robot.db"
+        self.recorder = Recorder(RecorderSettings(str(self.path), commit_interval=0.1),
+                                 robot_id="burst", ledger=self.ledger)
+        self.published: list[tuple[str, Any]] = []
+        self._publish(self.mapper.start(time.time()))
+
+    def _publish(self, samples: list[Any]) -> list[tuple[str, Any]]:
+        out = [(TOPIC_OF_TYPE[type(s)], s) for s in samples]
+        out = [item for item in out if item[0] in FOLLOWED]
+        self.published += out
+        return out
+
+    def step(self, observe: Callable[[float], list[Observation]],
+             diagnosed: bool = False) -> list[tuple[str, Any]]:
+        """One cycle: observations, then the diagnosis; returns what was published."""
+        t = time.time()
+        obs = observe(t)
+        diagnosis = Diagnosis(t, (frozenset({"/usb_cam"}),), (obs[0],), "too slow") \
+            if diagnosed else Diagnosis(t, ())
+        out = self._publish(self.mapper.observations(t, obs) + self.mapper.diagnosis(diagnosis))
+        self.recorder.on_observations(t, obs)
+        self.recorder.on_diagnosis(diagnosis)
+        return out
+
+    def log(self) -> list[LogEntry]:
+        """The robot's log as the station's backfill asks for it."""
+        self.recorder.close()
+        with Store.open(self.path, readonly=True) as log:
+            return list(log.query(kinds=list(BACKFILL_KINDS)))
+
+
+def fast(t: float) -> list[Observation]:
+    """The camera healthy in another state: a change of state the robot announces."""
+    out = healthy(t)
+    out[0] = Observation(t, "hz", CAMERA, Code.GENERAL_OK, (State(2, "fast"),),
+                         {"period": 0.0333})
+    return out
+
+
+def without(samples: list[tuple[str, Any]],
+            lost: list[tuple[str, Any]]) -> list[tuple[str, Any]]:
+    gone = {id(s) for _, s in lost}
+    return [item for item in samples if id(item[1]) not in gone]
+
+
+@pytest.fixture
+def station(tmp_path: Path) -> Iterator[tuple[StationStore, StationFollower]]:
+    """A station database file and a follower writing into it (fed by hand: no DDS)."""
+    store = StationStore.open(tmp_path / "station.db")
+    follower = StationFollower(store, backfill=600)
+    try:
+        yield store, follower
+    finally:
+        store.close()
+
+
+def counts(store: StationStore) -> dict[str, int]:
+    return {k: store.count_events("burst", kinds=[k]) for k in KINDS}
+
+
+def missing_numbers(store: StationStore) -> list[str]:
+    """The numbers the station tells the operator it misses ("numbers 4, 7-9")."""
+    for p in store.problems():
+        if p.source == "missing events burst":
+            found = re.search(r"\(numbers ([^;)]*)", p.message)
+            assert found, p.message
+            return found.group(1).split(", ")
+    return []
+
+
+def heard_first(robot: Robot) -> None:
+    """A fault and its recovery heard live: the station knows where the robot's numbers
+    stand (what came before the first number it heard is the first backfill's job)."""
+    robot.step(healthy)
+    robot.step(faulty, diagnosed=True)
+    robot.step(healthy)
+
+
+# ---- a numbered change of state missed live -------------------------------------------------
+
+def test_a_change_of_state_missed_live_is_fetched_from_the_log_and_closes_its_hole(
+        tmp_path: Path, station: tuple[StationStore, StationFollower]) -> None:
+    store, follower = station
+    robot = Robot(tmp_path)
+    heard_first(robot)
+    lost = robot.step(fast)  # the change of state is numbered, logged, and lost on the way
+    assert any(isinstance(s, C_Event_Extension) and s.A_eventId for _, s in lost)
+    robot.step(healthy)  # back to "ok": another change of state, heard
+    robot.step(faulty, diagnosed=True)
+    robot.step(healthy)
+    now = time.time()
+    follower.ingest(without(robot.published, lost), now)
+    store.flush(force=True)
+    assert counts(store) == {"failure": 2, "rectification": 2, "exceedance": 2,
+                             "state_change": 1}
+    rid = store.resource_of("burst")
+    follower.take_logged(rid, robot.log())
+    follower.ingest([], now + 10.0)  # long after a hole would have been reported
+    store.flush(force=True)
+    assert missing_numbers(store) == []
+    assert follower.stats.events_lost == 0
+    assert counts(store) == {"failure": 2, "rectification": 2, "exceedance": 2,
+                             "state_change": 2}
+    logged = [e for e in store.events("burst", kinds=["state_change"]).events
+              if e.origin == "log"]
+    assert len(logged) == 1 and "fast" in logged[0].text
+    assert EventId.parse(str(logged[0].details["event_id"]))
+
+
+def test_only_numbers_the_log_lacks_too_are_reported_missing(
+        tmp_path: Path, station: tuple[StationStore, StationFollower]) -> None:
+    store, follower = station
+    robot = Robot(tmp_path)
+    heard_first(robot)
+    lost = robot.step(fast)
+    # A number used and then neither published nor logged (a log that lost its rows).
+    absent = robot.ledger.assign("failure", "/ghost", time.time())
+    robot.step(healthy)
+    robot.step(faulty, diagnosed=True)
+    now = time.time()
+    follower.ingest(without(robot.published, lost), now)
+    store.flush(force=True)
+    follower.take_logged(store.resource_of("burst"), robot.log())
+    follower.ingest([], now + 10.0)
+    store.flush(force=True)
+    assert missing_numbers(store) == [str(absent.sequence)]
