@@ -30,7 +30,7 @@ from blackbox.model import Code, Diagnosis, Observation, State
 from blackbox.record import Recorder, Store
 from blackbox.record.settings import RecorderSettings
 from blackbox.record.store import LogEntry
-from blackbox.station.follow import BACKFILL_KINDS, FOLLOWED, StationFollower
+from blackbox.station.follow import BACKFILL_KINDS, EXT_WAIT_MAX, FOLLOWED, StationFollower
 from blackbox.station.store import StationStore
 from blackbox.transport.topics import TOPIC_OF_TYPE
 from dds_blackbox_driver import CAMERA, faulty, healthy
@@ -172,3 +172,101 @@ def test_only_numbers_the_log_lacks_too_are_reported_missing(
     follower.ingest([], now + 10.0)
     store.flush(force=True)
     assert missing_numbers(store) == [str(absent.sequence)]
+
+
+# ---- an identity that comes after its event was stored under its time key ----------------------
+
+def split(samples: list[tuple[str, Any]]) -> tuple[list[tuple[str, Any]], list[tuple[str, Any]]]:
+    """The event and state samples, and the extensions (identities) that may lag behind."""
+    return ([item for item in samples if item[0] != EXTENSION],
+            [item for item in samples if item[0] == EXTENSION])
+
+
+def stored_under_time_keys(follower: StationFollower, samples: list[tuple[str, Any]],
+                           start: float) -> list[tuple[str, Any]]:
+    """Deliver the events while the extension reader stays behind until ``EXT_WAIT_MAX``
+    passed: they are stored under their time keys. Returns the held-back extensions."""
+    others, extensions = split(samples)
+    follower.ingest(others, start, behind={EXTENSION})
+    follower.ingest([], start + EXT_WAIT_MAX, behind={EXTENSION})
+    follower.store.flush(force=True)
+    return extensions
+
+
+def test_an_identity_that_comes_late_renames_the_row_and_the_logged_copy_meets_it(
+        tmp_path: Path, station: tuple[StationStore, StationFollower]) -> None:
+    store, follower = station
+    robot = Robot(tmp_path)
+    heard_first(robot)
+    start = time.time()
+    follower.ingest(robot.published, start)
+    late = robot.step(faulty, diagnosed=True) + robot.step(healthy)
+    extensions = stored_under_time_keys(follower, late, start + 1.0)
+    unnamed = [e for e in store.events("burst", kinds=["failure"]).events
+               if not e.details.get("event_id")]
+    assert len(unnamed) == 1  # stored without its identity
+    follower.ingest(extensions, start + EXT_WAIT_MAX + 2.0)
+    store.flush(force=True)
+    failures = store.events("burst", kinds=["failure"]).events
+    assert all(EventId.parse(str(e.details.get("event_id"))) for e in failures)
+    assert [e.id for e in failures if e.id == unnamed[0].id]  # the same row, renamed
+    follower.take_logged(store.resource_of("burst"), robot.log())
+    follower.ingest([], start + EXT_WAIT_MAX + 20.0)
+    store.flush(force=True)
+    assert counts(store) == {"failure": 2, "rectification": 2, "exceedance": 2,
+                             "state_change": 0}
+    assert missing_numbers(store) == []
+
+
+def test_an_identity_that_comes_after_the_logged_copy_merges_the_two_rows(
+        tmp_path: Path, station: tuple[StationStore, StationFollower]) -> None:
+    store, follower = station
+    robot = Robot(tmp_path)
+    heard_first(robot)
+    start = time.time()
+    follower.ingest(robot.published, start)
+    late = robot.step(faulty, diagnosed=True) + robot.step(healthy)
+    extensions = stored_under_time_keys(follower, late, start + 1.0)
+    (unnamed,) = [e for e in store.events("burst", kinds=["failure"]).events
+                  if not e.details.get("event_id")]
+    store.acknowledge(unnamed.id, "ada", "seen on the robot page")
+    # The number looked missing: the backfill brought the logged copy, under its identity.
+    follower.take_logged(store.resource_of("burst"), robot.log())
+    store.flush(force=True)
+    assert counts(store)["failure"] == 3
+    follower.ingest(extensions, start + EXT_WAIT_MAX + 2.0)
+    store.flush(force=True)
+    assert counts(store) == {"failure": 2, "rectification": 2, "exceedance": 2,
+                             "state_change": 0}
+    failures = store.events("burst", kinds=["failure"]).events
+    assert len({e.details.get("event_id") for e in failures}) == 2
+    (acked,) = [e for e in failures if e.acknowledged_by]
+    assert acked.acknowledged_by == "ada" and acked.origin == "log"
+    (ack,) = store.events("burst", kinds=["acknowledgement"]).events
+    assert ack.refers_to == acked.id
+
+
+def test_events_of_one_millisecond_named_late_are_each_stored_once(
+        tmp_path: Path, station: tuple[StationStore, StationFollower]) -> None:
+    store, follower = station
+    robot = Robot(tmp_path)
+    heard_first(robot)
+    start = time.time()
+    follower.ingest(robot.published, start)
+    pairs = 100
+    late: list[tuple[str, Any]] = []
+    for _ in range(pairs):
+        late += robot.step(faulty, diagnosed=True) + robot.step(healthy)
+    extensions = stored_under_time_keys(follower, late, start + 1.0)
+    merged = counts(store)["failure"]
+    assert merged < pairs  # events of one millisecond shared a time key
+    follower.ingest(extensions, start + EXT_WAIT_MAX + 2.0)
+    store.flush(force=True)
+    expected = {"failure": pairs + 1, "rectification": pairs + 1, "exceedance": pairs + 1,
+                "state_change": 0}
+    assert counts(store) == expected
+    follower.take_logged(store.resource_of("burst"), robot.log())
+    follower.ingest([], start + EXT_WAIT_MAX + 20.0)
+    store.flush(force=True)
+    assert counts(store) == expected
+    assert missing_numbers(store) == []

@@ -35,6 +35,7 @@ import math
 import queue
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -116,6 +117,9 @@ time key."""
 MAX_WAITING = 100_000
 """Events (and inferred rectifications) waiting for extensions at most; beyond, the oldest
 is stored without one."""
+MAX_UNNAMED = 20_000
+"""Events stored without their identity that are remembered, so that an identity arriving
+late can still be matched to its row (the oldest are forgotten first)."""
 EXTENSION_TOPIC = "BlackBox_Event_Extension"
 BACKFILL_REPEAT = 5.0
 STATE_DEPTH = 64
@@ -216,6 +220,29 @@ class _InferredRectification:
     entity: str
 
 
+@dataclass(frozen=True, slots=True)
+class _EventRow:
+    """A failure or exceedance as the store takes it (``add_event``'s arguments)."""
+
+    time: float
+    kind: str
+    dedup: str
+    entity: str
+    characteristic: str
+    text: str
+    details: dict[str, Any]
+
+
+@dataclass(frozen=True, slots=True)
+class _Unnamed:
+    """An event stored under its time key because its identity had not come (yet): kept so
+    that the identity, arriving late, re-keys that row instead of a second copy being made
+    once the robot's log supplies the event under its identity."""
+
+    sample: C_Threshold_Exceedence_Event | C_Failure_Event
+    dedup: str
+
+
 @dataclass(slots=True)
 class _Lane:
     """A worker thread with its own job queue and log client: operators' requests and the
@@ -293,6 +320,8 @@ class StationFollower:
         self._waitset: Waiter | None = None
         self._robots: dict[int, _Robot] = {}
         self._ext: dict[tuple[int, int], C_Event_Extension] = {}
+        self._unnamed: OrderedDict[tuple[int, int], _Unnamed] = OrderedDict()
+        """Events stored under their time key, by source id (see :class:`_Unnamed`)."""
         self._waiting: list[tuple[float, C_Threshold_Exceedence_Event | C_Failure_Event]] = []
         """Events waiting for their extension, which travels on another topic (see
         :meth:`_extension_overdue`)."""
@@ -665,6 +694,10 @@ class StationFollower:
             if s.A_kind == T_EventKind.L_EventKind_RECTIFICATION:
                 self._rectification(robot, s, now)
             else:
+                unnamed = self._unnamed.pop(_key(s.A_sourceID), None)
+                if unnamed is not None:
+                    self._name_late(robot, unnamed, s, now)
+                    return
                 self._ext[_key(s.A_sourceID)] = s
                 while len(self._ext) > 10_000:
                     self._ext.pop(next(iter(self._ext)))
@@ -764,29 +797,63 @@ class StationFollower:
         rid = robot.resource_id
         ent = s.A_monitoredEntity_sourceID
         e = robot.entities.get(int(ent.A_instanceId)) if int(ent.A_resourceId) == rid else None
+        if e is not None:
+            e.cause = self._text(s.A_causeDescription, "cause description")
+            self.store.put_entity(rid, int(ent.A_instanceId), cause=e.cause,
+                                  actions=self._text(s.A_operatorActionDescription,
+                                                     "operator action"))
+        self._store_event(robot, s, ext, self._failure_row(robot, s, ext, now))
+
+    def _store_event(self, robot: _Robot, s: C_Threshold_Exceedence_Event | C_Failure_Event,
+                     ext: C_Event_Extension | None, row: _EventRow) -> None:
+        """Store a failure or exceedance heard live; one stored without its identity is
+        remembered, so that the identity still finds its row if it comes late."""
+        if ext is None:
+            self._unnamed[_key(s.A_sourceID)] = _Unnamed(s, row.dedup)
+            while len(self._unnamed) > MAX_UNNAMED:
+                self._unnamed.popitem(last=False)
+        self.store.add_event(robot.resource_id, row.time, row.kind, dedup=row.dedup,
+                             entity=row.entity, characteristic=row.characteristic,
+                             text=row.text, details=row.details)
+
+    def _name_late(self, robot: _Robot, unnamed: _Unnamed, ext: C_Event_Extension,
+                   now: float) -> None:
+        """The identity of an event already stored under its time key came: the row is
+        re-keyed to the identity (and its number counts as received), or, if the robot's
+        log supplied the event under its identity meanwhile, the two rows become one."""
+        s = unnamed.sample
+        row = self._failure_row(robot, s, ext, now) if isinstance(s, C_Failure_Event) \
+            else self._exceedance_row(robot, s, ext, now)
+        self.store.name_event(robot.resource_id, unnamed.dedup, row.time, row.kind,
+                              dedup=row.dedup, entity=row.entity,
+                              characteristic=row.characteristic, text=row.text,
+                              details=row.details)
+
+    def _failure_row(self, robot: _Robot, s: C_Failure_Event, ext: C_Event_Extension | None,
+                     now: float) -> _EventRow:
+        rid = robot.resource_id
+        ent = s.A_monitoredEntity_sourceID
+        e = robot.entities.get(int(ent.A_instanceId)) if int(ent.A_resourceId) == rid else None
         name = e.name if e is not None else f"#{int(ent.A_instanceId)}"
         t = seconds_of(s.A_eventOccurrenceDate)
         description = self._text(s.A_failureDescription, "failure description")
         cause = self._text(s.A_causeDescription, "cause description")
         action = self._text(s.A_operatorActionDescription, "operator action")
-        if e is not None:
-            e.cause = cause
-            self.store.put_entity(rid, int(ent.A_instanceId), cause=cause, actions=action)
         dedup = self._identity(robot, ext.A_eventId if ext is not None else None,
                                f"failure|{_stamp(t)}|{name}", t, now)
-        self.store.add_event(
-            rid, self.clocks.time_of(robot.name, t, now), "failure", dedup=dedup, entity=name,
-            text=description + (f": {cause}" if cause else ""),
-            details={"standard_fault_code": float(s.A_standardFaultCode)
-                     if math.isfinite(s.A_standardFaultCode) else None,
-                     "proprietary_fault_code": s.A_proprietaryFaultCode[:200],
-                     "consequence": s.A_operationalConsequenceDescription[:500],
-                     "operator_action": action[:500],
-                     "maintenance_action": s.A_maintenanceActionDescription[:500],
-                     "complementary": s.A_complementaryInformation[:MAX_STRING],
-                     "documentation_uri": s.A_eventDocumentationURI[:500],
-                     "event_id": ext.A_eventId[:40] if ext is not None else "",
-                     **self._robot_time(robot, t)})
+        return _EventRow(
+            self.clocks.time_of(robot.name, t, now), "failure", dedup, name, "",
+            description + (f": {cause}" if cause else ""),
+            {"standard_fault_code": float(s.A_standardFaultCode)
+             if math.isfinite(s.A_standardFaultCode) else None,
+             "proprietary_fault_code": s.A_proprietaryFaultCode[:200],
+             "consequence": s.A_operationalConsequenceDescription[:500],
+             "operator_action": action[:500],
+             "maintenance_action": s.A_maintenanceActionDescription[:500],
+             "complementary": s.A_complementaryInformation[:MAX_STRING],
+             "documentation_uri": s.A_eventDocumentationURI[:500],
+             "event_id": ext.A_eventId[:40] if ext is not None else "",
+             **self._robot_time(robot, t)})
 
     def _robot_time(self, robot: _Robot, t: float) -> dict[str, float]:
         """The robot's own time of an event placed at the station's time (clock skew)."""
@@ -889,6 +956,10 @@ class StationFollower:
 
     def _exceedance(self, robot: _Robot, s: C_Threshold_Exceedence_Event,
                     ext: C_Event_Extension | None, now: float = 0.0) -> None:
+        self._store_event(robot, s, ext, self._exceedance_row(robot, s, ext, now))
+
+    def _exceedance_row(self, robot: _Robot, s: C_Threshold_Exceedence_Event,
+                        ext: C_Event_Extension | None, now: float) -> _EventRow:
         rid = robot.resource_id
         concerned = s.A_concernedCharacteristic_sourceID
         cid = int(concerned.A_instanceId)
@@ -919,9 +990,8 @@ class StationFollower:
         if ext is not None and ext.A_eventId:
             details["event_id"] = ext.A_eventId[:40]
         details.update(self._robot_time(robot, t))
-        self.store.add_event(rid, self.clocks.time_of(robot.name, t, now), kind, dedup=dedup,
-                             entity=owner.name if owner is not None else "",
-                             characteristic=cname, text=text, details=details)
+        return _EventRow(self.clocks.time_of(robot.name, t, now), kind, dedup,
+                         owner.name if owner is not None else "", cname, text, details)
 
     # ---- backfill and operations --------------------------------------------------------
 

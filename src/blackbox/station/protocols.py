@@ -70,6 +70,10 @@ class FleetWrites(Protocol):
                   origin: str = "live", details: dict[str, Any] | None = None,
                   refers_to: int | None = None) -> None: ...
 
+    def name_event(self, resource_id: int, unnamed: str, t: float, kind: str, *, dedup: str,
+                   entity: str = "", characteristic: str = "", text: str = "",
+                   details: dict[str, Any] | None = None) -> None: ...
+
     def flush(self, force: bool = False) -> bool: ...
 
     @property
