@@ -270,3 +270,30 @@ def test_events_of_one_millisecond_named_late_are_each_stored_once(
     store.flush(force=True)
     assert counts(store) == expected
     assert missing_numbers(store) == []
+
+
+# ---- diagnoses: the robot's conclusion, each change kept -----------------------------------
+
+def test_every_change_of_diagnosis_is_kept_and_the_newest_is_the_robots_current_one(
+        tmp_path: Path, station: tuple[StationStore, StationFollower]) -> None:
+    store, follower = station
+    robot = Robot(tmp_path)
+    heard_first(robot)
+    pairs = 100
+    for _ in range(pairs):
+        robot.step(faulty, diagnosed=True)
+        robot.step(healthy)
+    robot.step(faulty, diagnosed=True)  # the robot ends faulty
+    follower.ingest(robot.published, time.time())
+    store.flush(force=True)
+    log = robot.log()
+    changes = [e for e in log if e.kind == "failure"]  # one row per change of diagnosis
+    assert len({round(e.time, 3) for e in changes}) < len(changes)  # many in one ms
+    diagnoses = store.count_events("burst", kinds=["diagnosis"])
+    assert diagnoses == len(changes) == 2 * pairs + 3
+    follower.take_logged(store.resource_of("burst"), log)
+    store.flush(force=True)
+    assert store.count_events("burst", kinds=["diagnosis"]) == diagnoses  # copies met
+    (newest,) = store.events("burst", kinds=["diagnosis"], limit=1).events
+    assert newest.details["components"] == ["/usb_cam"]
+    assert next(s for s in store.fleet() if s.robot_id == "burst").diagnosis == ("/usb_cam",)

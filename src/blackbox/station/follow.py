@@ -63,6 +63,7 @@ from blackbox.health.types import (
     T_IdentifierType,
     T_Monitored_Entity_StateType,
     T_ThresholdType,
+    datetime_of,
     seconds_of,
 )
 from blackbox.record.store import KINDS, LogEntry
@@ -150,11 +151,26 @@ def _stamp(t: float) -> str:
     return f"{t:.3f}"
 
 
+def _instant(t: float) -> str:
+    """A robot's time to the nanosecond, as its UCMS samples carry it (seconds and
+    nanoseconds): the time a sample decodes to and the float the robot's recorder stored
+    give the same text (``seconds_of(datetime_of(t)) == t`` for the robot's clock
+    readings). A time that is no number (from a malformed log reply) is kept as it is."""
+    if not math.isfinite(t):
+        return str(t)
+    dt = datetime_of(t)
+    return f"{dt.A_second}.{dt.A_nanoseconds:09d}"
+
+
 def _diagnosis_key(t: float, components: frozenset[str]) -> str:
-    """The dedup key of a diagnosis the station derives itself (no robot event id names
-    it): its time and its components, so two different diagnoses within one millisecond
-    both stay, while the live and the logged copy of one diagnosis meet."""
-    return f"diagnosis|{_stamp(t)}|{','.join(sorted(components))}"
+    """The dedup key of a diagnosis the station derives itself. The robot numbers the
+    failures and rectifications a diagnosis causes, not the diagnosis, so it is keyed by
+    the robot's time of it to the nanosecond (the resolution at which the robot's event
+    ledger tells events apart) and its components: every change of the robot's diagnosis
+    stays, also many in one millisecond (a flapping component; keyed by the millisecond
+    they merged, and the newest diagnosis row could contradict the robot's current one),
+    while the live and the logged copy of one diagnosis meet."""
+    return f"diagnosis|{_instant(t)}|{','.join(sorted(components))}"
 
 
 def _primary(resource_label: str) -> str:
