@@ -26,14 +26,14 @@ import pytest
 from blackbox.health.extension import C_Event_Extension
 from blackbox.health.identity import EventId, EventLedger
 from blackbox.health.mapping import HealthMapper
-from blackbox.model import Code, Diagnosis, Observation, State
+from blackbox.model import Diagnosis, Observation
 from blackbox.record import Recorder, Store
 from blackbox.record.settings import RecorderSettings
 from blackbox.record.store import LogEntry
 from blackbox.station.follow import BACKFILL_KINDS, EXT_WAIT_MAX, FOLLOWED, StationFollower
 from blackbox.station.store import StationStore
 from blackbox.transport.topics import TOPIC_OF_TYPE
-from dds_blackbox_driver import CAMERA, faulty, healthy
+from dds_blackbox_driver import fast, faulty, healthy
 
 EXTENSION = "BlackBox_Event_Extension"
 KINDS = ("failure", "rectification", "exceedance", "state_change")
@@ -75,14 +75,6 @@ class Robot:
         self.recorder.close()
         with Store.open(self.path, readonly=True) as log:
             return list(log.query(kinds=list(BACKFILL_KINDS)))
-
-
-def fast(t: float) -> list[Observation]:
-    """The camera healthy in another state: a change of state the robot announces."""
-    out = healthy(t)
-    out[0] = Observation(t, "hz", CAMERA, Code.GENERAL_OK, (State(2, "fast"),),
-                         {"period": 0.0333})
-    return out
 
 
 def without(samples: list[tuple[str, Any]],
