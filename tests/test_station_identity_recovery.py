@@ -23,7 +23,7 @@ from typing import Any
 
 import pytest
 
-from blackbox.health.extension import C_Event_Extension
+from blackbox.health.extension import C_Event_Extension, T_EventKind
 from blackbox.health.identity import EventId, EventLedger
 from blackbox.health.mapping import HealthMapper
 from blackbox.model import Diagnosis, Observation
@@ -218,7 +218,13 @@ def test_an_identity_that_comes_late_renames_the_row_and_the_logged_copy_meets_i
     assert missing_numbers(store) == []
 
 
-def test_an_identity_that_comes_after_the_logged_copy_merges_the_two_rows(
+def rectifications(extensions: list[tuple[str, Any]]) -> list[tuple[str, Any]]:
+    """The extensions that are events themselves (rectifications): the others name the
+    failures and exceedances."""
+    return [item for item in extensions if item[1].A_kind == T_EventKind.L_EventKind_RECTIFICATION]
+
+
+def test_an_identity_lost_on_the_way_is_taken_from_the_logged_copy(
         tmp_path: Path, station: tuple[StationStore, StationFollower]) -> None:
     store, follower = station
     robot = Robot(tmp_path)
@@ -227,13 +233,40 @@ def test_an_identity_that_comes_after_the_logged_copy_merges_the_two_rows(
     follower.ingest(robot.published, start)
     late = robot.step(faulty, diagnosed=True) + robot.step(healthy)
     extensions = stored_under_time_keys(follower, late, start + 1.0)
+    follower.ingest(rectifications(extensions), start + EXT_WAIT_MAX + 1.0)  # the rest lost
+    store.flush(force=True)
     (unnamed,) = [e for e in store.events("burst", kinds=["failure"]).events
                   if not e.details.get("event_id")]
     store.acknowledge(unnamed.id, "ada", "seen on the robot page")
-    # The number looked missing: the backfill brought the logged copy, under its identity.
+    # The numbers look missing: the backfill brings the logged copies, with identities.
     follower.take_logged(store.resource_of("burst"), robot.log())
+    follower.ingest([], start + EXT_WAIT_MAX + 20.0)
     store.flush(force=True)
+    assert counts(store) == {"failure": 2, "rectification": 2, "exceedance": 2,
+                             "state_change": 0}
+    assert missing_numbers(store) == []
+    named = store.event(unnamed.id)
+    assert named is not None and named.acknowledged_by == "ada" and named.origin == "live"
+    assert EventId.parse(str(named.details.get("event_id")))
+    assert named.text == unnamed.text  # what was heard live is kept
+
+
+def test_a_live_event_stored_after_its_logged_copy_becomes_one_when_its_identity_comes(
+        tmp_path: Path, station: tuple[StationStore, StationFollower]) -> None:
+    store, follower = station
+    robot = Robot(tmp_path)
+    heard_first(robot)
+    start = time.time()
+    follower.ingest(robot.published, start)
+    late = robot.step(faulty, diagnosed=True) + robot.step(healthy)
+    store.flush(force=True)
+    # The backfill was quicker than the live samples: the logged copies are stored first.
+    follower.take_logged(store.resource_of("burst"), robot.log())
+    extensions = stored_under_time_keys(follower, late, start + 1.0)
     assert counts(store)["failure"] == 3
+    (unnamed,) = [e for e in store.events("burst", kinds=["failure"]).events
+                  if not e.details.get("event_id")]
+    store.acknowledge(unnamed.id, "ada", "seen on the robot page")
     follower.ingest(extensions, start + EXT_WAIT_MAX + 2.0)
     store.flush(force=True)
     assert counts(store) == {"failure": 2, "rectification": 2, "exceedance": 2,
@@ -269,6 +302,29 @@ def test_events_of_one_millisecond_named_late_are_each_stored_once(
     follower.ingest([], start + EXT_WAIT_MAX + 20.0)
     store.flush(force=True)
     assert counts(store) == expected
+    assert missing_numbers(store) == []
+
+
+def test_events_of_one_millisecond_whose_identities_were_lost_are_each_stored_once(
+        tmp_path: Path, station: tuple[StationStore, StationFollower]) -> None:
+    store, follower = station
+    robot = Robot(tmp_path)
+    heard_first(robot)
+    start = time.time()
+    follower.ingest(robot.published, start)
+    pairs = 100
+    late: list[tuple[str, Any]] = []
+    for _ in range(pairs):
+        late += robot.step(faulty, diagnosed=True) + robot.step(healthy)
+    extensions = stored_under_time_keys(follower, late, start + 1.0)
+    follower.ingest(rectifications(extensions), start + EXT_WAIT_MAX + 1.0)  # the rest lost
+    store.flush(force=True)
+    assert counts(store)["failure"] < pairs  # events of one millisecond shared a time key
+    follower.take_logged(store.resource_of("burst"), robot.log())
+    follower.ingest([], start + EXT_WAIT_MAX + 20.0)
+    store.flush(force=True)
+    assert counts(store) == {"failure": pairs + 1, "rectification": pairs + 1,
+                             "exceedance": pairs + 1, "state_change": 0}
     assert missing_numbers(store) == []
 
 

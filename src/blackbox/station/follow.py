@@ -338,6 +338,13 @@ class StationFollower:
         self._ext: dict[tuple[int, int], C_Event_Extension] = {}
         self._unnamed: OrderedDict[tuple[int, int], _Unnamed] = OrderedDict()
         """Events stored under their time key, by source id (see :class:`_Unnamed`)."""
+        self._time_keys: OrderedDict[tuple[int, str], tuple[tuple[int, int], float]] = \
+            OrderedDict()
+        """Which event owns the row stored under a time key (robot, key -> its source id
+        and robot time): events of one millisecond share a key, and only the owner's
+        identity, arriving late or with the logged copy, may take that row (the backfill
+        thread reads it: guarded by ``_time_keys_lock``)."""
+        self._time_keys_lock = threading.Lock()
         self._waiting: list[tuple[float, C_Threshold_Exceedence_Event | C_Failure_Event]] = []
         """Events waiting for their extension, which travels on another topic (see
         :meth:`_extension_overdue`)."""
@@ -828,6 +835,12 @@ class StationFollower:
             self._unnamed[_key(s.A_sourceID)] = _Unnamed(s, row.dedup)
             while len(self._unnamed) > MAX_UNNAMED:
                 self._unnamed.popitem(last=False)
+            with self._time_keys_lock:
+                self._time_keys.setdefault((robot.resource_id, row.dedup),
+                                           (_key(s.A_sourceID),
+                                            seconds_of(s.A_eventOccurrenceDate)))
+                while len(self._time_keys) > MAX_UNNAMED:
+                    self._time_keys.popitem(last=False)
         self.store.add_event(robot.resource_id, row.time, row.kind, dedup=row.dedup,
                              entity=row.entity, characteristic=row.characteristic,
                              text=row.text, details=row.details)
@@ -840,6 +853,14 @@ class StationFollower:
         s = unnamed.sample
         row = self._failure_row(robot, s, ext, now) if isinstance(s, C_Failure_Event) \
             else self._exceedance_row(robot, s, ext, now)
+        with self._time_keys_lock:
+            owner = self._time_keys.get((robot.resource_id, unnamed.dedup))
+            if owner is not None and owner[0] == _key(s.A_sourceID):
+                del self._time_keys[(robot.resource_id, unnamed.dedup)]  # the key is free
+        if owner is None or owner[0] != _key(s.A_sourceID):
+            # The row under that time key is another event's of the same millisecond.
+            self._store_event(robot, s, ext, row)
+            return
         self.store.name_event(robot.resource_id, unnamed.dedup, row.time, row.kind,
                               dedup=row.dedup, entity=row.entity,
                               characteristic=row.characteristic, text=row.text,
@@ -1073,15 +1094,15 @@ class StationFollower:
             observer = str(entry.characteristic or "")
             message = str(payload.get("message") or payload.get("code_name") or "")
             owner = self._owner_of(robot, observer, entity)
-            dedup = self._identity(robot, payload.get("event_id"),
-                                   f"exceedance|{_stamp(t)}|{observer}|{entity}", t,
+            time_key = f"exceedance|{_stamp(t)}|{observer}|{entity}"
+            dedup = self._identity(robot, payload.get("event_id"), time_key, t,
                                    self.clock(), live=False)
-            self.store.add_event(rid, t, "exceedance", dedup=dedup,
-                                 entity=owner or entity, characteristic=f"{observer} {entity}",
-                                 text=f"{observer} {entity}: {message}".strip(), origin="log",
-                                 details={"log_id": entry.id, "code": entry.code,
-                                          "values": payload.get("values"),
-                                          "event_id": str(payload.get("event_id") or "")[:40]})
+            self._add_logged(robot, time_key, t, "exceedance", dedup=dedup,
+                             entity=owner or entity, characteristic=f"{observer} {entity}",
+                             text=f"{observer} {entity}: {message}".strip(),
+                             details={"log_id": entry.id, "code": entry.code,
+                                      "values": payload.get("values"),
+                                      "event_id": str(payload.get("event_id") or "")[:40]})
             return 1
         if entry.kind == "failure":
             components = [str(c)[:200] for c in payload.get("components") or []][:100]
@@ -1140,13 +1161,37 @@ class StationFollower:
         text = f"{observer} {entity}: {message}".strip()
         if states:
             text += f" (state -> {', '.join(states)})"
-        self.store.add_event(robot.resource_id, t, "state_change", dedup=dedup,
-                             entity=self._owner_of(robot, observer, entity) or entity,
-                             characteristic=f"{observer} {entity}", text=text, origin="log",
-                             details={"log_id": entry.id, "code": entry.code,
-                                      "values": payload.get("values"), "to_states": states,
-                                      "event_id": event_id[:40]})
+        # Heard live without its extension it was stored as an exceedance.
+        self._add_logged(robot, f"exceedance|{_stamp(t)}|{observer}|{entity}", t,
+                         "state_change", dedup=dedup,
+                         entity=self._owner_of(robot, observer, entity) or entity,
+                         characteristic=f"{observer} {entity}", text=text,
+                         details={"log_id": entry.id, "code": entry.code,
+                                  "values": payload.get("values"), "to_states": states,
+                                  "event_id": event_id[:40]})
         return 1
+
+    def _add_logged(self, robot: _Robot, time_key: str, t: float, kind: str, *, dedup: str,
+                    entity: str, characteristic: str, text: str,
+                    details: dict[str, Any]) -> None:
+        """Store a logged event. If its live copy was stored under ``time_key`` (its
+        identity never came, or not yet), that row takes the identity instead of a second
+        copy being added."""
+        # The row under the time key is this event's only if its owner has the same time
+        # (events of one millisecond share the key).
+        with self._time_keys_lock:
+            owner = self._time_keys.get((robot.resource_id, time_key))
+            mine = owner is not None and abs(owner[1] - t) < 1e-6 and dedup.startswith("id:")
+            if mine:
+                del self._time_keys[(robot.resource_id, time_key)]  # the key is free
+        if mine:
+            self.store.name_event(robot.resource_id, time_key, t, kind, dedup=dedup,
+                                  entity=entity, characteristic=characteristic, text=text,
+                                  origin="log", details=details, rewrite=False)
+            return
+        self.store.add_event(robot.resource_id, t, kind, dedup=dedup, entity=entity,
+                             characteristic=characteristic, text=text, origin="log",
+                             details=details)
 
     def _logged_diagnosis_events(self, robot: _Robot, named: list[Any], t: float,
                                  explanation: str, log_id: int, snapshot: Any) -> int:
@@ -1158,15 +1203,16 @@ class StationFollower:
                 continue
             comp = str(item.get("entity") or "")[:200]
             kind = str(item["kind"])
-            dedup = self._identity(robot, item.get("id"), f"{kind}|{_stamp(t)}|{comp}", t,
-                                   self.clock(), live=False)
+            time_key = f"{kind}|{_stamp(t)}|{comp}"
+            dedup = self._identity(robot, item.get("id"), time_key, t, self.clock(),
+                                   live=False)
             text = f"{comp} is no longer diagnosed faulty" if kind == "rectification" else \
                 f"{comp} diagnosed faulty" + (f": {explanation}" if explanation else "")
             details: dict[str, Any] = {"log_id": log_id, "event_id": str(item.get("id"))[:40]}
             if kind == "failure":
                 details["snapshot"] = snapshot
-            self.store.add_event(robot.resource_id, t, kind, dedup=dedup, entity=comp,
-                                 origin="log", text=text, details=details)
+            self._add_logged(robot, time_key, t, kind, dedup=dedup, entity=comp,
+                             characteristic="", text=text, details=details)
             n += 1
         return n
 

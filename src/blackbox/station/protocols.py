@@ -72,7 +72,8 @@ class FleetWrites(Protocol):
 
     def name_event(self, resource_id: int, unnamed: str, t: float, kind: str, *, dedup: str,
                    entity: str = "", characteristic: str = "", text: str = "",
-                   details: dict[str, Any] | None = None) -> None: ...
+                   origin: str = "live", details: dict[str, Any] | None = None,
+                   rewrite: bool = True) -> None: ...
 
     def flush(self, force: bool = False) -> bool: ...
 
