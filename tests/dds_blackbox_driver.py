@@ -43,6 +43,15 @@ def faulty(t: float) -> list[Observation]:
     return out
 
 
+def fast(t: float) -> list[Observation]:
+    """The camera healthy in another state ("fast"): a change of state the robot announces
+    as a numbered event."""
+    out = healthy(t)
+    out[0] = Observation(t, "hz", CAMERA, Code.GENERAL_OK, (State(2, "fast"),),
+                         {"period": 0.0333})
+    return out
+
+
 def zenoh_settings(args: argparse.Namespace) -> ZenohSettings | None:
     if args.zenoh is None:
         return None
@@ -118,6 +127,13 @@ def main() -> int:
                         recorder.on_observations(t, obs)
                         recorder.on_diagnosis(d)
                     t = time.time()
+        elif command == "unpublished-state":
+            # A change of state whose samples are lost on the way (mapped and numbered,
+            # never written): only the robot's log has it, as an observation row.
+            obs = fast(t)
+            sink.mapper.observations(t, obs)
+            if recorder is not None:
+                recorder.on_observations(t, obs)
         elif command.startswith("burst "):
             # N failures and N rectifications of /usb_cam as fast as they can be made:
             # many share a millisecond, each is a distinct event.

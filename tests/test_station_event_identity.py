@@ -154,6 +154,30 @@ def test_events_lost_on_the_network_are_noticed_by_number_and_fetched_from_the_l
         assert not [p for p in store.problems() if p.source.startswith("lost events")]
 
 
+@pytest.mark.dds
+def test_a_change_of_state_lost_on_the_network_is_fetched_from_the_log_not_reported_lost(
+        tmp_path: Path, new_box: NewBox) -> None:  # noqa: F811
+    domain = fresh_domain()
+    box = new_box("lossy", domain, "ok", "fault", "ok", store=tmp_path / "robot.db")
+    with following(tmp_path / "station.db", domain, backfill=600) as (store, follower):
+        wait(lambda: counts(store, "lossy").get("rectification") == 1, "the live recovery")
+        robot = next(r for r in follower._robots.values() if r.robot_id == "lossy")
+        wait(lambda: not robot.backfill_due and follower._backfills.jobs.empty()
+             and not follower._backfills.lock.locked(), "the first backfills to end")
+        box.send("unpublished-state")  # numbered and logged (an observation row), not sent
+        box.send("ok")  # back to "ok": a change of state heard live, after the hole
+
+        def state_changes() -> list[str]:
+            return sorted(e.origin for e in store.events("lossy", kinds=["state_change"]).events)
+
+        wait(lambda: state_changes() == ["live", "log"]
+             and not [p for p in store.problems() if p.source.startswith("missing events")]
+             and not robot.gap_fetch,
+             "the lost change of state fetched from the log and the hole closed")
+        assert follower.stats.events_lost == 0
+        assert not [p for p in store.problems() if p.source.startswith("lost events")]
+
+
 def _entities(store: StationStore, robot: str) -> Iterator[Any]:
     try:
         yield from store.entities(robot)

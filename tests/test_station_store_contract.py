@@ -166,6 +166,36 @@ def test_an_event_is_stored_once_per_identity(store: StationStore) -> None:
         store.add_event(RID, T0, "gossip", dedup="x")
 
 
+def test_an_event_named_late_is_rekeyed_or_merged_with_its_logged_copy(
+        store: StationStore) -> None:
+    robot_with_a_failing_camera(store)
+    store.add_event(RID, T0, "failure", dedup="failure|t0|/camera", entity="/camera")
+    store.add_event(RID, T0 + 1, "exceedance", dedup="exceedance|t1|rate", text="slow")
+    store.add_event(RID, T0 + 1, "exceedance", dedup="id:b-2", origin="log", text="slow")
+    assert store.flush()
+    [unnamed] = store.events(kinds=["failure"]).events
+    [time_keyed] = [e for e in store.events(kinds=["exceedance"]).events if e.origin == "live"]
+    store.acknowledge(time_keyed.id, "olga")
+    # The failure's identity: its row is re-keyed, the same row.
+    store.name_event(RID, "failure|t0|/camera", T0, "failure", dedup="id:b-1",
+                     entity="/camera", text="silent", details={"event_id": "b-1"})
+    # The exceedance's identity: its logged copy is stored already, the two become one.
+    store.name_event(RID, "exceedance|t1|rate", T0 + 1, "state_change", dedup="id:b-2",
+                     text="slow (state ok -> fast)")
+    # Two events of one millisecond had shared the failure's time key: the second is added.
+    store.name_event(RID, "failure|t0|/camera", T0, "failure", dedup="id:b-3",
+                     entity="/camera", text="silent again")
+    assert store.flush()
+    failures = store.events(kinds=["failure"]).events
+    assert {e.text for e in failures} == {"silent", "silent again"}
+    assert [e.details for e in failures if e.id == unnamed.id] == [{"event_id": "b-1"}]
+    [kept] = store.events(kinds=["exceedance"]).events
+    assert (kept.origin, kept.acknowledged_by) == ("log", "olga")
+    [ack] = store.events(kinds=["acknowledgement"]).events
+    assert ack.refers_to == kept.id
+    assert store.count_events() == 4
+
+
 def test_events_page_newest_first_with_filters_and_a_cursor(store: StationStore) -> None:
     robot_with_a_failing_camera(store)
     for i in range(25):

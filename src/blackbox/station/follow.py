@@ -13,10 +13,10 @@ names a robot whose id does not hash to the sample's resource id is refused.
 
 Nothing is lost across a station restart: durable state (entities, characteristics,
 thresholds) comes back from the robots' transient-local writers, and on first sight of
-each robot a log request (:meth:`_fetch_log`) fetches the exceedances and failures
-recorded since the station last heard it (at most ``backfill`` seconds back). An event
-fetched from the log and the same event heard live have the same key in the store, so
-neither path duplicates the other.
+each robot a log request (:meth:`_fetch_log`) fetches the exceedances, failures and
+announced changes of state recorded since the station last heard it (at most ``backfill``
+seconds back). An event fetched from the log and the same event heard live have the same
+key in the store, so neither path duplicates the other.
 
 Operations for the web (``request_logs``, ``run_ibit``) return at once with a record id and
 run on a worker thread; their progress and results are in the store.
@@ -35,6 +35,7 @@ import math
 import queue
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -62,6 +63,7 @@ from blackbox.health.types import (
     T_IdentifierType,
     T_Monitored_Entity_StateType,
     T_ThresholdType,
+    datetime_of,
     seconds_of,
 )
 from blackbox.record.store import KINDS, LogEntry
@@ -95,7 +97,12 @@ FOLLOWED = ("C_Monitored_Entity", "C_Monitored_Characteristic",
             "BlackBox_Characteristic_Extension", "BlackBox_Event_Extension")
 """Topics the station reads (all published UCMS topics plus the extension topics)."""
 
-BACKFILL_KINDS = ("exceedance", "failure")
+BACKFILL_KINDS = ("exceedance", "failure", "observation")
+"""Log kinds a backfill fetches: every kind a numbered event is logged as. Faults start as
+``exceedance`` rows, failures and rectifications are named on ``failure`` rows, and a
+change of state the robot announced (a numbered ``state_change`` event) is an
+``observation`` row carrying its ``event_id``: without it such an event missed live would
+be reported lost although the robot's log has it."""
 MAX_STRING = 2000
 MAX_IDS = 1000
 MAX_LOG_ROWS = 200_000
@@ -111,6 +118,9 @@ time key."""
 MAX_WAITING = 100_000
 """Events (and inferred rectifications) waiting for extensions at most; beyond, the oldest
 is stored without one."""
+MAX_UNNAMED = 20_000
+"""Events stored without their identity that are remembered, so that an identity arriving
+late can still be matched to its row (the oldest are forgotten first)."""
 EXTENSION_TOPIC = "BlackBox_Event_Extension"
 BACKFILL_REPEAT = 5.0
 STATE_DEPTH = 64
@@ -141,11 +151,26 @@ def _stamp(t: float) -> str:
     return f"{t:.3f}"
 
 
+def _instant(t: float) -> str:
+    """A robot's time to the nanosecond, as its UCMS samples carry it (seconds and
+    nanoseconds): the time a sample decodes to and the float the robot's recorder stored
+    give the same text (``seconds_of(datetime_of(t)) == t`` for the robot's clock
+    readings). A time that is no number (from a malformed log reply) is kept as it is."""
+    if not math.isfinite(t):
+        return str(t)
+    dt = datetime_of(t)
+    return f"{dt.A_second}.{dt.A_nanoseconds:09d}"
+
+
 def _diagnosis_key(t: float, components: frozenset[str]) -> str:
-    """The dedup key of a diagnosis the station derives itself (no robot event id names
-    it): its time and its components, so two different diagnoses within one millisecond
-    both stay, while the live and the logged copy of one diagnosis meet."""
-    return f"diagnosis|{_stamp(t)}|{','.join(sorted(components))}"
+    """The dedup key of a diagnosis the station derives itself. The robot numbers the
+    failures and rectifications a diagnosis causes, not the diagnosis, so it is keyed by
+    the robot's time of it to the nanosecond (the resolution at which the robot's event
+    ledger tells events apart) and its components: every change of the robot's diagnosis
+    stays, also many in one millisecond (a flapping component; keyed by the millisecond
+    they merged, and the newest diagnosis row could contradict the robot's current one),
+    while the live and the logged copy of one diagnosis meet."""
+    return f"diagnosis|{_instant(t)}|{','.join(sorted(components))}"
 
 
 def _primary(resource_label: str) -> str:
@@ -211,6 +236,29 @@ class _InferredRectification:
     entity: str
 
 
+@dataclass(frozen=True, slots=True)
+class _EventRow:
+    """A failure or exceedance as the store takes it (``add_event``'s arguments)."""
+
+    time: float
+    kind: str
+    dedup: str
+    entity: str
+    characteristic: str
+    text: str
+    details: dict[str, Any]
+
+
+@dataclass(frozen=True, slots=True)
+class _Unnamed:
+    """An event stored under its time key because its identity had not come (yet): kept so
+    that the identity, arriving late, re-keys that row instead of a second copy being made
+    once the robot's log supplies the event under its identity."""
+
+    sample: C_Threshold_Exceedence_Event | C_Failure_Event
+    dedup: str
+
+
 @dataclass(slots=True)
 class _Lane:
     """A worker thread with its own job queue and log client: operators' requests and the
@@ -239,7 +287,7 @@ class FollowerStats:
 class StationFollower:
     """Follows every robot on one DDS domain/partition into ``store``.
 
-    ``backfill``: on first sight of a robot, fetch its recorded exceedances and failures
+    ``backfill``: on first sight of a robot, fetch its recorded events (``BACKFILL_KINDS``)
     since the station last heard it, at most this many seconds back (0 = never).
     ``station_id``: names this station in log requests.
     ``start()`` opens the participant and starts the reading and the worker threads;
@@ -288,6 +336,15 @@ class StationFollower:
         self._waitset: Waiter | None = None
         self._robots: dict[int, _Robot] = {}
         self._ext: dict[tuple[int, int], C_Event_Extension] = {}
+        self._unnamed: OrderedDict[tuple[int, int], _Unnamed] = OrderedDict()
+        """Events stored under their time key, by source id (see :class:`_Unnamed`)."""
+        self._time_keys: OrderedDict[tuple[int, str], tuple[tuple[int, int], float]] = \
+            OrderedDict()
+        """Which event owns the row stored under a time key (robot, key -> its source id
+        and robot time): events of one millisecond share a key, and only the owner's
+        identity, arriving late or with the logged copy, may take that row (the backfill
+        thread reads it: guarded by ``_time_keys_lock``)."""
+        self._time_keys_lock = threading.Lock()
         self._waiting: list[tuple[float, C_Threshold_Exceedence_Event | C_Failure_Event]] = []
         """Events waiting for their extension, which travels on another topic (see
         :meth:`_extension_overdue`)."""
@@ -660,6 +717,10 @@ class StationFollower:
             if s.A_kind == T_EventKind.L_EventKind_RECTIFICATION:
                 self._rectification(robot, s, now)
             else:
+                unnamed = self._unnamed.pop(_key(s.A_sourceID), None)
+                if unnamed is not None:
+                    self._name_late(robot, unnamed, s, now)
+                    return
                 self._ext[_key(s.A_sourceID)] = s
                 while len(self._ext) > 10_000:
                     self._ext.pop(next(iter(self._ext)))
@@ -759,29 +820,77 @@ class StationFollower:
         rid = robot.resource_id
         ent = s.A_monitoredEntity_sourceID
         e = robot.entities.get(int(ent.A_instanceId)) if int(ent.A_resourceId) == rid else None
+        if e is not None:
+            e.cause = self._text(s.A_causeDescription, "cause description")
+            self.store.put_entity(rid, int(ent.A_instanceId), cause=e.cause,
+                                  actions=self._text(s.A_operatorActionDescription,
+                                                     "operator action"))
+        self._store_event(robot, s, ext, self._failure_row(robot, s, ext, now))
+
+    def _store_event(self, robot: _Robot, s: C_Threshold_Exceedence_Event | C_Failure_Event,
+                     ext: C_Event_Extension | None, row: _EventRow) -> None:
+        """Store a failure or exceedance heard live; one stored without its identity is
+        remembered, so that the identity still finds its row if it comes late."""
+        if ext is None:
+            self._unnamed[_key(s.A_sourceID)] = _Unnamed(s, row.dedup)
+            while len(self._unnamed) > MAX_UNNAMED:
+                self._unnamed.popitem(last=False)
+            with self._time_keys_lock:
+                self._time_keys.setdefault((robot.resource_id, row.dedup),
+                                           (_key(s.A_sourceID),
+                                            seconds_of(s.A_eventOccurrenceDate)))
+                while len(self._time_keys) > MAX_UNNAMED:
+                    self._time_keys.popitem(last=False)
+        self.store.add_event(robot.resource_id, row.time, row.kind, dedup=row.dedup,
+                             entity=row.entity, characteristic=row.characteristic,
+                             text=row.text, details=row.details)
+
+    def _name_late(self, robot: _Robot, unnamed: _Unnamed, ext: C_Event_Extension,
+                   now: float) -> None:
+        """The identity of an event already stored under its time key came: the row is
+        re-keyed to the identity (and its number counts as received), or, if the robot's
+        log supplied the event under its identity meanwhile, the two rows become one."""
+        s = unnamed.sample
+        row = self._failure_row(robot, s, ext, now) if isinstance(s, C_Failure_Event) \
+            else self._exceedance_row(robot, s, ext, now)
+        with self._time_keys_lock:
+            owner = self._time_keys.get((robot.resource_id, unnamed.dedup))
+            if owner is not None and owner[0] == _key(s.A_sourceID):
+                del self._time_keys[(robot.resource_id, unnamed.dedup)]  # the key is free
+        if owner is None or owner[0] != _key(s.A_sourceID):
+            # The row under that time key is another event's of the same millisecond.
+            self._store_event(robot, s, ext, row)
+            return
+        self.store.name_event(robot.resource_id, unnamed.dedup, row.time, row.kind,
+                              dedup=row.dedup, entity=row.entity,
+                              characteristic=row.characteristic, text=row.text,
+                              details=row.details)
+
+    def _failure_row(self, robot: _Robot, s: C_Failure_Event, ext: C_Event_Extension | None,
+                     now: float) -> _EventRow:
+        rid = robot.resource_id
+        ent = s.A_monitoredEntity_sourceID
+        e = robot.entities.get(int(ent.A_instanceId)) if int(ent.A_resourceId) == rid else None
         name = e.name if e is not None else f"#{int(ent.A_instanceId)}"
         t = seconds_of(s.A_eventOccurrenceDate)
         description = self._text(s.A_failureDescription, "failure description")
         cause = self._text(s.A_causeDescription, "cause description")
         action = self._text(s.A_operatorActionDescription, "operator action")
-        if e is not None:
-            e.cause = cause
-            self.store.put_entity(rid, int(ent.A_instanceId), cause=cause, actions=action)
         dedup = self._identity(robot, ext.A_eventId if ext is not None else None,
                                f"failure|{_stamp(t)}|{name}", t, now)
-        self.store.add_event(
-            rid, self.clocks.time_of(robot.name, t, now), "failure", dedup=dedup, entity=name,
-            text=description + (f": {cause}" if cause else ""),
-            details={"standard_fault_code": float(s.A_standardFaultCode)
-                     if math.isfinite(s.A_standardFaultCode) else None,
-                     "proprietary_fault_code": s.A_proprietaryFaultCode[:200],
-                     "consequence": s.A_operationalConsequenceDescription[:500],
-                     "operator_action": action[:500],
-                     "maintenance_action": s.A_maintenanceActionDescription[:500],
-                     "complementary": s.A_complementaryInformation[:MAX_STRING],
-                     "documentation_uri": s.A_eventDocumentationURI[:500],
-                     "event_id": ext.A_eventId[:40] if ext is not None else "",
-                     **self._robot_time(robot, t)})
+        return _EventRow(
+            self.clocks.time_of(robot.name, t, now), "failure", dedup, name, "",
+            description + (f": {cause}" if cause else ""),
+            {"standard_fault_code": float(s.A_standardFaultCode)
+             if math.isfinite(s.A_standardFaultCode) else None,
+             "proprietary_fault_code": s.A_proprietaryFaultCode[:200],
+             "consequence": s.A_operationalConsequenceDescription[:500],
+             "operator_action": action[:500],
+             "maintenance_action": s.A_maintenanceActionDescription[:500],
+             "complementary": s.A_complementaryInformation[:MAX_STRING],
+             "documentation_uri": s.A_eventDocumentationURI[:500],
+             "event_id": ext.A_eventId[:40] if ext is not None else "",
+             **self._robot_time(robot, t)})
 
     def _robot_time(self, robot: _Robot, t: float) -> dict[str, float]:
         """The robot's own time of an event placed at the station's time (clock skew)."""
@@ -884,6 +993,10 @@ class StationFollower:
 
     def _exceedance(self, robot: _Robot, s: C_Threshold_Exceedence_Event,
                     ext: C_Event_Extension | None, now: float = 0.0) -> None:
+        self._store_event(robot, s, ext, self._exceedance_row(robot, s, ext, now))
+
+    def _exceedance_row(self, robot: _Robot, s: C_Threshold_Exceedence_Event,
+                        ext: C_Event_Extension | None, now: float) -> _EventRow:
         rid = robot.resource_id
         concerned = s.A_concernedCharacteristic_sourceID
         cid = int(concerned.A_instanceId)
@@ -914,9 +1027,8 @@ class StationFollower:
         if ext is not None and ext.A_eventId:
             details["event_id"] = ext.A_eventId[:40]
         details.update(self._robot_time(robot, t))
-        self.store.add_event(rid, self.clocks.time_of(robot.name, t, now), kind, dedup=dedup,
-                             entity=owner.name if owner is not None else "",
-                             characteristic=cname, text=text, details=details)
+        return _EventRow(self.clocks.time_of(robot.name, t, now), kind, dedup,
+                         owner.name if owner is not None else "", cname, text, details)
 
     # ---- backfill and operations --------------------------------------------------------
 
@@ -965,9 +1077,10 @@ class StationFollower:
         self.store.flush(force=True)
 
     def take_logged(self, resource_id: int, entries: Iterable[LogEntry]) -> int:
-        """Store what a backfill fetched from robot ``resource_id``'s log (exceedances and
-        failures) as events; returns how many events were offered to the store (one the
-        store already holds under the same key is not added again)."""
+        """Store what a backfill fetched from robot ``resource_id``'s log (exceedances,
+        failures, announced changes of state) as events; returns how many events were
+        offered to the store (one the store already holds under the same key is not added
+        again)."""
         robot = self._robot(resource_id)
         return sum(self._log_event(robot, entry) for entry in entries)
 
@@ -981,15 +1094,15 @@ class StationFollower:
             observer = str(entry.characteristic or "")
             message = str(payload.get("message") or payload.get("code_name") or "")
             owner = self._owner_of(robot, observer, entity)
-            dedup = self._identity(robot, payload.get("event_id"),
-                                   f"exceedance|{_stamp(t)}|{observer}|{entity}", t,
+            time_key = f"exceedance|{_stamp(t)}|{observer}|{entity}"
+            dedup = self._identity(robot, payload.get("event_id"), time_key, t,
                                    self.clock(), live=False)
-            self.store.add_event(rid, t, "exceedance", dedup=dedup,
-                                 entity=owner or entity, characteristic=f"{observer} {entity}",
-                                 text=f"{observer} {entity}: {message}".strip(), origin="log",
-                                 details={"log_id": entry.id, "code": entry.code,
-                                          "values": payload.get("values"),
-                                          "event_id": str(payload.get("event_id") or "")[:40]})
+            self._add_logged(robot, time_key, t, "exceedance", dedup=dedup,
+                             entity=owner or entity, characteristic=f"{observer} {entity}",
+                             text=f"{observer} {entity}: {message}".strip(),
+                             details={"log_id": entry.id, "code": entry.code,
+                                      "values": payload.get("values"),
+                                      "event_id": str(payload.get("event_id") or "")[:40]})
             return 1
         if entry.kind == "failure":
             components = [str(c)[:200] for c in payload.get("components") or []][:100]
@@ -1026,7 +1139,59 @@ class StationFollower:
                                  text=text, origin="log",
                                  details={"components": sorted(now_components)})
             return n + 1
+        if entry.kind == "observation":
+            return self._logged_state_change(robot, entry, payload, t)
         return 0
+
+    def _logged_state_change(self, robot: _Robot, entry: LogEntry, payload: dict[str, Any],
+                             t: float) -> int:
+        """A logged observation row that the robot announced as a change of state (it
+        carries the event's identity); other observation rows (recoveries, changes of
+        code) are no events and are not stored."""
+        event_id = payload.get("event_id")
+        if not isinstance(event_id, str) or EventId.parse(event_id) is None:
+            return 0
+        entity = str(entry.entity or "")
+        observer = str(entry.characteristic or "")
+        dedup = self._identity(robot, event_id, f"state_change|{_stamp(t)}|{observer}|{entity}",
+                               t, self.clock(), live=False)
+        names = payload.get("state_names")
+        states = [str(x)[:100] for x in names[:4]] if isinstance(names, list) else []
+        message = str(payload.get("message") or payload.get("code_name") or "")[:500]
+        text = f"{observer} {entity}: {message}".strip()
+        if states:
+            text += f" (state -> {', '.join(states)})"
+        # Heard live without its extension it was stored as an exceedance.
+        self._add_logged(robot, f"exceedance|{_stamp(t)}|{observer}|{entity}", t,
+                         "state_change", dedup=dedup,
+                         entity=self._owner_of(robot, observer, entity) or entity,
+                         characteristic=f"{observer} {entity}", text=text,
+                         details={"log_id": entry.id, "code": entry.code,
+                                  "values": payload.get("values"), "to_states": states,
+                                  "event_id": event_id[:40]})
+        return 1
+
+    def _add_logged(self, robot: _Robot, time_key: str, t: float, kind: str, *, dedup: str,
+                    entity: str, characteristic: str, text: str,
+                    details: dict[str, Any]) -> None:
+        """Store a logged event. If its live copy was stored under ``time_key`` (its
+        identity never came, or not yet), that row takes the identity instead of a second
+        copy being added."""
+        # The row under the time key is this event's only if its owner has the same time
+        # (events of one millisecond share the key).
+        with self._time_keys_lock:
+            owner = self._time_keys.get((robot.resource_id, time_key))
+            mine = owner is not None and abs(owner[1] - t) < 1e-6 and dedup.startswith("id:")
+            if mine:
+                del self._time_keys[(robot.resource_id, time_key)]  # the key is free
+        if mine:
+            self.store.name_event(robot.resource_id, time_key, t, kind, dedup=dedup,
+                                  entity=entity, characteristic=characteristic, text=text,
+                                  origin="log", details=details, rewrite=False)
+            return
+        self.store.add_event(robot.resource_id, t, kind, dedup=dedup, entity=entity,
+                             characteristic=characteristic, text=text, origin="log",
+                             details=details)
 
     def _logged_diagnosis_events(self, robot: _Robot, named: list[Any], t: float,
                                  explanation: str, log_id: int, snapshot: Any) -> int:
@@ -1038,15 +1203,16 @@ class StationFollower:
                 continue
             comp = str(item.get("entity") or "")[:200]
             kind = str(item["kind"])
-            dedup = self._identity(robot, item.get("id"), f"{kind}|{_stamp(t)}|{comp}", t,
-                                   self.clock(), live=False)
+            time_key = f"{kind}|{_stamp(t)}|{comp}"
+            dedup = self._identity(robot, item.get("id"), time_key, t, self.clock(),
+                                   live=False)
             text = f"{comp} is no longer diagnosed faulty" if kind == "rectification" else \
                 f"{comp} diagnosed faulty" + (f": {explanation}" if explanation else "")
             details: dict[str, Any] = {"log_id": log_id, "event_id": str(item.get("id"))[:40]}
             if kind == "failure":
                 details["snapshot"] = snapshot
-            self.store.add_event(robot.resource_id, t, kind, dedup=dedup, entity=comp,
-                                 origin="log", text=text, details=details)
+            self._add_logged(robot, time_key, t, kind, dedup=dedup, entity=comp,
+                             characteristic="", text=text, details=details)
             n += 1
         return n
 

@@ -70,6 +70,11 @@ class FleetWrites(Protocol):
                   origin: str = "live", details: dict[str, Any] | None = None,
                   refers_to: int | None = None) -> None: ...
 
+    def name_event(self, resource_id: int, unnamed: str, t: float, kind: str, *, dedup: str,
+                   entity: str = "", characteristic: str = "", text: str = "",
+                   origin: str = "live", details: dict[str, Any] | None = None,
+                   rewrite: bool = True) -> None: ...
+
     def flush(self, force: bool = False) -> bool: ...
 
     @property

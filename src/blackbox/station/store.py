@@ -531,6 +531,66 @@ class StationStore:
                            (resource_id, t, t, t, t))
         self._queue(op, resource_id, "events")
 
+    def name_event(self, resource_id: int, unnamed: str, t: float, kind: str, *, dedup: str,
+                   entity: str = "", characteristic: str = "", text: str = "",
+                   origin: str = "live", details: dict[str, Any] | None = None,
+                   rewrite: bool = True) -> None:
+        """A live event stored under the key ``unnamed`` (its time: its identity had not
+        come) turns out to be the event ``dedup`` (its identity) names: the row is
+        rewritten under ``dedup``, so the copy the robot's log supplies meets it. If the
+        logged copy is stored already, the two become one: the identity's row stays and
+        takes over the acknowledgement and what referred to the other (acknowledgement
+        events, alerts). If no row has the key ``unnamed`` (two events of one millisecond
+        stored as one, the first already named), the event is added under ``dedup``.
+        ``rewrite=False`` (the identity comes with the logged copy: the extension was
+        lost): a renamed row keeps what was heard live and only takes the identity
+        (``details["event_id"]``). Only the event the row was stored for may name it:
+        the caller knows (events of one millisecond share a time key)."""
+        if kind not in EVENT_KINDS:
+            raise ValueError(f"unknown event kind {kind!r}")
+        if origin not in ORIGINS:
+            raise ValueError(f"unknown event origin {origin!r}")
+        fields = (kind, clip(entity, MAX_NAME), clip(characteristic, MAX_NAME), clip(text),
+                  json.dumps(details or {}, default=str)[:20_000])
+        event_id = str((details or {}).get("event_id") or "")[:40]
+        new_key, old_key = clip(dedup, 400), clip(unnamed, 400)
+
+        def op(db: Connection) -> None:
+            old = db.execute("SELECT id, acknowledged_by, acknowledged_at, details FROM events "
+                             "WHERE resource_id = ? AND dedup = ?",
+                             (resource_id, old_key)).fetchone()
+            found = db.execute("SELECT id FROM events WHERE resource_id = ? AND dedup = ?",
+                               (resource_id, new_key)).fetchone()
+            if old is None:
+                if found is None:
+                    db.execute("INSERT INTO events (resource_id, time, kind, entity, "
+                               "characteristic, text, origin, dedup, details) VALUES "
+                               "(?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT DO NOTHING",
+                               (resource_id, t, *fields[:4], origin, new_key, fields[4]))
+                return
+            if found is None and rewrite:
+                db.execute("UPDATE events SET kind = ?, entity = ?, characteristic = ?, "
+                           "text = ?, details = ?, dedup = ? WHERE id = ?",
+                           (*fields, new_key, old[0]))
+                return
+            if found is None:
+                kept = json.loads(old[3] or "{}")
+                kept = kept if isinstance(kept, dict) else {}
+                kept["event_id"] = event_id
+                db.execute("UPDATE events SET dedup = ?, details = ? WHERE id = ?",
+                           (new_key, json.dumps(kept, default=str)[:20_000], old[0]))
+                return
+            if old[1] is not None:
+                db.execute("UPDATE events SET acknowledged_by = ?, acknowledged_at = ? "
+                           "WHERE id = ? AND acknowledged_by IS NULL",
+                           (old[1], old[2], found[0]))
+            db.execute("UPDATE events SET refers_to = ? WHERE refers_to = ?",
+                       (found[0], old[0]))
+            db.execute("UPDATE alert_alerts SET event_id = ? WHERE event_id = ?",
+                       (found[0], old[0]))
+            db.execute("DELETE FROM events WHERE id = ?", (old[0],))
+        self._queue(op, resource_id, "events")
+
     def acknowledge(self, event_id: int, user: str, note: str = "") -> Event:
         """Mark event ``event_id`` acknowledged by ``user`` and add an ``acknowledgement``
         event that refers to it. Acknowledging twice keeps the first acknowledgement.
