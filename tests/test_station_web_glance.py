@@ -27,6 +27,7 @@ from blackbox.health.ids import robot_resource_id
 from blackbox.station.auth import Role
 from blackbox.station.store import StationStore
 from blackbox.station.web.app import create_app
+from conftest import wait_until
 from station_support import Unreachable, quick_auth
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -181,6 +182,14 @@ OVERFLOW = """() => {
 }"""
 
 
+def laid_out(locator: Any, what: str) -> dict[str, float]:
+    """The element's box once it has one: a live view re-rendering its part of the page
+    leaves it without a box for a moment."""
+    box = wait_until(locator.bounding_box, f"{what} to be laid out")
+    assert isinstance(box, dict)
+    return box
+
+
 def assert_fits(page: Any, where: str) -> None:
     found = page.evaluate(OVERFLOW)
     assert found["wide"] == [], f"{where}: elements wider than the viewport: {found}"
@@ -198,8 +207,8 @@ def test_the_robot_page_leads_with_a_headline_and_the_evidence_is_one_click_away
     assert "(one of 2 explanations)" in text
     assert "Stop the mission" in headline.inner_text()
     assert "Check the camera's USB cable" in headline.inner_text()
-    headline_box = headline.bounding_box()
-    assert headline_box is not None and headline_box["y"] < 400, \
+    headline_box = laid_out(headline, "the headline")
+    assert headline_box["y"] < 400, \
         f"the headline is not near the top of the page: {headline_box}"
     evidence = headline.locator("details.hl-evidence")
     failed = evidence.get_by_text("alive on /usb_cam (NOT_AVAILABLE)", exact=True)
@@ -358,9 +367,8 @@ def test_tables_keep_their_columns_and_no_page_is_wider_than_the_viewport(
         assert_fits(page, f"{path} at {width} px")
     page.goto("/events")
     header = page.locator("table.events th", has_text="Acknowledged")
-    line = page.locator("table.events th", has_text="Time").bounding_box()
-    box = header.bounding_box()
-    assert box is not None and line is not None
+    line = laid_out(page.locator("table.events th", has_text="Time"), "the Time header")
+    box = laid_out(header, "the Acknowledged header")
     assert box["height"] <= line["height"] + 1, \
         f"the Acknowledged header wraps: {box} vs one line {line}"
     assert page.locator("table.events tbody tr").count() == 50  # a page of 50
@@ -371,8 +379,8 @@ def test_tables_keep_their_columns_and_no_page_is_wider_than_the_viewport(
     assert page.locator("a", has_text="Newest events").count() == 1
     # a long text is one line, its full text on demand
     cell = page.locator("table.events tr.ev-exceedance td.what").first
-    one_line = cell.bounding_box()
-    assert one_line is not None and one_line["height"] < 40, one_line
+    one_line = laid_out(cell, "a long text's cell")
+    assert one_line["height"] < 40, one_line
     cell.locator("summary").click()
     assert "a very long message about the rate" in cell.locator("details p").inner_text()
     assert_fits(page, f"/events with a text opened at {width} px")
