@@ -113,6 +113,11 @@
   }
   function renderHeadlines(box, headlines) {
     if (!box || !headlines) return;
+    // the same headlines again (most snapshots): leave the DOM alone, so a selection, an
+    // opened evidence list and a reader's place survive the live updates
+    const drawn = JSON.stringify(headlines);
+    if (box.dataset.drawn === drawn) return;
+    box.dataset.drawn = drawn;
     const open = Array.from(box.querySelectorAll(".headline")).map(function (d) {
       const ev = d.querySelector("details"); return !!(ev && ev.open);
     });
