@@ -243,8 +243,8 @@ def test_the_pattern_of_failed_and_held_relations_names_the_sensor():
 def test_evidence_building_up_against_a_command_ranks_it_before_the_sensor():
     """A commanded yaw rate and the IMU disagree; nothing else fails, so the command's
     publisher and the IMU driver explain it equally well. The command's other relation (to
-    the wheels) has not failed, but its CUSUM is most of the way to its alarm: the command
-    ranks first. With that relation at rest the order is the plain tie-break's."""
+    the wheels) has not failed, but its CUSUM is most of the way to its alarm: the
+    command ranks first. With that relation at rest the order is the plain tie-break's."""
     nodes = (NodeSpec("/nav", ("/cmd",)), NodeSpec("/imu_driver", ("/imu",)),
              NodeSpec("/wheels", ("/joints",)))
     imu, wheels = Resource(topic="/cmd", topic_b="/imu"), Resource(topic="/cmd",

@@ -475,24 +475,26 @@ class DiagnosisEngine:
                                   vouched(k[3]), k[2])))
 
     def _pending_evidence(self) -> dict[str, float]:
-        """Per component, the largest evidence short of an alarm (a sequential test's
-        statistic over its threshold, values ending in ``EVIDENCE``) among the observations
-        that have not failed and that it explains. A fault on a command that one relation
-        caught moves the command's other relations too, only more slowly: among candidates
-        that explain the failures equally well, the one those relations are building up
-        against is the likelier (issue 22: offsets and scales of a commanded yaw rate,
-        caught by the IMU relation alone, were blamed on the IMU)."""
-        out: dict[str, float] = {}
+        """Per component, the mean evidence short of an alarm (a sequential test's
+        statistic over its threshold, the largest of an observation's values ending in
+        ``EVIDENCE``) over the observations that have not failed and that it explains. A
+        fault on a command that one relation caught moves the command's other relations
+        too, only more slowly, while a fault on a sensor moves only the relations of that
+        sensor: among candidates that explain the failures equally well, the one whose other
+        relations are building evidence is the likelier (issue 22: offsets and scales of a
+        commanded yaw rate, caught by the IMU relation alone, were blamed on the IMU). The
+        mean, not the largest: a command related to every sensor would otherwise take the
+        evidence of any other fault as its own."""
+        levels: dict[str, list[float]] = {}
         for key, obs in zip(self._keys, self._obs, strict=True):
             if obs is None or observation_fact(obs.code) is False:
                 continue
-            level = max((v for name, v in obs.values.items() if name.endswith(EVIDENCE)),
-                        default=0.0)
-            if level <= 0.0:
+            evidence = [v for name, v in obs.values.items() if name.endswith(EVIDENCE)]
+            if not evidence:
                 continue
             for c in self._explain(key).components:
-                out[c] = max(out.get(c, 0.0), level)
-        return out
+                levels.setdefault(c, []).append(max(evidence))
+        return {c: sum(ls) / len(ls) for c, ls in levels.items()}
 
     @property
     def independent(self) -> frozenset[Edge]:
