@@ -240,6 +240,44 @@ def test_the_pattern_of_failed_and_held_relations_names_the_sensor():
     assert d is not None and d.candidates == (frozenset({"/imu_driver"}),)
 
 
+def test_evidence_building_up_against_a_command_ranks_it_before_the_sensor():
+    """A commanded yaw rate and the IMU disagree; nothing else fails, so the command's
+    publisher and the IMU driver explain it equally well. The command's other relation (to
+    the wheels) has not failed, but its CUSUM is most of the way to its alarm: the
+    command ranks first. With that relation at rest the order is the plain tie-break's."""
+    nodes = (NodeSpec("/nav", ("/cmd",)), NodeSpec("/imu_driver", ("/imu",)),
+             NodeSpec("/wheels", ("/joints",)))
+    imu, wheels = Resource(topic="/cmd", topic_b="/imu"), Resource(topic="/cmd",
+                                                                   topic_b="/joints")
+    specs = [ObservationSpec("relation", imu), ObservationSpec("relation", wheels)]
+
+    def first(wheel_evidence: float) -> frozenset[str]:
+        engine = DiagnosisEngine(build_model(nodes, specs))
+        d = engine.update(1.0, [
+            Observation(1.0, "relation", imu, Code.NO_STATE_FITS,
+                        values={"imu_z_evidence": 1.02}),
+            Observation(1.0, "relation", wheels, Code.NOT_AVAILABLE,
+                        values={"joints_0_evidence": wheel_evidence / 2,
+                                "joints_1_evidence": wheel_evidence})])
+        assert d is not None and set(d.candidates[:2]) == {frozenset({"/nav"}),
+                                                            frozenset({"/imu_driver"})}
+        return d.candidates[0]
+
+    assert first(0.7) == frozenset({"/nav"})
+    assert first(0.0) == frozenset({"/imu_driver"})
+
+
+def test_a_relation_reports_its_cusum_as_a_fraction_of_its_alarm_threshold():
+    observer = relation()
+    held = drive(observer, 30.0)[-1]
+    names = [n for n in observer.quantity_names() if n.endswith("_evidence")]
+    assert held.code == Code.GENERAL_OK and names
+    assert all(0.0 <= held.values[n] < 0.5 for n in names), held.values
+    failed = next(o for o in drive(observer, 5.0, start=30.0, offset=0.1, seed=1)
+                  if o.code == Code.NO_STATE_FITS)
+    assert max(failed.values[n] for n in names) >= 1.0, failed.values
+
+
 def test_a_passing_learned_envelope_does_not_exonerate_its_producer():
     """Issue 22 item 8: an offset on odometry inside its band, seen downstream only."""
     nodes = (NodeSpec("/odometry", ("/odom",)), NodeSpec("/planner", ("/plan",), ("/odom",)))

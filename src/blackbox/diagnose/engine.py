@@ -58,7 +58,7 @@ from blackbox.diagnose.robot_model import (
 from blackbox.diagnose.sat import ConsistencyChecker, Theory
 from blackbox.events import GraphSnapshot
 from blackbox.model import Code, Diagnosis, Observation, Resource
-from blackbox.observe.base import JudgedSignals, Subject
+from blackbox.observe.base import EVIDENCE, JudgedSignals, Subject
 
 DEFAULT_PRIORS = {"node": 0.05, "hardware": 0.05, "topic": 0.01, "interface": 0.01}
 """Prior fault probability per component kind: with equal cardinality, a dead node is blamed
@@ -434,9 +434,11 @@ class DiagnosisEngine:
         """Cardinality first, then the larger prior odds product, then the components
         closer to the ``failed`` observations (fewer nodes the fault must cross, summed
         over the failed observations: the producer of the one topic two failed relations
-        share is closer than a node upstream of one of them), then the fewer passing
-        observations that involve the candidate (a command that four relations and its
-        liveness currently pass is less suspect than a sensor only one passes), then names.
+        share is closer than a node upstream of one of them), then the more
+        evidence short of an alarm against the candidate (``_pending_evidence``), then the
+        fewer passing observations that involve the candidate (a command that four relations
+        and its liveness currently pass is less suspect than a sensor only one passes), then
+        names.
         Closeness and passing are only computed when candidates tie on the first two."""
         def odds(s: frozenset[str]) -> float:
             return round(sum(math.log(self.prior(c) / (1.0 - self.prior(c))) for c in s), 9)
@@ -463,8 +465,36 @@ class DiagnosisEngine:
         def vouched(s: frozenset[str]) -> int:
             return sum(passing.get(c, 0) for c in s)
 
+        pending = self._pending_evidence()
+
+        def suspected(s: frozenset[str]) -> float:
+            return -round(sum(pending.get(c, 0.0) for c in s), 6)
+
         return tuple(k[3] for k in sorted(
-            keyed, key=lambda k: (k[0], k[1], distance(k[3]), vouched(k[3]), k[2])))
+            keyed, key=lambda k: (k[0], k[1], distance(k[3]), suspected(k[3]),
+                                  vouched(k[3]), k[2])))
+
+    def _pending_evidence(self) -> dict[str, float]:
+        """Per component, the mean evidence short of an alarm (a sequential test's
+        statistic over its threshold, the largest of an observation's values ending in
+        ``EVIDENCE``) over the observations that have not failed and that it explains. A
+        fault on a command that one relation caught moves the command's other relations
+        too, only more slowly, while a fault on a sensor moves only the relations of that
+        sensor: among candidates that explain the failures equally well, the one whose other
+        relations are building evidence is the likelier (issue 22: offsets and scales of a
+        commanded yaw rate, caught by the IMU relation alone, were blamed on the IMU). The
+        mean, not the largest: a command related to every sensor would otherwise take the
+        evidence of any other fault as its own."""
+        levels: dict[str, list[float]] = {}
+        for key, obs in zip(self._keys, self._obs, strict=True):
+            if obs is None or observation_fact(obs.code) is False:
+                continue
+            evidence = [v for name, v in obs.values.items() if name.endswith(EVIDENCE)]
+            if not evidence:
+                continue
+            for c in self._explain(key).components:
+                levels.setdefault(c, []).append(max(evidence))
+        return {c: sum(ls) / len(ls) for c, ls in levels.items()}
 
     @property
     def independent(self) -> frozenset[Edge]:

@@ -237,6 +237,12 @@ class NamedQuantities(Protocol):
     def quantity_names(self) -> tuple[str, ...]: ...
 
 
+EVIDENCE = "_evidence"
+"""Suffix of a value that is a sequential test's statistic as a fraction of its alarm
+threshold (0: nothing against it, 1: failed). Evidence short of an alarm orders the
+candidates that explain the failures equally well (``DiagnosisEngine.rank``)."""
+
+
 @dataclass(frozen=True, slots=True)
 class JudgedSignals:
     """The (topic, field) signals a relation observation sees, for field-level diagnosis.

@@ -66,6 +66,7 @@ from blackbox.config.node import ConfigNode
 from blackbox.events import Interest, MessageArrival
 from blackbox.model import Code, Observation, Resource
 from blackbox.observe.base import (
+    EVIDENCE,
     OBSERVERS,
     JudgedSignals,
     Mode,
@@ -253,7 +254,8 @@ class RelationObserver(ObserverBase):
         return Interest(decoded=topics)
 
     def quantity_names(self) -> tuple[str, ...]:
-        return tuple(n for r in self.relations for n in (f"{r.name}_z", f"{r.name}_cusum"))
+        return tuple(n for r in self.relations
+                     for n in (f"{r.name}_z", f"{r.name}_cusum", f"{r.name}{EVIDENCE}"))
 
     # ---- the grid ------------------------------------------------------------------------------
 
@@ -337,6 +339,7 @@ class RelationObserver(ObserverBase):
             if judge.verdict != "unjudged":
                 values[f"{spec.name}_z"] = round(judge.last_z, 4)
                 values[f"{spec.name}_cusum"] = round(stat, 4)
+                values[f"{spec.name}{EVIDENCE}"] = round(stat / spec.cusum.h, 4)
             what = f"{spec.target.label()} ~ {spec.inputs()}"
             open_all.append(None)
             if judge.verdict == "failed":
