@@ -19,7 +19,7 @@ from blackbox.health.types import (
     datetime_of,
 )
 from blackbox.station.enrolment import EnrolmentError, RobotKeys, read_robots_file
-from blackbox.station.trust import SampleGate
+from blackbox.station.trust import FIRST_SIGNATURE_WAIT, SIGNATURE_WAIT, SampleGate
 from blackbox.transport.auth import (
     AccessPolicy,
     RequestSigner,
@@ -207,3 +207,38 @@ def test_two_keys_signing_for_one_robot_that_is_not_enrolled_are_flagged(
     assert len([k for k in keys.seen() if k.robot_id == "r1"]) == 2
     keys.close()
     store.close()
+
+
+def test_a_station_joining_late_holds_a_state_until_the_robots_first_signature_comes() -> None:
+    key = Ed25519PrivateKey.generate()
+    signer = SampleSigner(key, "r1")
+    g = Gate(key)
+    failed = camera(FAILED, 100.0)
+    signature = signer.sign(ENTITY, failed)
+    assert not g.gate.offer(ENTITY, failed, 0.0)   # the state came; its signature has not
+    assert g.gate.released(SIGNATURE_WAIT + 3.0) == []  # no signature of r1 yet: still held
+    assert g.gate.holding == 1 and g.gate.stats.unsigned == 0
+    g.gate.signature(signature)                    # the signature reader matched at last
+    assert g.gate.released(SIGNATURE_WAIT + 3.1) == [(ENTITY, failed)]
+    assert (g.gate.stats.unsigned, g.problems) == (0, [])
+
+
+def test_a_state_whose_robot_never_signs_is_rejected_after_the_first_signature_wait() -> None:
+    g = Gate(Ed25519PrivateKey.generate())
+    assert not g.gate.offer(ENTITY, camera(OPERATIONAL, 1.0), 0.0)
+    assert g.gate.released(FIRST_SIGNATURE_WAIT - 0.1) == []
+    assert g.gate.released(FIRST_SIGNATURE_WAIT) == []
+    assert g.gate.stats.unsigned == 1 and g.problems[-1][0] == "unsigned"
+
+
+def test_once_the_robot_signs_a_sample_held_since_before_gets_the_usual_wait_from_then() -> None:
+    key = Ed25519PrivateKey.generate()
+    signer = SampleSigner(key, "r1")
+    g = Gate(key)
+    forged = camera(OPERATIONAL, 1.0)
+    assert not g.gate.offer(ENTITY, forged, 0.0)
+    g.gate.signature(signer.sign(ENTITY, camera(FAILED, 2.0)))  # the robot signs from 10 s
+    assert g.gate.released(10.0) == []
+    assert g.gate.released(10.0 + SIGNATURE_WAIT - 0.1) == [] and g.gate.holding == 1
+    assert g.gate.released(10.0 + SIGNATURE_WAIT) == []
+    assert g.gate.stats.unsigned == 1 and g.gate.holding == 0

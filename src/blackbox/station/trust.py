@@ -8,10 +8,12 @@ Every sample the follower takes passes :meth:`SampleGate.offer` first:
   (``BlackBox_Sample_Signature``, :mod:`blackbox.transport.provenance`) made with the
   enrolled key over exactly these bytes. A sample whose signature has not arrived is held
   up to :data:`SIGNATURE_WAIT` seconds (the robot writes the signature first, so it is
-  usually there already); then it is rejected as ``unsigned``. Later samples of the same
-  instance wait behind it, so states are shown in the order the robot wrote them; one
-  whose signature never came but that a newer signed sample of its instance replaces is
-  dropped as ``superseded`` (a state changing faster than the link: not an alarm).
+  usually there already; :data:`FIRST_SIGNATURE_WAIT` while none of the robot's signatures
+  has come yet, as for a station joining late); then it is rejected as ``unsigned``.
+  Later samples of the same instance wait behind it, so states are shown in the order
+  the robot wrote them; one whose signature never came but that a newer signed sample of
+  its instance replaces is dropped as ``superseded`` (a state changing faster than the
+  link: not an alarm).
 * A signature that does not verify with the enrolled key is ``forged``.
 * A signed state older than one already shown for the same instance (signing time, then
   the per-boot counter) is never shown: ``replayed`` if it was shown before (a captured
@@ -43,6 +45,11 @@ from blackbox.transport.provenance import (
 
 SIGNATURE_WAIT = 2.0
 """Seconds a sample of an enrolled robot waits for its signature before it is rejected."""
+FIRST_SIGNATURE_WAIT = 30.0
+"""Seconds a sample waits while no signature of its robot has come at all. A station that
+joins late matches the robot's signature writer on its own, under load seconds after the
+state writers; the durable signatures then come all at once. Until then the wait is not
+:data:`SIGNATURE_WAIT`, or a state the robot will not write again would be rejected."""
 MAX_HELD = 10_000
 MAX_VERIFIED = 50_000
 MAX_INSTANCES = 200_000
@@ -104,6 +111,9 @@ class SampleGate:
         self._held_per_instance: dict[tuple[str, int, int], int] = {}
         self._shown: OrderedDict[tuple[int, bytes], None] = OrderedDict()
         self._keys_seen: set[tuple[str, bytes]] = set()
+        self._signing: dict[int, float | None] = {}
+        """Robots whose signatures have come: when the first was taken (``None`` until the
+        next call that knows the time)."""
 
     def enrolled(self, rid: int) -> tuple[str, Ed25519PublicKey] | None:
         return self.keys().get(rid)
@@ -123,6 +133,7 @@ class SampleGate:
                             f"{sig.A_topic[:64]!r} does not verify with the robot's enrolled "
                             "key; the sample it vouches for is not shown")
             return
+        self._signing.setdefault(rid, None)
         self._verified[(rid, signed.digest)] = signed
         while len(self._verified) > MAX_VERIFIED:
             self._verified.popitem(last=False)
@@ -130,6 +141,7 @@ class SampleGate:
     def offer(self, topic: str, sample: Any, now: float) -> bool:
         """``True``: handle ``sample`` now; ``False``: held for its signature or rejected."""
         rid = int(sample.A_sourceID.A_resourceId)
+        self._stamp(now)
         if self.enrolled(rid) is None:
             self.stats.unauthenticated += 1
             return True
@@ -148,6 +160,7 @@ class SampleGate:
     def released(self, now: float) -> list[tuple[str, Any]]:
         """Held samples that may be shown now, in arrival order; see the module docstring
         for those dropped (superseded) or rejected (unsigned after the wait)."""
+        self._stamp(now)
         verified = [self._verified.get((h.rid, h.digest)) for h in self._held]
         newest_signed = {h.instance: i for i, (h, v) in enumerate(zip(self._held, verified,
                                                                        strict=True))
@@ -165,7 +178,7 @@ class SampleGate:
                 self.stats.superseded += 1
             elif self.enrolled(held.rid) is None:
                 out.append((held.topic, held.sample))  # enrolment was withdrawn
-            elif now - held.arrived >= self.wait:
+            elif now >= self._deadline(held):
                 self._reject_unsigned(held.rid, held.topic)
             else:
                 keep.append(held)
@@ -176,6 +189,20 @@ class SampleGate:
             counts[held.instance] = counts.get(held.instance, 0) + 1
         self._held_per_instance = counts
         return out
+
+    def _stamp(self, now: float) -> None:
+        for rid, since in self._signing.items():
+            if since is None:
+                self._signing[rid] = now
+
+    def _deadline(self, held: _Held) -> float:
+        """When ``held`` is rejected unsigned: :data:`SIGNATURE_WAIT` after it came or after
+        its robot's first signature, whichever is later; :data:`FIRST_SIGNATURE_WAIT` after
+        it came while no signature of its robot has come yet."""
+        since = self._signing.get(held.rid)
+        if since is None:
+            return held.arrived + FIRST_SIGNATURE_WAIT
+        return max(held.arrived, since) + self.wait
 
     @property
     def holding(self) -> int:
