@@ -205,3 +205,19 @@ def test_the_demo_account_is_renewed_although_it_is_the_only_admin(tmp_path: Pat
     finally:
         auth.close()
         store.close()
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "301"])
+def test_a_login_backoff_outside_its_range_is_one_line_and_exit_2(
+        tmp_path: Path, value: str) -> None:
+    import subprocess
+    import sys
+
+    result = subprocess.run([sys.executable, "-m", "blackbox", "station", "--db",
+                             str(tmp_path / "s.db"), "--bind", "127.0.0.1:0",
+                             "--login-backoff", value], capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        f"error: --login-backoff: {float(value):g} s is not within 0 < S <= 300"]
+    assert not (tmp_path / "s.db").exists()  # refused before anything was opened

@@ -20,9 +20,11 @@ from pathlib import Path
 from typing import Any
 
 from blackbox.cli.router import add_tls_arguments, zenoh_settings
-from blackbox.station.auth import Auth, Role, StationAuthError
+from blackbox.station.auth import Auth, AuthPolicy, Role, StationAuthError
 
 EXIT_USAGE = 2
+
+_DEFAULT_POLICY = AuthPolicy()
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -62,6 +64,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--robots", type=Path, default=None, metavar="FILE",
                    help="enrol the robots of FILE at start: lines 'ed25519 <base64> ROBOT_ID' "
                         "(their keygen .pub files); their health is then authenticated")
+    p.add_argument("--login-backoff", type=float, default=_DEFAULT_POLICY.base_backoff, metavar="S",
+                   help="after 3 failed log-ins of a user name from one address, the next "
+                        "waits S seconds, each further failure twice as long (default "
+                        f"{_DEFAULT_POLICY.base_backoff:g} s, at most 5 min)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument("--ready-file", type=Path, default=None, metavar="FILE",
@@ -111,13 +117,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     rremove.set_defaults(func=robots_remove_command)
 
 
-def open_databases(path: str | Path, stale_after: float = 10.0) -> tuple[Any, Auth]:
+def open_databases(path: str | Path, stale_after: float = 10.0,
+                   policy: AuthPolicy | None = None) -> tuple[Any, Auth]:
     """The station store, then the accounts in the same database (the store must create
     it: it refuses a file that already has other tables)."""
     from blackbox.station.store import StationStore
 
     store = StationStore.open(path, stale_after=stale_after)
-    return store, Auth(store.database)
+    return store, Auth(store.database, policy)
 
 
 def read_password(name: str) -> str:
@@ -139,12 +146,13 @@ def _usage_error(message: object) -> int:
     return EXIT_USAGE
 
 
-def _open_or_say(path: str | Path, stale_after: float = 10.0) -> tuple[Any, Auth] | None:
+def _open_or_say(path: str | Path, stale_after: float = 10.0,
+                 policy: AuthPolicy | None = None) -> tuple[Any, Auth] | None:
     """:func:`open_databases`, or ``None`` after saying why the file cannot be opened."""
     from blackbox.station.store import StationStoreError
 
     try:
-        return open_databases(path, stale_after)
+        return open_databases(path, stale_after, policy)
     except StationStoreError as exc:
         _usage_error(exc)
         return None
@@ -281,7 +289,11 @@ def serve_command(args: argparse.Namespace) -> int:
 
     alerts = load_alert_config(args.alerts) if args.alerts is not None \
         else AlertConfig("<none>")  # a ConfigError here exits 2 naming file, line, key
-    opened = _open_or_say(args.db, args.stale_after)
+    if not 0 < args.login_backoff <= _DEFAULT_POLICY.max_backoff:
+        return _usage_error(f"--login-backoff: {args.login_backoff:g} s is not within "
+                            f"0 < S <= {_DEFAULT_POLICY.max_backoff:g}")
+    policy = AuthPolicy(base_backoff=args.login_backoff)
+    opened = _open_or_say(args.db, args.stale_after, policy)
     if opened is None:
         return EXIT_USAGE
     store, auth = opened
