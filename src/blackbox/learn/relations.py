@@ -6,7 +6,9 @@ From the time-stamped samples of a healthy run (``blackbox.learn.timed``):
    it is constant, a counter or discrete (``classify``), too short, a *trend*
    (a straight line over time explains most of it: a discharging battery, a warming motor;
    it would leave any band it was learned in) or an angle that wraps (no linear relation
-   holds across the wrap). A monotonic field (an odometer) is a trend: it climbs.
+   holds across the wrap). A monotonic field (an odometer) is a trend, related only as an
+   input, on its changes (its level carries every past error of the count: an odometer
+   predicted from wheel angles raised three false alarms in a healthy half hour).
 2. **Grid.** All signals are resampled on one grid of ``STEP`` seconds (the mean over each
    cell of the lines joining the samples, ``window_means``), so different rates line up
    without a phase that changes from run to run.
@@ -114,6 +116,9 @@ class Signal:
     topic, when it is significant and would leave the learned range within an hour (a
     battery voltage discharging under a current that moves it more): no band."""
     note: str = ""
+    monotonic: bool = False
+    """Only grows or only falls (an odometer): related as an input on its changes, never on
+    its level nor as a target (its level carries every past error of the count)."""
 
 
 @dataclass
@@ -225,7 +230,8 @@ def signals_of(rec: Recording, notes: list[str]) -> list[Signal]:
                 if noise == 0.0:
                     noise = float(np.std(d)) / math.sqrt(2)
                 sig = Signal(SignalRef(topic.name, path), name, t, x, period, noise, wrap,
-                             _trend(t, x, noise), frec.info.integer)
+                             _trend(t, x, noise), frec.info.integer,
+                             monotonic=kind == "monotonic")
                 out.append(sig)
     return out
 
@@ -806,6 +812,8 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
                                      if m)
         choice = _climbing_choice(-math.inf if rates is None else rates.r2,
                                   -math.inf if level is None else level.r2)
+        if choice == "level" and any(x.monotonic for x in inputs):
+            choice = None  # an odometer's level relates to nothing (Signal.monotonic)
         if choice == "changes":
             return rates
         if choice == "level" or level is None or level.r2 < R2_MIN:
@@ -821,6 +829,8 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
 
     def from_topic(ti: int, topic: str) -> Relation | None:
         target = signals[ti]
+        if target.monotonic:
+            return None
         peers = [(xi, *lag_corr(ti, xi)) for xi, s in enumerate(signals)
                  if s.ref.topic == topic and xi != ti]
         peers.sort(key=lambda p: -abs(p[2]))

@@ -1,0 +1,151 @@
+"""Learned relations of slow signals (issue 22, round learn6): a 1 Hz topic (a battery, a
+GPS, a temperature) gives 120 samples in two minutes of learning. It is related to its
+peers with residual blocks as long as its period, and its block noise is widened by the
+uncertainty of so small a sample, so an offset inside its range is caught and a healthy
+half hour raises nothing. An odometer (monotonic) is related only as an input, on its
+changes."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from blackbox.events import GraphSnapshot, MessageArrival, NodeInfo, TopicInfo
+from blackbox.learn import learn_from, render_config
+from blackbox.model import Code, Observation
+from blackbox.observe.build import build_observer, load_config_text
+from blackbox.observe.observers.relation import RelationObserver
+from blackbox.sources.memory import MemorySource
+
+NODES = {"/cmd": "/teleop", "/imu": "/imu_driver", "/odometer": "/odometer"}
+
+
+@dataclass(frozen=True)
+class Cmd:
+    w: float
+    v: float
+
+
+@dataclass(frozen=True)
+class Imu:
+    z: float
+
+
+@dataclass(frozen=True)
+class Odometer:
+    data: int
+
+
+def graph(t: float, topics: tuple[str, ...]) -> GraphSnapshot:
+    nodes = {NODES[n]: NodeInfo(NODES[n], True, 100 + i) for i, n in enumerate(topics)}
+    infos = {n: TopicInfo(n, "std_msgs/Float64", (NODES[n],), ()) for n in topics}
+    return GraphSnapshot(t, nodes, infos)
+
+
+def yaw(t: float) -> float:
+    return 0.5 * math.sin(2 * math.pi * t / 17.0) + 0.3 * math.sin(2 * math.pi * t / 7.3)
+
+
+def speed(t: float) -> float:
+    return 0.6 + 0.4 * math.sin(2 * math.pi * t / 23.0)
+
+
+def robot(seconds: float, *, seed: int, imu: Callable[[float, float], float] | None = None,
+          odometer: bool = False, start: float = 0.0) -> list[object]:
+    """A 20 Hz command and a 1 Hz IMU measuring one yaw rate (``imu(t, z)`` may lie), and
+    with ``odometer`` a 1 Hz count of the centimetres driven at the commanded speed."""
+    rng = np.random.default_rng(seed)
+    topics = ("/cmd", "/imu", "/odometer") if odometer else ("/cmd", "/imu")
+    events: list[object] = [graph(start + t, topics) for t in range(int(seconds) + 1)]
+    driven = 0.0
+    k = 0
+    while k / 20.0 < seconds:
+        t = start + k / 20.0 + 0.003
+        events.append(MessageArrival(t, "/cmd", "/teleop", 16,
+                                     value=Cmd(yaw(t) + rng.normal(0, 0.005),
+                                               speed(t) + rng.normal(0, 0.005))))
+        driven += speed(t) / 20.0
+        if k % 20 == 0:
+            z = yaw(t) + rng.normal(0, 0.02)
+            events.append(MessageArrival(t + 0.011, "/imu", "/imu_driver", 8,
+                                         value=Imu(z if imu is None else imu(t, z))))
+            if odometer:
+                events.append(MessageArrival(t + 0.013, "/odometer", "/odometer", 4,
+                                             value=Odometer(int(driven * 100))))
+        k += 1
+    return sorted(events, key=lambda e: e.time)  # type: ignore[attr-defined,no-any-return]
+
+
+def learned(events: list[object]) -> str:
+    result = learn_from(lambda: MemorySource(events), 120.0)  # type: ignore[arg-type]
+    return render_config(result, "r", "r.model.yaml", "now")
+
+
+def relations(text: str) -> list[dict[str, object]]:
+    config = load_config_text(text, "r.yaml")
+    return [e.to_python() for e in config.observers if e.to_python()["type"] == "relation"]
+
+
+def judge(text: str, events: list[object]) -> list[Observation]:
+    """The relation observers of ``text`` over ``events``, evaluated once a second."""
+    config = load_config_text(text, "r.yaml")
+    observers = [build_observer(e) for e in config.observers
+                 if e.to_python()["type"] == "relation"]
+    assert observers and all(isinstance(o, RelationObserver) for o in observers)
+    out: list[Observation] = []
+    next_eval = None
+    for e in events:
+        if not isinstance(e, MessageArrival):
+            continue
+        if next_eval is None:
+            next_eval = math.floor(e.time) + 1.0
+        while e.time >= next_eval:
+            out.extend(o for obs in observers for o in obs.evaluate(next_eval))
+            next_eval += 1.0
+        for obs in observers:
+            obs.on_message(e)
+    return out
+
+
+def test_a_1_hz_signal_is_related_in_blocks_of_its_period_with_a_widened_noise() -> None:
+    text = learned(robot(120.0, seed=1))
+    rels = relations(text)
+    assert len(rels) == 1, text
+    assert rels[0]["block"] == 20  # one-second blocks: one new IMU sample each
+    assert "widened x1.15: 120 samples of its slowest signal" in text.replace("\n  #   ", " ")
+
+
+def test_an_offset_inside_the_range_of_a_1_hz_signal_is_caught_within_seconds() -> None:
+    """Five noise std (0.1 rad/s) on a yaw rate that swings over +-0.8 rad/s."""
+    text = learned(robot(120.0, seed=1))
+    out = judge(text, robot(200.0, seed=2, imu=lambda t, z: z + (0.1 if t >= 100.0 else 0.0)))
+    failed = [o.time for o in out if o.code == Code.NO_STATE_FITS]
+    assert failed, "the offset was never caught"
+    assert 100.0 < failed[0] <= 110.0, failed[:3]
+    assert all(t > 100.0 for t in failed)
+
+
+def test_a_healthy_1_hz_signal_raises_nothing_in_half_an_hour() -> None:
+    text = learned(robot(120.0, seed=1))
+    out = judge(text, robot(1800.0, seed=3))
+    bad = [o for o in out if o.code == Code.NO_STATE_FITS]
+    assert not bad, [(o.time, o.message) for o in bad[:3]]
+    assert sum(o.code == Code.GENERAL_OK for o in out) > 1500
+
+
+def test_an_odometer_is_related_on_its_changes_and_never_predicted_from_its_level() -> None:
+    """Its level carries every past error of the count: the speed is related to its
+    changes (taps summing to zero); no relation has the odometer as its target."""
+    text = learned(robot(120.0, seed=1, odometer=True))
+    items = [item for rel in relations(text) for item in rel["relations"]]  # type: ignore[attr-defined]
+    targets = {item["target"]["topic"] for item in items}
+    assert "/odometer" not in targets, text
+    from_odometer = [item for item in items
+                     if any(i["topic"] == "/odometer" for i in item["inputs"])]
+    assert from_odometer, text
+    for item in from_odometer:
+        gains = next(i["gains"] for i in item["inputs"] if i["topic"] == "/odometer")
+        assert abs(sum(gains)) < 1e-9
