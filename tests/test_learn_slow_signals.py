@@ -190,3 +190,36 @@ def test_a_yaw_rate_is_related_to_wheel_speeds_that_mostly_measure_the_forward_s
     imu = [item for item in items if item["target"]["topic"] == "/imu"]
     assert imu, text
     assert {i["field"] for i in imu[0]["inputs"]} == {"left", "right"}
+
+
+def test_a_noise_burst_on_a_1_hz_signal_is_caught_by_its_liveness_check() -> None:
+    """120 samples give 39 blocks of three second differences: a noise check, its spread
+    widened for so few blocks, that a burst of ten times the noise fails and health does
+    not. Slowly: between 1 Hz samples the yaw rate's own motion dominates the second
+    differences, so the burst takes about 20 s (measured 22 s)."""
+    text = learned(robot(120.0, seed=1))
+    config = load_config_text(text, "r.yaml")
+    entry = next(e for e in config.observers if e.to_python()["type"] == "liveness"
+                 and e.to_python()["topic"] == "/imu")
+    assert entry.to_python()["signals"][0]["noise"]["block"] == 3
+
+    def run(events: list[object]) -> list[Observation]:
+        obs = build_observer(entry)
+        out: list[Observation] = []
+        next_eval = 1.0
+        for e in events:
+            if not isinstance(e, MessageArrival):
+                continue
+            while e.time >= next_eval:
+                out.extend(obs.evaluate(next_eval))
+                next_eval += 1.0
+            obs.on_message(e)
+        return out
+
+    healthy = run(robot(1800.0, seed=3))
+    assert not [o for o in healthy if o.code == Code.NO_STATE_FITS]
+    rng = np.random.default_rng(7)
+    burst = run(robot(200.0, seed=2, imu=lambda t, z: z + (rng.normal(0, 0.2) if t >= 100.0
+                                                            else 0.0)))
+    failed = [o.time for o in burst if o.code == Code.NO_STATE_FITS]
+    assert failed and 100.0 < failed[0] <= 130.0, failed[:3]

@@ -93,6 +93,12 @@ TRACK_RATE = 5.0
 CHANGE_STEPS = 100
 """Grid steps over which a trending signal's change is taken (five seconds)."""
 LIVENESS_BLOCK_SECONDS = 0.5
+LIVE_BLOCKS = 40
+"""Blocks of second differences a noise check is learned from; with fewer (a 1 Hz signal
+for two minutes), blocks of ``SLOW_LIVE_BLOCK`` samples, at least ``MIN_LIVE_BLOCKS`` of
+them, their spread widened for the small sample (``widening``)."""
+SLOW_LIVE_BLOCK = 3
+MIN_LIVE_BLOCKS = 30
 LOGGING_TOPICS = frozenset({"/rosout", "/rosout_agg"})
 LAMBDAS = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
 
@@ -917,17 +923,21 @@ def learn_liveness(s: Signal) -> Liveness | None:
     if s.wrap:
         d = _wrapped(d)
     d = np.diff(d)  # second differences: smooth motion (a turn starting) is not noise
+    if d.size // block < LIVE_BLOCKS:
+        block = SLOW_LIVE_BLOCK  # a slow signal (1 Hz for two minutes): shorter blocks
     n = d.size // block
     z: np.ndarray | None = None
     mean = std = 0.0
-    if n >= 40:
+    if n >= MIN_LIVE_BLOCKS:
         sq = (d[:n * block] ** 2).reshape(n, block).mean(axis=1)
         # a quantised signal has blocks without a change: they can only lower the upward
         # statistic, so the noise is learned from the others (when most blocks change)
         sq = sq[sq > 0]
-        if sq.size >= max(40, n // 2):
+        if sq.size >= max(MIN_LIVE_BLOCKS, n // 2):
             v = np.log(sq)
             mean, std = float(v.mean()), max(float(v.std()), 0.05)
+            if sq.size < LIVE_BLOCKS:  # few blocks: their spread is widened (widening)
+                std *= widening(sq.size)
             z = (v - mean) / std
     if repeats is None and z is None:
         return None
