@@ -223,3 +223,49 @@ def test_a_noise_burst_on_a_1_hz_signal_is_caught_by_its_liveness_check() -> Non
                                                             else 0.0)))
     failed = [o.time for o in burst if o.code == Code.NO_STATE_FITS]
     assert failed and 100.0 < failed[0] <= 130.0, failed[:3]
+
+
+def imu_robot(seconds: float, *, seed: int, sigma: Callable[[float], float]) -> list[object]:
+    """A 20 Hz command and a 50 Hz IMU whose noise std is ``sigma(t)``."""
+    rng = np.random.default_rng(seed)
+    events: list[object] = [graph(float(t), ("/cmd", "/imu")) for t in range(int(seconds) + 1)]
+    k = 0
+    while k / 50.0 < seconds:
+        t = k / 50.0 + 0.003
+        if k % 5 == 0 or k % 5 == 2:
+            events.append(MessageArrival(t, "/cmd", "/teleop", 16,
+                                         value=Cmd(yaw(t) + rng.normal(0, 0.005), speed(t))))
+        events.append(MessageArrival(t + 0.001, "/imu", "/imu_driver", 8,
+                                     value=Imu(yaw(t) + rng.normal(0, sigma(t)))))
+        k += 1
+    return sorted(events, key=lambda e: e.time)  # type: ignore[attr-defined,no-any-return]
+
+
+def test_a_noise_check_sums_bursts_not_a_mildly_noisier_stretch() -> None:
+    """The noise check's drift is half the shift of a burst of three times the noise (the
+    log mean square grows by ln 10): a minute at 1.3 times the learned noise (+0.5 in the
+    log, two of its standard units) raises nothing, a burst of three times is caught
+    within seconds."""
+    text = learned(imu_robot(120.0, seed=1, sigma=lambda t: 0.02))
+    config = load_config_text(text, "r.yaml")
+    entry = next(e for e in config.observers if e.to_python()["type"] == "liveness"
+                 and e.to_python()["topic"] == "/imu")
+    noise = entry.to_python()["signals"][0]["noise"]
+    assert noise["cusum"]["k"] > 1.0, noise
+
+    def failures(sigma: Callable[[float], float]) -> list[float]:
+        obs = build_observer(entry)
+        out: list[float] = []
+        next_eval = 1.0
+        for e in imu_robot(200.0, seed=2, sigma=sigma):
+            if not isinstance(e, MessageArrival):
+                continue
+            while e.time >= next_eval:
+                out += [o.time for o in obs.evaluate(next_eval) if o.code == Code.NO_STATE_FITS]
+                next_eval += 1.0
+            obs.on_message(e)
+        return out
+
+    assert failures(lambda t: 0.026 if 100.0 <= t < 160.0 else 0.02) == []
+    burst = failures(lambda t: 0.06 if t >= 100.0 else 0.02)
+    assert burst and 100.0 < burst[0] <= 104.0, burst[:3]

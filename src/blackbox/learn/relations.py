@@ -52,7 +52,7 @@ import numpy as np
 
 from blackbox.learn.fields import classify
 from blackbox.learn.recording import Recording
-from blackbox.learn.sequential import Calibration, calibrate
+from blackbox.learn.sequential import Calibration, K, calibrate
 from blackbox.learn.stats import round_down, round_up
 from blackbox.observe.signals import SignalRef
 
@@ -98,6 +98,20 @@ LIVE_BLOCKS = 40
 for two minutes), blocks of ``SLOW_LIVE_BLOCK`` samples, at least ``MIN_LIVE_BLOCKS`` of
 them, their spread widened for the small sample (``widening``)."""
 SLOW_LIVE_BLOCK = 3
+NOISE_SHIFT = math.log(10.0)
+"""What a noise burst of three times a signal's noise std adds to the log of its mean
+squared second difference (the mean square grows 1 + 3² times)."""
+
+
+def noise_drift(std: float) -> float:
+    """The CUSUM drift ``k`` of a noise check whose block log mean square has spread
+    ``std``: half the shift of the smallest burst it is for (``NOISE_SHIFT``, in standard
+    units), at least ``K``. A drift of half a standard unit summed every mild, sustained
+    rise of the second differences (a wheel angle at 50 Hz in a harder stretch of driving
+    than the two minutes learned: +1.7 to +2.1 std for a minute, two false alarms in a
+    healthy half hour of sim:skidsteer learned from seed 101), while a burst moves the
+    statistic by several."""
+    return round(max(K, NOISE_SHIFT / (2.0 * std)), 3) if std > 0 else K
 MIN_LIVE_BLOCKS = 30
 LOGGING_TOPICS = frozenset({"/rosout", "/rosout_agg"})
 LAMBDAS = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
@@ -715,7 +729,7 @@ def learn_relations(rec: Recording) -> RelationsLearned:
             if live.z is not None:
                 per_hour = 3600.0 / (live.signal.period * live.block)
                 live.calibration = calibrate(live.z, per_hour, rate, two_sided=False,
-                                             seed=1000 + j)
+                                             k=noise_drift(live.std), seed=1000 + j)
     if not relations and len(related) >= 2:
         notes.append(f"no relation between signals of different topics reached a held-out "
                      f"R2 of {R2_MIN:g} in {rec.duration:.0f} s")
