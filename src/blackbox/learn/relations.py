@@ -8,7 +8,7 @@ From the time-stamped samples of a healthy run (``blackbox.learn.timed``):
    it would leave any band it was learned in) or an angle that wraps (no linear relation
    holds across the wrap). A monotonic field (an odometer) is a trend, related only as an
    input, on its changes (its level carries every past error of the count: an odometer
-   predicted from wheel angles raised three false alarms in a healthy half hour).
+   predicted from wheel angles raised two or three false alarms in a healthy half hour).
 2. **Grid.** All signals are resampled on one grid of ``STEP`` seconds (the mean over each
    cell of the lines joining the samples, ``window_means``), so different rates line up
    without a phase that changes from run to run.
@@ -98,6 +98,7 @@ LIVE_BLOCKS = 40
 for two minutes), blocks of ``SLOW_LIVE_BLOCK`` samples, at least ``MIN_LIVE_BLOCKS`` of
 them, their spread widened for the small sample (``widening``)."""
 SLOW_LIVE_BLOCK = 3
+MIN_LIVE_BLOCKS = 30
 NOISE_SHIFT = math.log(10.0)
 """What a noise burst of three times a signal's noise std adds to the log of its mean
 squared second difference (the mean square grows 1 + 3² times)."""
@@ -112,7 +113,8 @@ def noise_drift(std: float) -> float:
     healthy half hour of sim:skidsteer learned from seed 101), while a burst moves the
     statistic by several."""
     return round(max(K, NOISE_SHIFT / (2.0 * std)), 3) if std > 0 else K
-MIN_LIVE_BLOCKS = 30
+
+
 LOGGING_TOPICS = frozenset({"/rosout", "/rosout_agg"})
 LAMBDAS = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
 
@@ -1020,6 +1022,7 @@ def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict
 
 
 def _few(r: Relation) -> str:
+    """What the comment says of a relation learned from few samples (nothing otherwise)."""
     if r.widen == 1.0:
         return ""
     slowest = min(s.values.size for s in (r.target, *(i for i, _ in r.inputs)))
