@@ -208,20 +208,22 @@ TWO_RELATIONS = RELATION + """  - name: cmd_w
 """
 
 
-def test_a_relation_observer_judges_the_fields_it_relates_and_is_ok_without_its_blind_ones():
+def test_a_relation_observer_judges_the_fields_it_relates_and_clears_the_targets_of_blind_ones():
     """Field-level (issue 22 item 1): the observer names the (topic, field) signals a
     failure accuses and an OK clears; a relation that cannot see its inputs' faults
-    (``clears: false``) is left out of what OK clears, and does not hold OK back."""
+    (``clears: false``) still sees its target's, so held it clears its target alone."""
     obs = relation(TWO_RELATIONS)
     judged = obs.judged_signals()
     assert set(judged.accused) == {("/imu", "z"), ("/cmd", "w")}
     assert set(judged.cleared) == {("/imu", "z"), ("/cmd", "w")}  # imu_z sees both
     healthy = drive(obs, 30.0)
     assert healthy[-1].code == Code.GENERAL_OK, healthy[-1].message
-    assert "not counted: /cmd w ~ /imu z" in healthy[-1].message
+    assert "clears /cmd w alone" in healthy[-1].message
     blind = relation(TWO_RELATIONS.replace("imu_z\n", "imu_z\n    clears: false\n", 1))
-    assert blind.judged_signals().cleared == ()
-    assert drive(blind, 30.0)[-1].code == Code.NOT_AVAILABLE  # nothing it could clear
+    assert set(blind.judged_signals().cleared) == {("/imu", "z"), ("/cmd", "w")}
+    only_target = relation(RELATION.replace("imu_z\n", "imu_z\n    clears: false\n", 1))
+    assert only_target.judged_signals().cleared == (("/imu", "z"),)
+    assert drive(only_target, 30.0)[-1].code == Code.GENERAL_OK
 
 
 # ---- diagnosis ---------------------------------------------------------------------------------

@@ -3,10 +3,12 @@
 From the time-stamped samples of a healthy run (``blackbox.learn.timed``):
 
 1. **Signals.** Every numeric scalar field and element of a short array is a signal, unless
-   it is constant, a counter, monotonic or discrete (``classify``), too short, a *trend*
+   it is constant, a counter or discrete (``classify``), too short, a *trend*
    (a straight line over time explains most of it: a discharging battery, a warming motor;
    it would leave any band it was learned in) or an angle that wraps (no linear relation
-   holds across the wrap).
+   holds across the wrap). A monotonic field (an odometer) is a trend, related only as an
+   input, on its changes (its level carries every past error of the count: an odometer
+   predicted from wheel angles raised two or three false alarms in a healthy half hour).
 2. **Grid.** All signals are resampled on one grid of ``STEP`` seconds (the mean over each
    cell of the lines joining the samples, ``window_means``), so different rates line up
    without a phase that changes from run to run.
@@ -23,8 +25,13 @@ From the time-stamped samples of a healthy run (``blackbox.learn.timed``):
    Of the two directions of a pair the one with the cleaner input is kept (least squares
    attenuates a noisy input's gain).
 4. **Residual noise** comes from out-of-fold predictions (five contiguous folds), averaged
-   over blocks of ``BLOCK`` grid steps; the CUSUM threshold is calibrated on them
-   (``blackbox.learn.sequential``) for ``FALSE_ALARMS_PER_HOUR`` over all checks.
+   over blocks of ``BLOCK`` grid steps, or of the slowest signal's period when it is
+   slower (``block_for``: a 1 Hz battery gets one-second blocks, one new sample each); the
+   CUSUM threshold is calibrated on them (``blackbox.learn.sequential``) for
+   ``FALSE_ALARMS_PER_HOUR`` over all checks. A relation whose slowest signal gave fewer
+   than ``FEW_SAMPLES`` samples (two minutes of a 1 Hz topic: 120) has its block noise
+   widened by the uncertainty of so small a sample (``widening``); under
+   ``MIN_RELATION_SAMPLES`` it is not learned.
 5. **Modes.** Blocks where the prediction moved less than ``EXCITATION`` block noise (std
    over ``WINDOW`` seconds) are *standing still*: with at least ``MIN_STILL_BLOCKS`` of
    them, standing still gets its own noise and is judged; otherwise the relation is
@@ -45,7 +52,7 @@ import numpy as np
 
 from blackbox.learn.fields import classify
 from blackbox.learn.recording import Recording
-from blackbox.learn.sequential import Calibration, calibrate
+from blackbox.learn.sequential import Calibration, K, calibrate
 from blackbox.learn.stats import round_down, round_up
 from blackbox.observe.signals import SignalRef
 
@@ -64,13 +71,18 @@ SENSITIVITY = 1.5
 EXCITATION = 3.0
 MIN_STILL_BLOCKS = 40
 FALSE_ALARMS_PER_HOUR = 0.1
-MIN_SIGNAL_SAMPLES = 100
+MIN_SIGNAL_SAMPLES = 40
+"""Samples below which a field is no signal at all (neither related nor checked alive)."""
 MIN_GRID_BLOCKS = 60
-MIN_RELATION_SAMPLES = 300
-"""Samples of a signal while learning below which it is not related: its residual blocks
-are few and strongly dependent, and neither the fit nor the bootstrap of ``h`` can be
-trusted for one false alarm in many hours."""
-"""A relation needs at least this many blocks (30 s) of both signals to be learned."""
+MIN_RELATION_SAMPLES = 60
+"""Samples of a signal while learning below which it is not related (a minute of a 1 Hz
+topic): too few to fit, let alone to calibrate a threshold."""
+FEW_SAMPLES = 300
+"""Samples of a relation's slowest signal below which its block noise is an estimate from
+few, dependent blocks: it is widened by its own uncertainty (:func:`widening`)."""
+WIDEN_Z = 2.33
+"""The block noise of a relation learned from few samples is taken at the upper end of a
+one-sided 99 % interval of its estimate."""
 TRACK = 2.5
 """Seconds over which a relation of trending signals follows its residual's bias. Short:
 exponential smoothing lags a steady discharge by its rate times this (at 20 s the lag
@@ -81,6 +93,28 @@ TRACK_RATE = 5.0
 CHANGE_STEPS = 100
 """Grid steps over which a trending signal's change is taken (five seconds)."""
 LIVENESS_BLOCK_SECONDS = 0.5
+LIVE_BLOCKS = 40
+"""Blocks of second differences a noise check is learned from; with fewer (a 1 Hz signal
+for two minutes), blocks of ``SLOW_LIVE_BLOCK`` samples, at least ``MIN_LIVE_BLOCKS`` of
+them, their spread widened for the small sample (``widening``)."""
+SLOW_LIVE_BLOCK = 3
+MIN_LIVE_BLOCKS = 30
+NOISE_SHIFT = math.log(10.0)
+"""What a noise burst of three times a signal's noise std adds to the log of its mean
+squared second difference (the mean square grows 1 + 3² times)."""
+
+
+def noise_drift(std: float) -> float:
+    """The CUSUM drift ``k`` of a noise check whose block log mean square has spread
+    ``std``: half the shift of the smallest burst it is for (``NOISE_SHIFT``, in standard
+    units), at least ``K``. A drift of half a standard unit summed every mild, sustained
+    rise of the second differences (a wheel angle at 50 Hz in a harder stretch of driving
+    than the two minutes learned: +1.7 to +2.1 std for a minute, two false alarms in a
+    healthy half hour of sim:skidsteer learned from seed 101), while a burst moves the
+    statistic by several."""
+    return round(max(K, NOISE_SHIFT / (2.0 * std)), 3) if std > 0 else K
+
+
 LOGGING_TOPICS = frozenset({"/rosout", "/rosout_agg"})
 LAMBDAS = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
 
@@ -104,6 +138,9 @@ class Signal:
     topic, when it is significant and would leave the learned range within an hour (a
     battery voltage discharging under a current that moves it more): no band."""
     note: str = ""
+    monotonic: bool = False
+    """Only grows or only falls (an odometer): related as an input on its changes, never on
+    its level nor as a target (its level carries every past error of the count)."""
 
 
 @dataclass
@@ -134,6 +171,10 @@ class Relation:
     """The most the followed bias moves per second (residual units)."""
     on_changes: tuple[str, ...] = ()
     """Labels of trending inputs related on their changes, not their level."""
+    block: int = BLOCK
+    """Grid steps per residual block (:func:`block_for`)."""
+    widen: float = 1.0
+    """The factor its block noise was widened by for few samples (:func:`widening`)."""
 
     @property
     def topics(self) -> tuple[str, str]:
@@ -193,7 +234,7 @@ def signals_of(rec: Recording, notes: list[str]) -> list[Signal]:
                 if x.size < MIN_SIGNAL_SAMPLES:
                     continue
                 kind = classify(x, frec.info.integer).kind
-                if kind != "numeric":
+                if kind not in ("numeric", "monotonic"):
                     continue
                 name = f"{topic.name} {path}"
                 d = np.diff(x)
@@ -211,7 +252,8 @@ def signals_of(rec: Recording, notes: list[str]) -> list[Signal]:
                 if noise == 0.0:
                     noise = float(np.std(d)) / math.sqrt(2)
                 sig = Signal(SignalRef(topic.name, path), name, t, x, period, noise, wrap,
-                             _trend(t, x, noise), frec.info.integer)
+                             _trend(t, x, noise), frec.info.integer,
+                             monotonic=kind == "monotonic")
                 out.append(sig)
     return out
 
@@ -488,15 +530,36 @@ def _taps(center: int) -> list[int]:
     return [center + j for j in range(-half, TAPS - half)]
 
 
-def _blocks(x: np.ndarray) -> np.ndarray:
-    """Block means over ``BLOCK`` grid steps, NaN for blocks less than half valid."""
-    n = x.size // BLOCK
-    b = x[:n * BLOCK].reshape(n, BLOCK)
+def _blocks(x: np.ndarray, block: int = BLOCK) -> np.ndarray:
+    """Block means over ``block`` grid steps, NaN for blocks less than half valid."""
+    n = x.size // block
+    b = x[:n * block].reshape(n, block)
     valid = np.isfinite(b).sum(axis=1)
     with np.errstate(invalid="ignore"):
         means: np.ndarray = np.nansum(b, axis=1) / np.maximum(valid, 1)
-    means[valid * 2 < BLOCK] = np.nan
+    means[valid * 2 < block] = np.nan
     return means
+
+
+def block_for(signals: Sequence[Signal]) -> int:
+    """Grid steps per residual block of a relation of ``signals``: ``BLOCK``, or as long as
+    the slowest signal's period (a 1 Hz battery current: one-second blocks), so each block
+    holds about one new sample of every signal. Shorter blocks of a slow signal would be
+    averages of the same few samples (the lines joining them), strongly dependent from
+    block to block, and their noise would understate how far a block mean wanders."""
+    slowest = max((s.period for s in signals if math.isfinite(s.period)), default=STEP)
+    return max(BLOCK, round(slowest / STEP))
+
+
+def widening(samples: int) -> float:
+    """The factor on a block noise estimated from a relation whose slowest signal gave
+    ``samples`` samples while learning: 1 from ``FEW_SAMPLES`` on, else the upper end of a
+    one-sided 99 % interval of a standard deviation estimated from ``samples`` independent
+    values (relative standard error ``1 / sqrt(2 (n - 1))``), so a two-minute estimate of a
+    1 Hz signal's noise that happened to be low does not become a false alarm an hour."""
+    if samples >= FEW_SAMPLES:
+        return 1.0
+    return 1.0 + WIDEN_Z / math.sqrt(2.0 * max(1, samples - 1))
 
 
 def _rolling_std(x: np.ndarray, w: int) -> np.ndarray:
@@ -551,20 +614,24 @@ def change_r2(fitted: Fit, target: np.ndarray) -> float:
 
 def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Relation | None:
     """Residual noise per mode, sensitivity and span of a fitted relation; ``None`` when it
-    cannot see a fault of four noise std on one of its signals."""
-    res_b = _blocks(fitted.residual)
-    pred_b = _blocks(fitted.predicted)
+    cannot see a fault of four noise std on one of its signals. Blocks are ``block_for``
+    its signals; learned from few samples of its slowest signal, the noise of each mode is
+    widened (:func:`widening`)."""
+    block = block_for([target, *inputs])
+    widen = widening(min(s.values.size for s in (target, *inputs)))
+    res_b = _blocks(fitted.residual, block)
+    pred_b = _blocks(fitted.predicted, block)
     ok = np.isfinite(res_b) & np.isfinite(pred_b)
-    if ok.sum() < MIN_GRID_BLOCKS:
+    if ok.sum() < MIN_GRID_BLOCKS * BLOCK / block:
         return None
     noise_all = float(np.std(res_b[ok])) or 1e-12
-    window = max(2, round(WINDOW / (STEP * BLOCK)))
+    window = max(2, round(WINDOW / (STEP * block)))
     spread = _rolling_std(np.where(ok, pred_b, np.nan), window)
     excitation = EXCITATION * noise_all
     moving = ok & (spread >= excitation)
     still = ok & np.isfinite(spread) & (spread < excitation)
-    if moving.sum() < MIN_GRID_BLOCKS // 2:
-        if still.sum() < MIN_GRID_BLOCKS:
+    if moving.sum() < MIN_GRID_BLOCKS * BLOCK / block / 2:
+        if still.sum() < MIN_GRID_BLOCKS * BLOCK / block:
             return None
         # the prediction never moves much beside the residual's noise (a battery voltage
         # sagging a little under its current): one mode, judged always
@@ -578,14 +645,16 @@ def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Rela
         # load may be heavier later, and at least a twentieth of the block noise a second):
         # a fault's offset or drift, far faster, is not followed
         track_rate = max(TRACK_RATE * abs(fitted.slope), 0.05 * noise_all)
-        limit = track_rate * STEP * BLOCK / noise_all
+        limit = track_rate * STEP * block / noise_all
         res_b = res_b.copy()
-        res_b[ok] = tracked(res_b[ok] / noise_all, STEP * BLOCK / TRACK, limit) * noise_all
-    m_bias, m_noise = float(res_b[moving].mean()), float(res_b[moving].std()) or noise_all
+        res_b[ok] = tracked(res_b[ok] / noise_all, STEP * block / TRACK, limit) * noise_all
+    m_bias = float(res_b[moving].mean())
+    m_noise = (float(res_b[moving].std()) or noise_all) * widen
     z_parts = [(res_b[moving] - m_bias) / m_noise]
     still_mode = None
-    if still.sum() >= MIN_STILL_BLOCKS:
-        s_bias, s_noise = float(res_b[still].mean()), float(res_b[still].std()) or noise_all
+    if still.sum() >= MIN_STILL_BLOCKS * BLOCK / block:
+        s_bias = float(res_b[still].mean())
+        s_noise = (float(res_b[still].std()) or noise_all) * widen
         still_mode = (s_bias, s_noise)
         z_parts.append((res_b[still] - s_bias) / s_noise)
     z_all = np.concatenate(z_parts)
@@ -610,7 +679,8 @@ def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Rela
                     gains, fitted.intercept, fitted.target_steps, fitted.r2,
                     float(np.std(residual)), (m_bias, m_noise), still_mode, excitation,
                     (lo - margin, hi + margin), z_all, sensitivity, track=track,
-                    track_rate=track_rate, clears=clears, on_changes=fitted.on_changes)
+                    track_rate=track_rate, clears=clears, on_changes=fitted.on_changes,
+                    block=block, widen=widen)
 
 
 def learn_relations(rec: Recording) -> RelationsLearned:
@@ -632,9 +702,7 @@ def learn_relations(rec: Recording) -> RelationsLearned:
     if few:
         notes.append(f"{', '.join(s.ref.label() for s in few)}: fewer than "
                      f"{MIN_RELATION_SAMPLES} samples while learning, not related (too few to "
-                     "calibrate a relation's threshold for its false-alarm rate: a 1 Hz battery "
-                     "voltage related to its current from two minutes raised 11 false alarms in "
-                     "a healthy hour); checked for being alive")
+                     "fit a relation and calibrate its threshold); checked for being alive")
         related = [s for s in related if s.values.size >= MIN_RELATION_SAMPLES]
     relations: list[Relation] = []
     if rec.duration > 0:
@@ -657,13 +725,13 @@ def learn_relations(rec: Recording) -> RelationsLearned:
                                   if live.z is not None)
     rate = FALSE_ALARMS_PER_HOUR / max(1, checks)
     for i, r in enumerate(relations):
-        r.calibration = calibrate(r.z, 3600.0 / (STEP * BLOCK), rate, seed=i)
+        r.calibration = calibrate(r.z, 3600.0 / (STEP * r.block), rate, seed=i)
     for ls in liveness.values():
         for j, live in enumerate(ls):
             if live.z is not None:
                 per_hour = 3600.0 / (live.signal.period * live.block)
                 live.calibration = calibrate(live.z, per_hour, rate, two_sided=False,
-                                             seed=1000 + j)
+                                             k=noise_drift(live.std), seed=1000 + j)
     if not relations and len(related) >= 2:
         notes.append(f"no relation between signals of different topics reached a held-out "
                      f"R2 of {R2_MIN:g} in {rec.duration:.0f} s")
@@ -766,6 +834,8 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
                                      if m)
         choice = _climbing_choice(-math.inf if rates is None else rates.r2,
                                   -math.inf if level is None else level.r2)
+        if choice == "level" and any(x.monotonic for x in inputs):
+            choice = None  # an odometer's level relates to nothing (Signal.monotonic)
         if choice == "changes":
             return rates
         if choice == "level" or level is None or level.r2 < R2_MIN:
@@ -781,6 +851,8 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
 
     def from_topic(ti: int, topic: str) -> Relation | None:
         target = signals[ti]
+        if target.monotonic:
+            return None
         peers = [(xi, *lag_corr(ti, xi)) for xi, s in enumerate(signals)
                  if s.ref.topic == topic and xi != ti]
         peers.sort(key=lambda p: -abs(p[2]))
@@ -798,9 +870,19 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
                  if _trending(signals[p[0]]) == _trending(target)][:MAX_JOINT]
         if len(joint) >= 2:
             inputs = [signals[p[0]] for p in joint]
-            fitted = fitted_for(target, inputs, [_taps(p[1]) for p in joint])
-            if fitted is not None and fitted.r2 >= R2_MIN:
-                return relation_from_fit(target, inputs, fitted)
+            # each input at its own best lag, or all at one: a signal that is mostly
+            # another quantity (a wheel speed is mostly the forward speed) correlates best
+            # with the target at a lag that says nothing of the delay (a yaw rate from four
+            # wheel speeds: R2 0.77 at their own lags, 0.995 all at 0)
+            best: Fit | None = None
+            common = [] if _trending(target) else sorted({0, *(p[1] for p in joint)})
+            for lags in [[_taps(p[1]) for p in joint], *([_taps(c)] * len(joint)
+                                                         for c in common)]:
+                fitted = fitted_for(target, inputs, lags)
+                if fitted is not None and (best is None or fitted.r2 > best.r2 + 1e-4):
+                    best = fitted
+            if best is not None and best.r2 >= R2_MIN:
+                return relation_from_fit(target, inputs, best)
         return None
 
     by_target: dict[int, list[Relation]] = {}
@@ -857,17 +939,21 @@ def learn_liveness(s: Signal) -> Liveness | None:
     if s.wrap:
         d = _wrapped(d)
     d = np.diff(d)  # second differences: smooth motion (a turn starting) is not noise
+    if d.size // block < LIVE_BLOCKS:
+        block = SLOW_LIVE_BLOCK  # a slow signal (1 Hz for two minutes): shorter blocks
     n = d.size // block
     z: np.ndarray | None = None
     mean = std = 0.0
-    if n >= 40:
+    if n >= MIN_LIVE_BLOCKS:
         sq = (d[:n * block] ** 2).reshape(n, block).mean(axis=1)
         # a quantised signal has blocks without a change: they can only lower the upward
         # statistic, so the noise is learned from the others (when most blocks change)
         sq = sq[sq > 0]
-        if sq.size >= max(40, n // 2):
+        if sq.size >= max(MIN_LIVE_BLOCKS, n // 2):
             v = np.log(sq)
             mean, std = float(v.mean()), max(float(v.std()), 0.05)
+            if sq.size < LIVE_BLOCKS:  # few blocks: their spread is widened (widening)
+                std *= widening(sq.size)
             z = (v - mean) / std
     if repeats is None and z is None:
         return None
@@ -931,8 +1017,23 @@ def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict
             "span": [round_down(r.span[0]), round_up(r.span[1])],
         })
     return {"type": "relation", "topic": pair[0], "topic_b": pair[1], "step": STEP,
-            "block": BLOCK, "window": WINDOW, "fresh": round_up(fresh, 2),
+            "block": _entry_block(relations), "window": WINDOW, "fresh": round_up(fresh, 2),
             "delay": _g(delay_of(signals)), "relations": items}
+
+
+def _few(r: Relation) -> str:
+    """What the comment says of a relation learned from few samples (nothing otherwise)."""
+    if r.widen == 1.0:
+        return ""
+    slowest = min(s.values.size for s in (r.target, *(i for i, _ in r.inputs)))
+    return (f" (blocks of {r.block * STEP:g} s; widened x{r.widen:.2f}: {slowest} samples of "
+            "its slowest signal)")
+
+
+def _entry_block(relations: Sequence[Relation]) -> int:
+    """The block of a topic pair's relations: one, as every relation of the pair relates
+    signals of both topics (whose periods are their topics')."""
+    return max(r.block for r in relations)
 
 
 def relation_comments(relations: Sequence[Relation]) -> list[str]:
@@ -953,9 +1054,9 @@ def relation_comments(relations: Sequence[Relation]) -> list[str]:
         seen = (f"a 4-noise-std fault on any of its signals moves the residual >= "
                 f"{r.sensitivity:.1f} block noise" if r.clears else
                 f"its inputs' faults of 4 noise std move the residual less than {SENSITIVITY:g} "
-                "block noise: held, it clears nobody")
+                "block noise: held, it clears its target alone")
         out.append(f"{r.target.ref.label()} from {inputs}: held-out R2 {r.r2:.4f}, residual "
-                   f"std {r.noise:.3g}, block noise {r.moving[1]:.3g}; {seen}; "
+                   f"std {r.noise:.3g}, block noise {r.moving[1]:.3g}{_few(r)}; {seen}; "
                    f"{r.calibration.describe()}; {mode}")
     return out
 

@@ -25,7 +25,8 @@ checks them on a common grid of ``step`` seconds:
   relation it has) accuses that topic's producers alone;
 * ``clears: false``: the relation sees a fault of its target but not one of its inputs (a
   clean command beside a noisy sensor); failed, it accuses as any other, held, it clears
-  nobody (the observer's ``OK`` does not wait for it and does not cover its signals);
+  its target alone (every learned relation sees a fault of four noise std on its target:
+  a GPS speed that agrees with the command is right, whatever the command's own faults);
 * the verdict has three values: failed (CUSUM at ``h``), held (below ``h / 2``), and in
   between, or unjudged, ``NOT_AVAILABLE``: a held relation clears the (topic, field)
   signals it relates in the diagnosis (``judged_signals``, docs/diagnosis.md), so it says
@@ -121,7 +122,8 @@ class RelationSpec:
     excitation: float
     span: tuple[float, float]
     clears: bool = True
-    """Whether holding is evidence of health (false: it cannot see its inputs' faults)."""
+    """Whether holding is evidence of its inputs' health (false: it cannot see their
+    faults, and clears its target alone)."""
     track_rate: float = math.inf
     """The most the followed bias moves per second."""
     track: float | None = None
@@ -347,8 +349,8 @@ class RelationObserver(ObserverBase):
                               f"(residual {judge.last_z:+.1f} noise std, CUSUM {stat:.1f} >= "
                               f"{spec.cusum.h:.1f})")
             elif judge.verdict == "held" and not spec.clears:
-                open_.append(f"{what}: holds (CUSUM {stat:.1f}) but cannot see its inputs' "
-                             "faults, clears nobody")
+                held.append(f"{what} (CUSUM {stat:.1f} < {spec.cusum.h / 2:.1f}; cannot see "
+                            f"its inputs' faults, clears {spec.target.label()} alone)")
             elif judge.verdict == "held":
                 held.append(f"{what} (CUSUM {stat:.1f} < {spec.cusum.h / 2:.1f})")
             elif judge.verdict == "undecided":
@@ -364,10 +366,9 @@ class RelationObserver(ObserverBase):
                 text += "; held: " + "; ".join(held)
             return [Observation(now, self.type_name, self.resource, Code.NO_STATE_FITS,
                                 values=values, message=text)]
-        # OK clears exactly the signals of the relations that can clear (judged_signals):
-        # it needs every one of them held; one that clears nobody blocks nothing
-        blocking = [o for o, judge in zip(open_all, self._judges, strict=True)
-                    if o is not None and judge.spec.clears]
+        # OK clears the signals judged_signals names: every relation's target, and its
+        # inputs when it sees their faults; it needs every relation held
+        blocking = [o for o in open_all if o is not None]
         if blocking or not held:
             return [self.unavailable(now, "; ".join(open_ + held), values)]
         text = "holds: " + "; ".join(held)
@@ -378,11 +379,13 @@ class RelationObserver(ObserverBase):
 
     def judged_signals(self) -> JudgedSignals:
         """Field-level diagnosis (docs/diagnosis.md): a failure accuses the signals of every
-        relation; OK clears those of the relations that see all their signals' faults."""
+        relation; OK clears every relation's target, and the inputs of those that see their
+        inputs' faults."""
         accused = {s: None for r in self.relations
                    for s in (r.target, *(t.signal for t in r.taps))}
-        cleared = {s: None for r in self.relations if r.clears
-                   for s in (r.target, *(t.signal for t in r.taps))}
+        cleared = {s: None for r in self.relations
+                   for s in ((r.target, *(t.signal for t in r.taps)) if r.clears
+                             else (r.target,))}
         return JudgedSignals(tuple((s.topic, s.field) for s in accused),
                              tuple((s.topic, s.field) for s in cleared))
 
