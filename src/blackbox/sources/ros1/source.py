@@ -528,7 +528,8 @@ class Ros1Source:
         for topic, node in self.counted - counted:
             if node not in dead:  # a dead publisher's silence is the robot's, not a gap
                 self._open_gap((topic, node), "switching from the publisher's counters to "
-                               f"a subscription for {node}")
+                               f"a subscription for {node}",
+                               start=self._counts_end((topic, node), now))
             why = self._bus.unavailable.get(node)
             self._report("rate_from_subscription", topic,
                          f"{topic} from {node}: "
@@ -537,6 +538,20 @@ class Ros1Source:
                          + "; subscribing to measure its rate")
         self.counted = counted
         self._mark_counted(counted)
+
+    def _counts_end(self, key: tuple[str, str], round_start: float) -> float:
+        """Where ``key``'s counted arrivals end (source time without ``clock_offset``), at
+        the latest now: the switch to a subscription is a gap from there, not from the end
+        of the round that found the on-robot subscriber gone. That round waited for the
+        subscriber's probe (a stopped node: the whole probe time-out), and the stretch
+        since the counts ended was the black box's blind spot, not the topic's silence.
+        Without queued counts, the round's start (``round_start``, no offset)."""
+        with self._lock:
+            end = self._counted_until.get(key)
+            now = self._wall()
+        if end is None:
+            return round_start
+        return min(end, now) - self.clock_offset
 
     def _mark_counted(self, counted: set[tuple[str, str]]) -> None:
         """Record how far each counted topic is now counted (for :meth:`_await_counts`):
@@ -601,17 +616,25 @@ class Ros1Source:
 
     def _open_gap(self, key: tuple[str, str], reason: str, start: float | None = None,
                   limit: float | None = None) -> None:
-        """``key``'s rate is not measured from now (or ``start``, a round-start time) until
-        its next message, subscribed or counted, at most ``limit`` s (``gap_limit``)."""
+        """``key``'s rate is not measured from now (or ``start``, an earlier source time
+        without ``clock_offset``) until its next message, subscribed or counted, at most
+        ``limit`` s (``gap_limit``).
+
+        A gap found out late (a round that waited for a probe) is stamped at its start, or
+        at the last horizon ``poll`` handed out if that is later, not at "now": ``poll``
+        then hands it out with the first horizon it reaches. Stamped "now", it was held
+        back to the next horizon while the one it covered was judged on the silence."""
         with self._lock:
             if key in self._waiting:
                 return
             now = self._wall()
-            begin = now if start is None else start + self.clock_offset
-            gap = MeasurementGap(now, begin, None, reason, topic=key[0])
+            begin = now if start is None else min(now, start + self.clock_offset)
+            gap = MeasurementGap(max(begin, self._floor), begin, None, reason, topic=key[0])
             self._waiting[key] = gap
             if limit is not None:
                 self._limits[key] = limit
+            elif begin < now:  # ``gap_limit`` counts from the switch, not from ``start``
+                self._limits[key] = self.settings.gap_limit + (now - begin)
             self._queue.append(gap)
 
     def _expire_waiting(self, dead: set[str]) -> None:
