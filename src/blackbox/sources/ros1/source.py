@@ -248,6 +248,10 @@ class Ros1Source:
         self._master_gap: MeasurementGap | None = None
         self._limits: dict[tuple[str, str], float] = {}
         """Open gaps with a limit other than ``gap_limit`` (reconnections)."""
+        self._counted_ahead: dict[tuple[str, str], float] = {}
+        """Open switch gaps -> the end of the counted arrivals queued before the switch,
+        where that is ahead of the switch: the gap ends no earlier (see
+        :meth:`_switch_to_subscription`)."""
         self._connected: set[StreamKey] = set()
         self._counted_until: dict[tuple[str, str], float] = {}
         """(topic, publisher) -> the time of the last counted arrival queued: the next
@@ -421,10 +425,11 @@ class Ros1Source:
             self._queue.extend(batch)
 
     def _resume(self, key: tuple[str, str], end: float) -> None:
-        """Close ``key``'s open gap at ``end`` (its first message on the new path); under
-        ``_lock``."""
+        """Close ``key``'s open gap at ``end`` (its first message on the new path), or at
+        the end of the counted arrivals queued before it, if later; under ``_lock``."""
         gap = self._waiting.pop(key, None)
         self._limits.pop(key, None)
+        end = max(end, self._counted_ahead.pop(key, end))
         if gap is not None:
             self._queue.append(MeasurementGap(end, gap.start, end, gap.reason, gap.topic))
 
@@ -527,9 +532,7 @@ class Ros1Source:
                 self._check_behind(now, r)
         for topic, node in self.counted - counted:
             if node not in dead:  # a dead publisher's silence is the robot's, not a gap
-                self._open_gap((topic, node), "switching from the publisher's counters to "
-                               f"a subscription for {node}",
-                               start=self._counts_end((topic, node), now))
+                self._switch_to_subscription((topic, node), now)
             why = self._bus.unavailable.get(node)
             self._report("rate_from_subscription", topic,
                          f"{topic} from {node}: "
@@ -539,19 +542,31 @@ class Ros1Source:
         self.counted = counted
         self._mark_counted(counted)
 
-    def _counts_end(self, key: tuple[str, str], round_start: float) -> float:
-        """Where ``key``'s counted arrivals end (source time without ``clock_offset``), at
-        the latest now: the switch to a subscription is a gap from there, not from the end
-        of the round that found the on-robot subscriber gone. That round waited for the
-        subscriber's probe (a stopped node: the whole probe time-out), and the stretch
-        since the counts ended was the black box's blind spot, not the topic's silence.
-        Without queued counts, the round's start (``round_start``, no offset)."""
+    def _switch_to_subscription(self, key: tuple[str, str], round_start: float) -> None:
+        """The gap of a counted topic whose on-robot subscriber is gone (the black box
+        subscribes to measure it): the two paths' arrivals must neither leave a hole
+        between them nor overlap.
+
+        - It starts where the counted arrivals end, if that is before now, not when the
+          round that found the subscriber gone ended: that round waited for the
+          subscriber's probe (a stopped node: the whole probe time-out), and the stretch
+          was the black box's blind spot, not the topic's silence (a provisional period).
+          Without queued counts it starts at the round's start (``round_start``).
+        - It lasts at least until the end of the counted arrivals already queued, when
+          those run ahead of now (a round's counts are spread over the round after it, up
+          to two rounds and a probe time-out ahead after slow rounds): ended at the first
+          subscribed message, the rest of the counted arrivals came between the subscribed
+          ones, a doubled rate for up to a second and a half (a too-fast ``hz``)."""
         with self._lock:
             end = self._counted_until.get(key)
             now = self._wall()
-        if end is None:
-            return round_start
-        return min(end, now) - self.clock_offset
+        start = round_start if end is None else min(end, now) - self.clock_offset
+        self._open_gap(key, f"switching from the publisher's counters to a subscription "
+                       f"for {key[1]}", start=start)
+        if end is not None and end > now:
+            with self._lock:
+                if key in self._waiting:
+                    self._counted_ahead[key] = end
 
     def _mark_counted(self, counted: set[tuple[str, str]]) -> None:
         """Record how far each counted topic is now counted (for :meth:`_await_counts`):
@@ -653,7 +668,8 @@ class Ros1Source:
                     continue
                 del self._waiting[key]
                 self._limits.pop(key, None)
-                self._queue.append(MeasurementGap(now, gap.start, now, f"{gap.reason}; {why}",
+                end = max(now, self._counted_ahead.pop(key, now))
+                self._queue.append(MeasurementGap(end, gap.start, end, f"{gap.reason}; {why}",
                                                   gap.topic))
 
     def _push_counted(self, round_start: float, arrivals: list[MessageArrival],
