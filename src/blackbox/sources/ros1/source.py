@@ -562,11 +562,7 @@ class Ros1Source:
             now = self._wall()
         start = round_start if end is None else min(end, now) - self.clock_offset
         self._open_gap(key, f"switching from the publisher's counters to a subscription "
-                       f"for {key[1]}", start=start)
-        if end is not None and end > now:
-            with self._lock:
-                if key in self._waiting:
-                    self._counted_ahead[key] = end
+                       f"for {key[1]}", start=start, ends_after=end)
 
     def _mark_counted(self, counted: set[tuple[str, str]]) -> None:
         """Record how far each counted topic is now counted (for :meth:`_await_counts`):
@@ -630,7 +626,7 @@ class Ros1Source:
                                f"{uris[node]}); connecting to it", limit=limit)
 
     def _open_gap(self, key: tuple[str, str], reason: str, start: float | None = None,
-                  limit: float | None = None) -> None:
+                  limit: float | None = None, ends_after: float | None = None) -> None:
         """``key``'s rate is not measured from now (or ``start``, an earlier source time
         without ``clock_offset``) until its next message, subscribed or counted, at most
         ``limit`` s (``gap_limit``).
@@ -638,7 +634,8 @@ class Ros1Source:
         A gap found out late (a round that waited for a probe) is stamped at its start, or
         at the last horizon ``poll`` handed out if that is later, not at "now": ``poll``
         then hands it out with the first horizon it reaches. Stamped "now", it was held
-        back to the next horizon while the one it covered was judged on the silence."""
+        back to the next horizon while the one it covered was judged on the silence.
+        ``ends_after`` (source time): the gap does not end before it."""
         with self._lock:
             if key in self._waiting:
                 return
@@ -646,6 +643,8 @@ class Ros1Source:
             begin = now if start is None else min(now, start + self.clock_offset)
             gap = MeasurementGap(max(begin, self._floor), begin, None, reason, topic=key[0])
             self._waiting[key] = gap
+            if ends_after is not None and ends_after > now:
+                self._counted_ahead[key] = ends_after
             if limit is not None:
                 self._limits[key] = limit
             elif begin < now:  # ``gap_limit`` counts from the switch, not from ``start``
