@@ -312,3 +312,69 @@ def test_a_slow_round_of_counts_is_waited_for_not_handed_out_as_silence(
         assert long == [], f"/audio silent at the horizon for {long} s"
     finally:
         source.close()
+
+
+CAMERA = "/usb_cam/image_raw"
+
+
+def unmeasured_silences(events: Sequence[object], horizon: float, topic: str
+                        ) -> float | None:
+    """How long ``topic`` has been silent at ``horizon`` as an observer sees it from the
+    events handed out so far: ``None`` while a gap of it (or of everything) is open, else
+    the time since its last arrival or the end of its last gap, whichever is later."""
+    open_: set[float] = set()
+    last = -float("inf")
+    for e in events:
+        if isinstance(e, MeasurementGap) and e.topic in (None, topic) and not e.graph:
+            if e.end is None:
+                open_.add(e.start)
+            else:
+                open_.discard(e.start)
+                last = max(last, e.end)
+        elif isinstance(e, MessageArrival) and e.topic == topic:
+            last = max(last, e.time)
+    return None if open_ else horizon - last
+
+
+def test_a_stopped_subscriber_is_a_gap_from_where_the_counts_end_not_a_silence(
+        robot: ThesisRobot) -> None:
+    """SIGSTOP of ``/Signal_generator``, the camera's only on-robot subscriber: the source
+    learns it only when that node's probe times out, a probe time-out after the round began,
+    while the camera's counted arrivals end about where that round began. The stretch
+    between is the black box's, not the camera's: the switch to a subscription must be a gap
+    from where the counts end, handed out with the first horizon it reaches. Before, the gap
+    began when the round ended and came with the horizon after that, so a horizon inside the
+    stretch saw the camera silent for up to a probe time-out (a provisional period: the hz
+    false alarm on the camera at a stall of /Signal_generator in the real campaign). A probe
+    time-out of 0.95 s (under the 1 s a late poll may overrun before it is the black box's
+    own pause) and horizons every 0.2 s make the stretch long and always polled."""
+    source = Ros1Source(f"http://127.0.0.1:{robot.port}", Ros1Settings(probe_timeout=0.95))
+    source.start(Interest(topics=frozenset({"/audio", CAMERA})))
+    watch = Watch(source)
+    both = {("/audio", "/audio_capture"), (CAMERA, "/usb_cam")}
+    try:
+        assert watch.until(lambda: both <= source.counted, 40), "the topics never counted"
+        silences: list[float] = []
+        for _ in range(3):
+            os.kill(robot.pid("/Signal_generator"), signal.SIGSTOP)
+            try:
+                stopped = time.time()
+                # fixed horizons, as the pipeline's evaluations: a poll that returns late
+                # is followed at once by the horizons it overran
+                for horizon in (stopped + 0.2 * k for k in range(1, 18)):
+                    watch.events.extend(source.poll(horizon))
+                    for topic in COUNTED:
+                        silent = unmeasured_silences(watch.events, horizon, topic)
+                        if silent is not None:
+                            silences.append(silent)
+            finally:
+                os.kill(robot.pid("/Signal_generator"), signal.SIGCONT)
+            assert watch.until(lambda: both <= source.counted, 20), "never counted again"
+        # counted arrivals are queued a round (0.45 s) ahead, so a horizon normally finds
+        # the last one at most a few periods old (0.05 s at low load); the stretch was the
+        # probe time-out (0.95 s): horizons 0.55, 0.75 and 0.95 s into it before the fix
+        long = sorted(round(x, 3) for x in silences if x > 0.6)
+        assert len(silences) > 30, f"only {len(silences)} horizons outside gaps"
+        assert long == [], f"counted topics silent at a horizon for {long} s"
+    finally:
+        source.close()

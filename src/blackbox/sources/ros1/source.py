@@ -248,6 +248,10 @@ class Ros1Source:
         self._master_gap: MeasurementGap | None = None
         self._limits: dict[tuple[str, str], float] = {}
         """Open gaps with a limit other than ``gap_limit`` (reconnections)."""
+        self._counted_ahead: dict[tuple[str, str], float] = {}
+        """Open switch gaps -> the end of the counted arrivals queued before the switch,
+        where that is ahead of the switch: the gap ends no earlier (see
+        :meth:`_switch_to_subscription`)."""
         self._connected: set[StreamKey] = set()
         self._counted_until: dict[tuple[str, str], float] = {}
         """(topic, publisher) -> the time of the last counted arrival queued: the next
@@ -421,10 +425,11 @@ class Ros1Source:
             self._queue.extend(batch)
 
     def _resume(self, key: tuple[str, str], end: float) -> None:
-        """Close ``key``'s open gap at ``end`` (its first message on the new path); under
-        ``_lock``."""
+        """Close ``key``'s open gap at ``end`` (its first message on the new path), or at
+        the end of the counted arrivals queued before it, if later; under ``_lock``."""
         gap = self._waiting.pop(key, None)
         self._limits.pop(key, None)
+        end = max(end, self._counted_ahead.pop(key, end))
         if gap is not None:
             self._queue.append(MeasurementGap(end, gap.start, end, gap.reason, gap.topic))
 
@@ -527,8 +532,7 @@ class Ros1Source:
                 self._check_behind(now, r)
         for topic, node in self.counted - counted:
             if node not in dead:  # a dead publisher's silence is the robot's, not a gap
-                self._open_gap((topic, node), "switching from the publisher's counters to "
-                               f"a subscription for {node}")
+                self._switch_to_subscription((topic, node), now)
             why = self._bus.unavailable.get(node)
             self._report("rate_from_subscription", topic,
                          f"{topic} from {node}: "
@@ -537,6 +541,28 @@ class Ros1Source:
                          + "; subscribing to measure its rate")
         self.counted = counted
         self._mark_counted(counted)
+
+    def _switch_to_subscription(self, key: tuple[str, str], round_start: float) -> None:
+        """The gap of a counted topic whose on-robot subscriber is gone (the black box
+        subscribes to measure it): the two paths' arrivals must neither leave a hole
+        between them nor overlap.
+
+        - It starts where the counted arrivals end, if that is before now, not when the
+          round that found the subscriber gone ended: that round waited for the
+          subscriber's probe (a stopped node: the whole probe time-out), and the stretch
+          was the black box's blind spot, not the topic's silence (a provisional period).
+          Without queued counts it starts at the round's start (``round_start``).
+        - It lasts at least until the end of the counted arrivals already queued, when
+          those run ahead of now (a round's counts are spread over the round after it, up
+          to two rounds and a probe time-out ahead after slow rounds): ended at the first
+          subscribed message, the rest of the counted arrivals came between the subscribed
+          ones, a doubled rate for up to a second and a half (a too-fast ``hz``)."""
+        with self._lock:
+            end = self._counted_until.get(key)
+            now = self._wall()
+        start = round_start if end is None else min(end, now) - self.clock_offset
+        self._open_gap(key, f"switching from the publisher's counters to a subscription "
+                       f"for {key[1]}", start=start, ends_after=end)
 
     def _mark_counted(self, counted: set[tuple[str, str]]) -> None:
         """Record how far each counted topic is now counted (for :meth:`_await_counts`):
@@ -600,18 +626,29 @@ class Ros1Source:
                                f"{uris[node]}); connecting to it", limit=limit)
 
     def _open_gap(self, key: tuple[str, str], reason: str, start: float | None = None,
-                  limit: float | None = None) -> None:
-        """``key``'s rate is not measured from now (or ``start``, a round-start time) until
-        its next message, subscribed or counted, at most ``limit`` s (``gap_limit``)."""
+                  limit: float | None = None, ends_after: float | None = None) -> None:
+        """``key``'s rate is not measured from now (or ``start``, an earlier source time
+        without ``clock_offset``) until its next message, subscribed or counted, at most
+        ``limit`` s (``gap_limit``).
+
+        A gap found out late (a round that waited for a probe) is stamped at its start, or
+        at the last horizon ``poll`` handed out if that is later, not at "now": ``poll``
+        then hands it out with the first horizon it reaches. Stamped "now", it was held
+        back to the next horizon while the one it covered was judged on the silence.
+        ``ends_after`` (source time): the gap does not end before it."""
         with self._lock:
             if key in self._waiting:
                 return
             now = self._wall()
-            begin = now if start is None else start + self.clock_offset
-            gap = MeasurementGap(now, begin, None, reason, topic=key[0])
+            begin = now if start is None else min(now, start + self.clock_offset)
+            gap = MeasurementGap(max(begin, self._floor), begin, None, reason, topic=key[0])
             self._waiting[key] = gap
+            if ends_after is not None and ends_after > now:
+                self._counted_ahead[key] = ends_after
             if limit is not None:
                 self._limits[key] = limit
+            elif begin < now:  # ``gap_limit`` counts from the switch, not from ``start``
+                self._limits[key] = self.settings.gap_limit + (now - begin)
             self._queue.append(gap)
 
     def _expire_waiting(self, dead: set[str]) -> None:
@@ -630,7 +667,8 @@ class Ros1Source:
                     continue
                 del self._waiting[key]
                 self._limits.pop(key, None)
-                self._queue.append(MeasurementGap(now, gap.start, now, f"{gap.reason}; {why}",
+                end = max(now, self._counted_ahead.pop(key, now))
+                self._queue.append(MeasurementGap(end, gap.start, end, f"{gap.reason}; {why}",
                                                   gap.topic))
 
     def _push_counted(self, round_start: float, arrivals: list[MessageArrival],
