@@ -11,6 +11,7 @@ import pytest
 from blackbox.cli import main
 from blackbox.events import GraphSnapshot, MessageArrival, NodeInfo, TopicInfo
 from blackbox.learn import Learned, learn_from, render_config
+from blackbox.learn.model import TIMEOUT_FLOOR
 from blackbox.observe.build import load_config_text
 from blackbox.sources.memory import MemorySource
 from blackbox.sources.sim import Fault, SimulatedSource, Topology, open_sim
@@ -74,7 +75,7 @@ def test_a_node_that_dies_while_learning_is_learned_from_the_time_it_ran() -> No
     assert "node /audio_capture: not running from 20.0 s to 35.0 s of the run" in text
     assert "node /usb_cam: not running from 50.0 s to the end of the run" in text
     timeout = next(e for e in entries if e["type"] == "timeout" and e["topic"] == "/audio")
-    assert timeout["timeout"] <= 0.5   # the 15 s outage is not a healthy gap
+    assert timeout["timeout"] <= TIMEOUT_FLOOR  # the 15 s outage is not a healthy gap
     assert "gap(s) while a publisher was not running left out of the periods" in text
     assert any(e["type"] == "activated" and e["node"] == "/usb_cam" for e in entries)
 

@@ -85,6 +85,24 @@ def test_a_held_relation_says_ok_and_an_offset_inside_the_range_fails_it_within_
     assert "/imu z disagrees with /cmd w" in faulty[first].message
 
 
+TRACKED = RELATION.replace("    span: [-2.0, 2.0]\n",
+                           "    span: [-2.0, 2.0]\n    track: 2.5\n    track_rate: 0.001\n")
+
+
+def test_a_followed_bias_starts_where_the_run_starts_not_at_the_learning_runs_mean():
+    """A battery discharged on between learning and this run: its relation, which follows
+    a slowly moving bias, starts from the first judged block instead of alarming for the
+    minute it takes to follow the distance at its bounded rate; a later offset still fails."""
+    moved = relation(TRACKED)
+    healthy = drive(moved, 30.0, offset=0.03)  # 3 block noise off the learned bias
+    assert all(o.code != Code.NO_STATE_FITS for o in healthy), [o.message for o in healthy]
+    assert healthy[-1].code == Code.GENERAL_OK, healthy[-1].message
+    faulty = drive(moved, 5.0, start=30.0, offset=0.13, seed=1)
+    assert any(o.code == Code.NO_STATE_FITS for o in faulty), [o.message for o in faulty]
+    untracked = relation()  # without a followed bias the same start is a fault
+    assert any(o.code == Code.NO_STATE_FITS for o in drive(untracked, 30.0, offset=0.03))
+
+
 def test_standing_still_is_unjudged_when_it_was_not_seen_while_learning():
     obs = relation()
     drive(obs, 20.0)

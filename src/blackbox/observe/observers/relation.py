@@ -138,13 +138,15 @@ class _Judge:
     """The running test of one relation."""
 
     __slots__ = ("alpha", "count", "cusum", "excite", "followed", "last_z", "pred_sum",
-                 "reason", "res_sum", "spec", "step_limit", "unjudged_blocks", "verdict")
+                 "reason", "res_sum", "seeded", "spec", "step_limit", "unjudged_blocks",
+                 "verdict")
 
     def __init__(self, spec: RelationSpec, window_blocks: int, block_seconds: float) -> None:
         self.spec = spec
         self.alpha = 0.0 if spec.track is None else min(1.0, block_seconds / spec.track)
         self.step_limit = spec.track_rate * block_seconds
         self.followed = 0.0
+        self.seeded = False
         self.cusum = Cusum(spec.cusum)
         self.excite: deque[float] = deque(maxlen=window_blocks)
         self.res_sum = 0.0
@@ -156,6 +158,7 @@ class _Judge:
         self.unjudged_blocks = 0
 
     def reset(self, reason: str) -> None:
+        self.seeded = False
         self.cusum.reset()
         self.excite.clear()
         self.res_sum = self.pred_sum = 0.0
@@ -193,6 +196,14 @@ class _Judge:
                 return
             mode = spec.still
         self.unjudged_blocks = 0
+        if self.alpha and not self.seeded:
+            # A followed bias has no level to start from: the trend (a discharging battery)
+            # went on between learning and this run, or across a restart. It starts where
+            # the first judged block is, not at the learning run's mean (that start, 1-2
+            # block noise away, was a false alarm in the first minute of every healthy run
+            # of the real diffdrive robots).
+            self.followed = residual - mode.bias
+        self.seeded = True
         off = residual - mode.bias - self.followed
         self.last_z = off / mode.block_noise
         if self.alpha:  # at a bounded rate: a fault's offset or drift is not followed
