@@ -72,6 +72,24 @@ def _stop(proc: subprocess.Popen[bytes]) -> None:
             proc.wait()
 
 
+def _started(record: Path) -> list[float]:
+    """The time of the black box's start event in its record (empty until it is there)."""
+    from blackbox.record import Store
+    from blackbox.record.store import StorageError
+
+    if not record.exists():
+        return []
+    try:
+        robot = Store.open(record, readonly=True, check=False)
+    except (sqlite3.Error, StorageError):  # not created completely yet: asked again
+        return []
+    try:
+        return [e.time for e in robot.query(kinds=["blackbox_event"])
+                if e.payload.get("event") == "start"][:1]
+    finally:
+        robot.close()
+
+
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
     tmp = tmp_path_factory.mktemp("station")
@@ -106,7 +124,13 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
     try:
         assert wait_for(lambda: ready.exists() and ready.read_text().endswith("\n"), 60), \
             (tmp / "station.log").read_text()
-        yield Fleet(ready.read_text().strip().rstrip("/"), record, started, tmp)
+        # The fault schedule counts from the robot's own start, which a loaded machine
+        # delays by seconds after the process was spawned: read it from its record.
+        robot_start: list[float] = []
+        assert wait_for(lambda: bool(robot_start.extend(_started(record)) or robot_start),
+                        60), "the robot's record has its start event within 60 s"
+        yield Fleet(ready.read_text().strip().rstrip("/"), record,
+                    max(started, robot_start[0]), tmp)
     finally:
         _stop(station)
         _stop(box)
