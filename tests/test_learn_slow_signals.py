@@ -9,7 +9,7 @@ speeds that mostly measure the forward speed, for a yaw rate)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,6 +17,7 @@ import numpy as np
 from blackbox.events import GraphSnapshot, MessageArrival, NodeInfo, TopicInfo
 from blackbox.learn import learn_from, render_config
 from blackbox.model import Code, Observation
+from blackbox.observe.base import Observer
 from blackbox.observe.build import build_observer, load_config_text
 from blackbox.observe.observers.relation import RelationObserver
 from blackbox.sources.memory import MemorySource
@@ -90,12 +91,9 @@ def relations(text: str) -> list[dict[str, object]]:
     return [e.to_python() for e in config.observers if e.to_python()["type"] == "relation"]
 
 
-def judge(text: str, events: list[object]) -> list[Observation]:
-    """The relation observers of ``text`` over ``events``, evaluated once a second."""
-    config = load_config_text(text, "r.yaml")
-    observers = [build_observer(e) for e in config.observers
-                 if e.to_python()["type"] == "relation"]
-    assert observers and all(isinstance(o, RelationObserver) for o in observers)
+def replay(observers: Sequence[Observer], events: list[object]) -> list[Observation]:
+    """``observers`` over the messages of ``events``, evaluated once a second from the
+    second after the first message."""
     out: list[Observation] = []
     next_eval = None
     for e in events:
@@ -109,6 +107,15 @@ def judge(text: str, events: list[object]) -> list[Observation]:
         for obs in observers:
             obs.on_message(e)
     return out
+
+
+def judge(text: str, events: list[object]) -> list[Observation]:
+    """The relation observers of ``text`` over ``events``, evaluated once a second."""
+    config = load_config_text(text, "r.yaml")
+    observers = [build_observer(e) for e in config.observers
+                 if e.to_python()["type"] == "relation"]
+    assert observers and all(isinstance(o, RelationObserver) for o in observers)
+    return replay(observers, events)
 
 
 def test_a_1_hz_signal_is_related_in_blocks_of_its_period_with_a_widened_noise() -> None:
@@ -204,17 +211,7 @@ def test_a_noise_burst_on_a_1_hz_signal_is_caught_by_its_liveness_check() -> Non
     assert entry.to_python()["signals"][0]["noise"]["block"] == 3
 
     def run(events: list[object]) -> list[Observation]:
-        obs = build_observer(entry)
-        out: list[Observation] = []
-        next_eval = 1.0
-        for e in events:
-            if not isinstance(e, MessageArrival):
-                continue
-            while e.time >= next_eval:
-                out.extend(obs.evaluate(next_eval))
-                next_eval += 1.0
-            obs.on_message(e)
-        return out
+        return replay([build_observer(entry)], events)
 
     healthy = run(robot(1800.0, seed=3))
     assert not [o for o in healthy if o.code == Code.NO_STATE_FITS]
@@ -254,17 +251,9 @@ def test_a_noise_check_sums_bursts_not_a_mildly_noisier_stretch() -> None:
     assert noise["cusum"]["k"] > 1.0, noise
 
     def failures(sigma: Callable[[float], float]) -> list[float]:
-        obs = build_observer(entry)
-        out: list[float] = []
-        next_eval = 1.0
-        for e in imu_robot(200.0, seed=2, sigma=sigma):
-            if not isinstance(e, MessageArrival):
-                continue
-            while e.time >= next_eval:
-                out += [o.time for o in obs.evaluate(next_eval) if o.code == Code.NO_STATE_FITS]
-                next_eval += 1.0
-            obs.on_message(e)
-        return out
+        return [o.time for o in replay([build_observer(entry)],
+                                       imu_robot(200.0, seed=2, sigma=sigma))
+                if o.code == Code.NO_STATE_FITS]
 
     assert failures(lambda t: 0.026 if 100.0 <= t < 160.0 else 0.02) == []
     burst = failures(lambda t: 0.06 if t >= 100.0 else 0.02)

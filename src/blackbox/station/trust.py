@@ -111,9 +111,10 @@ class SampleGate:
         self._held_per_instance: dict[tuple[str, int, int], int] = {}
         self._shown: OrderedDict[tuple[int, bytes], None] = OrderedDict()
         self._keys_seen: set[tuple[str, bytes]] = set()
-        self._signing: dict[int, float | None] = {}
-        """Robots whose signatures have come: when the first was taken (``None`` until the
-        next call that knows the time)."""
+        self._signing: dict[int, float] = {}
+        """Robots whose signatures have come: when the first was taken (stamped by the next
+        call that knows the time; until then in ``_unstamped``)."""
+        self._unstamped: list[int] = []
 
     def enrolled(self, rid: int) -> tuple[str, Ed25519PublicKey] | None:
         return self.keys().get(rid)
@@ -133,7 +134,8 @@ class SampleGate:
                             f"{sig.A_topic[:64]!r} does not verify with the robot's enrolled "
                             "key; the sample it vouches for is not shown")
             return
-        self._signing.setdefault(rid, None)
+        if rid not in self._signing and rid not in self._unstamped:
+            self._unstamped.append(rid)
         self._verified[(rid, signed.digest)] = signed
         while len(self._verified) > MAX_VERIFIED:
             self._verified.popitem(last=False)
@@ -191,9 +193,9 @@ class SampleGate:
         return out
 
     def _stamp(self, now: float) -> None:
-        for rid, since in self._signing.items():
-            if since is None:
-                self._signing[rid] = now
+        for rid in self._unstamped:
+            self._signing[rid] = now
+        self._unstamped.clear()
 
     def _deadline(self, held: _Held) -> float:
         """When ``held`` is rejected unsigned: :data:`SIGNATURE_WAIT` after it came or after
