@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/learned_healthy_real.py --middleware ros2 --learn 120 --healthy 3600
     .venv/bin/python benchmarks/learned_healthy_real.py --middleware ros1 --learn 120 --healthy 3600
+    .venv/bin/python benchmarks/learned_healthy_real.py --healthy 600 --out /tmp/lh   # keep files
 
 Starts the real diffdrive robot of the tests (rclpy on ROS 2, Debian's rospy on ROS 1:
 wheel encoders, odometry, IMU, command and battery measuring one motion), learns a
@@ -59,11 +60,17 @@ class Episodes(SinkBase):
         self.first: list[str] = []
         self.accusing: list[Diagnosis] = []
         self.start: float | None = None
+        self.trace: list[str] = []
+        """``time,quantity,value`` of every relation quantity (``--out``)."""
 
     def on_observations(self, now: float, observations: Sequence[Observation]) -> None:
         with self.lock:
             if self.start is None:
                 self.start = now
+            for o in observations:
+                if o.observer == "relation":
+                    self.trace.extend(f"{now - self.start:.2f},{k},{v:.5g}"
+                                      for k, v in o.values.items())
             if now - self.start < SETTLE:
                 return
             for o in observations:
@@ -125,6 +132,8 @@ def main() -> int:
     p.add_argument("--healthy", type=float, default=3600.0, help="healthy seconds (3600)")
     p.add_argument("--seed", type=int, default=5, help="the robot's motion script")
     p.add_argument("--json", type=Path, default=None)
+    p.add_argument("--out", type=Path, default=None,
+                   help="keep the learned files and relations.csv (time, quantity, value) here")
     args = p.parse_args()
     with tempfile.TemporaryDirectory(prefix="learned-healthy-") as tmp_name:
         tmp = Path(tmp_name)
@@ -136,6 +145,8 @@ def main() -> int:
                               encoding="utf-8")
             (tmp / "robot.model.yaml").write_text(render_model(learned, "bench"),
                                                   encoding="utf-8")
+            kept = {name: (tmp / name).read_text(encoding="utf-8")
+                    for name in ("robot.yaml", "robot.model.yaml")}
             kinds = Counter(e["type"].str() for e in load_config(config).observers)
             print(f"learned in {args.learn:g} s: {dict(kinds)}", flush=True)
             sink = Episodes()
@@ -167,6 +178,13 @@ def main() -> int:
         print("  " + line)
     if args.json is not None:
         args.json.write_text(json.dumps(result, indent=2))
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        for name in ("robot.yaml", "robot.model.yaml"):
+            (args.out / name).write_text(kept[name], encoding="utf-8")
+        (args.out / "relations.csv").write_text(
+            "time,quantity,value\n" + "\n".join(sink.trace) + "\n", encoding="utf-8")
+        print(f"learned files and the relation trace in {args.out}")
     return 0
 
 

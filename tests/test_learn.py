@@ -111,22 +111,35 @@ def test_learned_configuration_is_quiet_on_another_healthy_run(tmp_path: Path) -
     assert [o for o in observations if o.faulty] == []
 
 
-@pytest.mark.parametrize(("fault", "observer", "resource"), [
-    (Fault("kill", "/usb_cam", 60, 70), "activated", Resource(node="/usb_cam")),
-    (Fault("stall", "/audio", 60, 70), "timeout", Resource(topic="/audio")),
-    (Fault("rate", "/signal", 60, 70, {"factor": 0.6}), "hz", Resource(topic="/signal")),
-    (Fault("offset", "/signal", 60, 70, {"value": 2.0}), "fields", Resource(topic="/signal")),
-    (Fault("stuck", "/signal", 60, 70), "fields", Resource(topic="/signal")),
+@pytest.mark.parametrize("topic", ["/usb_cam/image_raw", "/audio", "/signal"])
+@SHARES_THE_LEARNED_THESIS
+def test_a_pause_of_the_robot_computer_under_a_second_is_no_rate_fault(
+        tmp_path: Path, topic: str) -> None:
+    """A loaded robot computer stops a publisher for 0.7 s now and then; a learned rate
+    band is judged over two seconds of messages, so such a pause stays inside it."""
+    observations = run(write_learned(tmp_path), 80.0, [Fault("stall", topic, 60, 60.7)])
+    assert [o for o in observations if o.faulty] == []
+
+
+@pytest.mark.parametrize(("fault", "observer", "resource", "within"), [
+    (Fault("kill", "/usb_cam", 60, 70), "activated", Resource(node="/usb_cam"), 2.0),
+    (Fault("stall", "/audio", 60, 70), "timeout", Resource(topic="/audio"), 2.0),
+    # a rate band is judged over two seconds of messages (a loaded computer's pause of
+    # 0.8 s stays inside it): a publisher at 60 % of its rate leaves it within three
+    (Fault("rate", "/signal", 60, 70, {"factor": 0.6}), "hz", Resource(topic="/signal"), 3.0),
+    (Fault("offset", "/signal", 60, 70, {"value": 2.0}), "fields", Resource(topic="/signal"),
+     2.0),
+    (Fault("stuck", "/signal", 60, 70), "fields", Resource(topic="/signal"), 2.0),
     (Fault("cpu_hog", "/audio_capture", 60, 70, {"percent": 60.0}), "resources",
-     Resource(node="/audio_capture")),
+     Resource(node="/audio_capture"), 2.0),
 ], ids=["kill", "stall", "rate", "offset", "stuck", "cpu_hog"])
 @SHARES_THE_LEARNED_THESIS
-def test_learned_configuration_sees_injected_faults_within_two_seconds(
-        tmp_path: Path, fault: Fault, observer: str, resource: Resource) -> None:
+def test_learned_configuration_sees_injected_faults_within_seconds(
+        tmp_path: Path, fault: Fault, observer: str, resource: Resource, within: float) -> None:
     observations = run(write_learned(tmp_path), 80.0, [fault])
     hits = [o for o in observations if o.faulty and o.observer == observer
             and o.resource == resource]
-    assert hits and 60.0 <= hits[0].time <= 62.0, hits[:1]
+    assert hits and 60.0 <= hits[0].time <= 60.0 + within, hits[:1]
     before = [o for o in observations if o.faulty and o.time < 60.0]
     assert before == []
 

@@ -6,8 +6,11 @@ The rules (also in docs/learn.md):
 * **Rate** (``hz``) per topic and publisher group (one group of all publishers when a topic
   has one publisher, one group per publisher otherwise): the inter-arrival periods go
   through :func:`blackbox.learn.stats.learn_bounds` with a margin of at least
-  ``RATE_TOLERANCE`` (40 %) of the median period, and windows of at most ``MAX_DELAY``
-  seconds of messages.
+  ``RATE_TOLERANCE`` (40 %) of the median period, over a window of ``MAX_DELAY`` seconds
+  of messages (the longest allowed: that margin sets the band whatever the window, and a
+  pause of ``p`` seconds of a loaded robot computer lengthens the mean period of a
+  ``W``-second window by about ``p / W``: a one-second window left the band on a 0.4 s
+  pause, a two-second one takes 0.8 s).
 * **Timeout**: ``max(2 x longest healthy gap, 5 x median period, 1 s)``.
 * Topics whose periods spread widely (p90 / p10 > ``IRREGULAR``) are event-driven: no rate
   or timeout observer, only a comment.
@@ -49,6 +52,7 @@ from blackbox.learn.stats import (
     MIN_SAMPLES,
     Bounds,
     learn_bounds,
+    lengthened,
     quantile,
     round_down,
     round_up,
@@ -288,10 +292,10 @@ def _rate_entries(topic: TopicRecord, block: Block) -> np.ndarray | None:
                                f"{_s(p90)} s): event-driven, no rate or timeout observer")
             continue
         longest = float(periods.max())
-        bounds = learn_bounds(periods, floor=max(0.02 * median + 0.0005,
-                                                 RATE_TOLERANCE * median),
-                              max_window=_max_window(periods))
-        assert bounds is not None  # periods.size >= MIN_SAMPLES
+        floor = max(0.02 * median + 0.0005, RATE_TOLERANCE * median)
+        shortest = learn_bounds(periods, floor=floor, max_window=_max_window(periods))
+        assert shortest is not None  # periods.size >= MIN_SAMPLES
+        bounds = lengthened(periods, shortest, _max_window(periods), floor=floor)
         timeout = max(2 * longest, 5 * median, TIMEOUT_FLOOR)
         block.comments.append(
             f"{label}: {1 / median:.4g} Hz (period p50 {_s(median)} s, p99.9 "

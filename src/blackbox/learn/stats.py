@@ -111,6 +111,27 @@ def learn_bounds(samples: Sequence[float] | np.ndarray, *, floor: float = 0.0,
     return best
 
 
+def lengthened(samples: Sequence[float] | np.ndarray, bounds: Bounds, window: int, *,
+               floor: float = 0.0) -> Bounds:
+    """``bounds`` over the longer ``window`` when its band is no wider (a band set by its
+    ``floor``, as every learned rate band is): the same sensitivity to a lasting shift, and
+    a short excursion is averaged over more samples. ``bounds`` itself otherwise, or when
+    the run holds fewer than ``MIN_WINDOWS_PER_CANDIDATE`` windows of that length."""
+    x = np.asarray(samples, dtype=np.float64)
+    x = x[np.isfinite(x)]
+    if window <= bounds.window or x.size < window * MIN_WINDOWS_PER_CANDIDATE:
+        return bounds
+    filtered = rolling_mean(x, window)
+    lo, hi = quantile(filtered, BAND_QUANTILES[0]), quantile(filtered, BAND_QUANTILES[1])
+    margin = max(MARGIN * (hi - lo) / 2, floor)
+    lower, upper = lo - margin, hi + margin
+    if upper - lower > (bounds.upper - bounds.lower) * (1 + 1e-9):
+        return bounds
+    reach = max(upper - bounds.center, bounds.center - lower)
+    return Bounds(window, lower, upper, (lo, hi), bounds.sigma, bounds.center,
+                  bounds.sigma > 0 and reach <= SHIFT_SIGMAS * bounds.sigma)
+
+
 def round_down(x: float, digits: int = 4) -> float:
     """``x`` to ``digits`` significant digits, never above ``x``."""
     return _round(x, digits, math.floor)
