@@ -83,6 +83,7 @@ from blackbox.sources.ros1.resources import ResourceSampler
 from blackbox.sources.ros2.graph import Endpoint, Ros2Graph
 from blackbox.sources.ros2.idl import IdlTypes, UnknownRos2Type, ros_type_name
 from blackbox.sources.ros2.qos import EndpointQos
+from blackbox.sources.ros2.writer_time import WriterDelay
 from blackbox.transport.participant import LOOPBACK_CONFIG
 
 __all__ = ["ROS2_CAPABILITIES", "Ros2Settings", "Ros2Source", "cyclone_config_for_ros2",
@@ -227,6 +228,8 @@ class Ros2Source:
         """Topic -> its open start gap, closed by its first message (under ``_lock``)."""
         self._readers: dict[str, _TopicReader] = {}
         self._writer_of_handle: dict[int, str] = {}
+        self._writer_delay = WriterDelay()
+        """Arrival times from the writers' source timestamps (``writer_time``)."""
         self._procs: dict[str, _Process] = {}
         self._resources = ResourceSampler()
         self._reported: set[tuple[str, ...]] = set()
@@ -459,10 +462,7 @@ class Ros2Source:
         stamp = time.time()
         decoded = tr.decodable and tr.topic in self._interest.decoded
         arrivals: list[MessageArrival] = []
-        # Several samples taken at once arrived at different times: keep the spacing their
-        # writers gave them (source timestamps), ending at the time of the take.
-        last_sent = max((info.source_timestamp for _, info in batch if info.valid_data),
-                        default=0)
+        writer_delay = self._writer_delay
         for data, info in batch:
             if not info.valid_data:
                 continue
@@ -473,8 +473,9 @@ class Ros2Source:
                 continue
             raw = bytes(data)
             decode = partial(_decode, store, raw, tr.ros_type) if decoded else None
-            arrived = max(stamp - min(1.0, max(0, last_sent - info.source_timestamp) / _NS),
-                          self._handed_out)
+            sent = info.source_timestamp
+            arrived = max(stamp if sent <= 0 else writer_delay.arrival(
+                info.publication_handle, sent / _NS, stamp), self._handed_out)
             arrivals.append(MessageArrival(arrived, tr.topic, publisher, max(0, len(raw) - 4),
                                            decode=decode, raw=partial(_identity, raw)))
         with self._lock:
