@@ -61,7 +61,8 @@ class Episodes(SinkBase):
         self.accusing: list[Diagnosis] = []
         self.start: float | None = None
         self.trace: list[str] = []
-        """``time,quantity,value`` of every relation quantity (``--out``)."""
+        """``time,quantity,value`` of every relation quantity (``--out``), the quantity named
+        ``<observer's resource>:<quantity>``."""
 
     def on_observations(self, now: float, observations: Sequence[Observation]) -> None:
         with self.lock:
@@ -69,7 +70,8 @@ class Episodes(SinkBase):
                 self.start = now
             for o in observations:
                 if o.observer == "relation":
-                    self.trace.extend(f"{now - self.start:.2f},{k},{v:.5g}"
+                    where = o.resource.label().replace(",", ";")
+                    self.trace.extend(f"{now - self.start:.2f},{where}:{k},{v:.5g}"
                                       for k, v in o.values.items())
             if now - self.start < SETTLE:
                 return
@@ -133,7 +135,8 @@ def main() -> int:
     p.add_argument("--seed", type=int, default=5, help="the robot's motion script")
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--out", type=Path, default=None,
-                   help="keep the learned files and relations.csv (time, quantity, value) here")
+                   help="keep the learned files and relations.csv (time, resource:quantity, value) "
+                   "here")
     args = p.parse_args()
     with tempfile.TemporaryDirectory(prefix="learned-healthy-") as tmp_name:
         tmp = Path(tmp_name)

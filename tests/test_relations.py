@@ -328,5 +328,5 @@ def test_learning_relates_the_signals_that_measure_the_same_motion(learned_diffd
     pairs = {(o.resource.topic, o.resource.topic_b) for o in relations}
     assert ("/cmd_yaw", "/imu/data") in pairs or ("/imu/data", "/cmd_yaw") in pairs
     text = learned_diffdrive.read_text(encoding="utf-8")
-    assert "held-out R2" in text and "CUSUM k 0.5" in text
+    assert "held-out R2" in text and "CUSUM k " in text
     assert "type: liveness" in text
