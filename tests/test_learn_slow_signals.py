@@ -258,3 +258,21 @@ def test_a_noise_check_sums_bursts_not_a_mildly_noisier_stretch() -> None:
     assert failures(lambda t: 0.026 if 100.0 <= t < 160.0 else 0.02) == []
     burst = failures(lambda t: 0.06 if t >= 100.0 else 0.02)
     assert burst and 100.0 < burst[0] <= 104.0, burst[:3]
+
+
+def test_a_relation_of_a_1_hz_signal_judges_as_soon_as_the_next_sample_can_have_come() -> None:
+    """A grid point is judged when the sample after its cell can have arrived: the slowest
+    signal's longest healthy inter-arrival time (about 1 s here) plus a grid step, not two
+    median periods (2.05 s), so every verdict comes about a second sooner (measured: an
+    offset from 100 to 130 s failed from 105 to 131 s, with 2.05 s from 106 to 132 s) and no
+    healthy sample is lost waiting."""
+    text = learned(robot(120.0, seed=1))
+    rel = relations(text)[0]
+    assert 1.0 < float(rel["delay"]) <= 1.15, rel["delay"]  # type: ignore[arg-type]
+    out = judge(text, robot(200.0, seed=2,
+                            imu=lambda t, z: z + (0.1 if 100.0 <= t < 130.0 else 0.0)))
+    failed = [o.time for o in out if o.code == Code.NO_STATE_FITS]
+    assert failed and 100.0 < failed[0] <= 110.0, failed[:3]
+    assert max(failed) <= 132.0, failed[-3:]
+    waiting = [o for o in out if 20.0 <= o.time < 100.0 and "fresh samples" in o.message]
+    assert not waiting, [(o.time, o.message) for o in waiting[:3]]

@@ -367,11 +367,30 @@ def grid_of(sig: Signal, g0: float, count: int) -> np.ndarray:
     return window_means(t, x, g0 + np.arange(count) * STEP, STEP, freshness(sig))
 
 
+ARRIVAL_QUANTILE = 0.999
+"""The share of healthy inter-arrival times a relation's judging delay waits out."""
+
+
+def longest_period(sig: Signal) -> float:
+    """The signal's longest healthy inter-arrival time (the ``ARRIVAL_QUANTILE`` quantile,
+    so one hiccup does not set it; at least its median period)."""
+    t, _ = increasing(sig.times, sig.values)
+    if t.size < 2:
+        return sig.period
+    return max(float(np.quantile(np.diff(t), ARRIVAL_QUANTILE)), sig.period)
+
+
 def delay_of(signals: Sequence[Signal]) -> float:
-    """How late a relation judges a grid point: the sample after its cell must have arrived
-    (two periods of the slowest signal, whole grid steps)."""
-    slowest = max((s.period for s in signals if math.isfinite(s.period)), default=STEP)
-    return math.ceil((STEP / 2 + 2.0 * slowest) / STEP - 1e-9) * STEP
+    """How late a relation judges a grid point: the sample after its cell must have arrived,
+    which takes at most the longest healthy inter-arrival time of its slowest signal after
+    the cell (plus a grid step, whole grid steps). Two median periods were waited before:
+    a second more than needed for a 1 Hz signal, and every verdict of such a relation came
+    that much later, its alarm outlasting the fault by seconds (a GPS relation to a 1 Hz
+    odometer still failed 3 s after a GPS fault had ended, naming the odometer; issue 22).
+    A sample later than that loses its grid points (the relation is unjudged there), never
+    a wrong verdict."""
+    waits = [longest_period(s) for s in signals if math.isfinite(s.period)]
+    return math.ceil((STEP / 2 + max(waits, default=STEP) + STEP) / STEP - 1e-9) * STEP
 
 
 def freshness(sig: Signal) -> float:
