@@ -330,3 +330,15 @@ def test_learning_relates_the_signals_that_measure_the_same_motion(learned_diffd
     text = learned_diffdrive.read_text(encoding="utf-8")
     assert "held-out R2" in text and "CUSUM k 0.5" in text
     assert "type: liveness" in text
+
+
+@pytest.mark.parametrize("rate,where", [
+    ("{at_most: -1.0, period: 1.0}", "signals[0].rate.at_most"),
+    ("{at_most: 5.0}", "missing required key 'period'"),
+    ("{at_most: 5.0, period: 1.0, fastest: 3}", "signals[0].rate"),
+])
+def test_a_malformed_rate_bound_names_its_key(rate: str, where: str):
+    text = LIVENESS.replace("repeats: 5,", f"repeats: 5, rate: {rate},") % {"mean": -7.0}
+    with pytest.raises(ConfigError) as err:
+        liveness_from_config(ConfigNode.parse(text))
+    assert where in str(err.value)

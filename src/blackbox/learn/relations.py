@@ -192,6 +192,11 @@ class Liveness:
     std: float
     z: np.ndarray | None
     calibration: Calibration | None = None
+    rate: float | None = None
+    """For a signal that climbs (a trend): the most it may change per second between
+    consecutive samples (:func:`rate_bound`), else ``None``."""
+    fastest: float = 0.0
+    """The fastest change per second seen while learning."""
 
 
 @dataclass
@@ -947,9 +952,44 @@ def _longest_run(x: np.ndarray) -> int:
     return best
 
 
+RATE_MARGIN = 1.5
+"""A climbing signal may change this many times as fast as it did while learning."""
+
+
+def fastest_change(s: Signal) -> float:
+    """The largest ``|x[k] - x[k-1]| / max(t[k] - t[k-1], period)`` of the healthy samples
+    (angles the short way round): the time between samples is at least the median period,
+    as arrivals in bursts share a receive time."""
+    t, x = increasing(s.times, s.values)
+    if t.size < 2:
+        return 0.0
+    d = np.diff(x)
+    if s.wrap:
+        d = _wrapped(d)
+    return float(np.max(np.abs(d) / np.maximum(np.diff(t), s.period)))
+
+
+def rate_bound(s: Signal) -> float | None:
+    """The most a signal that climbs (``Signal.trend``: a wheel angle, an odometer, a
+    warming motor) may change per second between consecutive samples: ``RATE_MARGIN``
+    times the fastest seen while learning (item 7 of issue 22: a trend is related or its
+    rate is bounded). Such a signal is an integral of something (distance, heat), smooth
+    by nature, so a step is a fault: an odometer scaled or offset jumps by thousands of
+    counts where it climbed by a hundred a second, a temperature scaled by 0.65 by nine
+    degrees; neither is in any relation's reach (an odometer is related on its changes
+    only, a warming motor to nothing). A margin of 1.5: the largest of an hour's noise
+    steps is about 1.35 times that of two minutes (Gaussian tails, 3600 against 120
+    samples), and a robot may drive a little faster later."""
+    if s.trend is None or not math.isfinite(s.period) or s.period <= 0:
+        return None
+    fastest = fastest_change(s)
+    return RATE_MARGIN * fastest if fastest > 0 else None
+
+
 def learn_liveness(s: Signal) -> Liveness | None:
     if not math.isfinite(s.period):
         return None  # every sample at one time: nothing says how often it moves
+    rate = rate_bound(s)
     x = s.values
     longest = _longest_run(x)
     repeats = max(5, 2 * longest + 1) if longest <= 3 else None
@@ -974,9 +1014,10 @@ def learn_liveness(s: Signal) -> Liveness | None:
             if sq.size < LIVE_BLOCKS:  # few blocks: their spread is widened (widening)
                 std *= widening(sq.size)
             z = (v - mean) / std
-    if repeats is None and z is None:
+    if repeats is None and z is None and rate is None:
         return None
-    return Liveness(s, repeats, longest, block, mean, std, z)
+    return Liveness(s, repeats, longest, block, mean, std, z, rate=rate,
+                    fastest=fastest_change(s) if rate is not None else 0.0)
 
 
 # ---- configuration entries ----------------------------------------------------------------------
@@ -1096,6 +1137,9 @@ def liveness_entry(topic: str, lives: Sequence[Liveness]) -> dict[str, Any]:
                              "std": _g(live.std, 4),
                              "cusum": {"k": live.calibration.k,
                                        "h": round_up(live.calibration.h, 3)}}
+        if live.rate is not None:
+            item["rate"] = {"at_most": round_up(live.rate, 3),
+                            "period": _g(live.signal.period, 4)}
         if live.signal.wrap:
             item["wrap"] = True
         items.append(item)
@@ -1118,5 +1162,9 @@ def liveness_comments(lives: Sequence[Liveness]) -> list[str]:
                          f"{live.mean:.3g} +- {live.std:.3g}, {live.calibration.describe()}")
         else:
             parts.append("no noise check (frozen blocks or too few samples while healthy)")
+        if live.rate is not None:
+            parts.append(f"it climbs: changes at most {live.rate:.4g} a second between "
+                         f"samples ({RATE_MARGIN:g} x the fastest while learning, "
+                         f"{live.fastest:.4g}; a step is a fault)")
         out.append(f"alive {live.signal.ref.field}: " + "; ".join(parts))
     return out
