@@ -56,9 +56,11 @@ def speed(t: float) -> float:
 
 
 def robot(seconds: float, *, seed: int, imu: Callable[[float, float], float] | None = None,
-          odometer: bool = False, start: float = 0.0) -> list[object]:
+          odometer: bool = False, start: float = 0.0,
+          count: Callable[[float, int], int] | None = None) -> list[object]:
     """A 20 Hz command and a 1 Hz IMU measuring one yaw rate (``imu(t, z)`` may lie), and
-    with ``odometer`` a 1 Hz count of the centimetres driven at the commanded speed."""
+    with ``odometer`` a 1 Hz count of the centimetres driven at the commanded speed
+    (``count(t, n)`` may lie)."""
     rng = np.random.default_rng(seed)
     topics = ("/cmd", "/imu", "/odometer") if odometer else ("/cmd", "/imu")
     events: list[object] = [graph(start + t, topics) for t in range(int(seconds) + 1)]
@@ -75,8 +77,10 @@ def robot(seconds: float, *, seed: int, imu: Callable[[float, float], float] | N
             events.append(MessageArrival(t + 0.011, "/imu", "/imu_driver", 8,
                                          value=Imu(z if imu is None else imu(t, z))))
             if odometer:
+                n = int(driven * 100)
                 events.append(MessageArrival(t + 0.013, "/odometer", "/odometer", 4,
-                                             value=Odometer(int(driven * 100))))
+                                             value=Odometer(n if count is None
+                                                            else count(t, n))))
         k += 1
     return sorted(events, key=lambda e: e.time)  # type: ignore[attr-defined,no-any-return]
 
@@ -258,3 +262,62 @@ def test_a_noise_check_sums_bursts_not_a_mildly_noisier_stretch() -> None:
     assert failures(lambda t: 0.026 if 100.0 <= t < 160.0 else 0.02) == []
     burst = failures(lambda t: 0.06 if t >= 100.0 else 0.02)
     assert burst and 100.0 < burst[0] <= 104.0, burst[:3]
+
+
+def test_a_relation_of_a_1_hz_signal_judges_as_soon_as_the_next_sample_can_have_come() -> None:
+    """A grid point is judged when the sample after its cell can have arrived: the slowest
+    signal's longest healthy inter-arrival time (about 1 s here) plus a grid step, not two
+    median periods (2.05 s), so every verdict comes about a second sooner (measured: an
+    offset from 100 to 130 s failed from 105 to 131 s, with 2.05 s from 106 to 132 s) and no
+    healthy sample is lost waiting."""
+    text = learned(robot(120.0, seed=1))
+    rel = relations(text)[0]
+    assert 1.0 < float(rel["delay"]) <= 1.15, rel["delay"]  # type: ignore[arg-type]
+    out = judge(text, robot(200.0, seed=2,
+                            imu=lambda t, z: z + (0.1 if 100.0 <= t < 130.0 else 0.0)))
+    failed = [o.time for o in out if o.code == Code.NO_STATE_FITS]
+    assert failed and 100.0 < failed[0] <= 110.0, failed[:3]
+    assert max(failed) <= 132.0, failed[-3:]
+    waiting = [o for o in out if 20.0 <= o.time < 100.0 and "fresh samples" in o.message]
+    assert not waiting, [(o.time, o.message) for o in waiting[:3]]
+
+
+def odometer_liveness(text: str) -> Observer:
+    config = load_config_text(text, "r.yaml")
+    entry = next(e for e in config.observers if e.to_python()["type"] == "liveness"
+                 and e.to_python()["topic"] == "/odometer")
+    return build_observer(entry)
+
+
+def test_a_climbing_signal_that_steps_fails_its_rate_bound_and_health_does_not() -> None:
+    """An odometer (a count that climbs) gets a rate bound: 1.5 times its fastest change
+    a second while learning. Scaled by 0.55 it drops by thousands of counts in one sample
+    (no relation sees it: the odometer is related on its changes only), which fails the
+    evaluation after the step; an offset of 300 counts too; a healthy half hour and a
+    stall of ten seconds (the count then moves by ten seconds' distance at once) do not."""
+    text = learned(robot(120.0, seed=1, odometer=True))
+    entry = next(e.to_python() for e in load_config_text(text, "r.yaml").observers
+                 if e.to_python()["type"] == "liveness" and e.to_python()["topic"] == "/odometer")
+    bound = entry["signals"][0]["rate"]
+    assert 1.5 * 90 < bound["at_most"] < 1.5 * 110, bound  # fastest: about 1 m/s = 100 cm/s
+    assert "it climbs: changes at most" in text.replace("\n  #   ", " ")
+
+    def failures(events: list[object]) -> list[Observation]:
+        return [o for o in replay([odometer_liveness(text)], events)
+                if o.code == Code.NO_STATE_FITS]
+
+    assert failures(robot(1800.0, seed=3, odometer=True)) == []
+    stalled = [e for e in robot(200.0, seed=3, odometer=True)
+               if not (isinstance(e, MessageArrival) and e.topic == "/odometer"
+                       and 100.0 <= e.time < 110.0)]
+    # (the noise check may see the resumed count's second difference; no step is seen)
+    assert [o for o in failures(stalled) if "stepped" in o.message] == []
+    def steps(events: list[object]) -> list[float]:
+        return [o.time for o in failures(events) if "data stepped" in o.message]
+
+    scaled = robot(200.0, seed=2, odometer=True,
+                   count=lambda t, n: int(n * 0.55) if t >= 100.0 else n)
+    assert failures(scaled)[0].time == 101.0
+    assert steps(scaled) == [101.0]
+    assert steps(robot(200.0, seed=2, odometer=True,
+                       count=lambda t, n: n + 300 if 100.0 <= t < 120.0 else n)) == [101.0, 121.0]

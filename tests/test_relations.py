@@ -21,6 +21,7 @@ from blackbox.events import MessageArrival
 from blackbox.learn import learn_from, render_config, render_model
 from blackbox.learn.sequential import alarms, calibrate, siegmund_arl, threshold_for
 from blackbox.model import Code, Observation, Resource
+from blackbox.observe.base import JudgedSignals
 from blackbox.observe.build import build_observer, load_config
 from blackbox.observe.observers.liveness import LivenessObserver, liveness_from_config
 from blackbox.observe.observers.relation import RelationObserver, relation_from_config
@@ -330,3 +331,45 @@ def test_learning_relates_the_signals_that_measure_the_same_motion(learned_diffd
     text = learned_diffdrive.read_text(encoding="utf-8")
     assert "held-out R2" in text and "CUSUM k " in text
     assert "type: liveness" in text
+
+
+@pytest.mark.parametrize("rate,where", [
+    ("{at_most: -1.0, period: 1.0}", "signals[0].rate.at_most"),
+    ("{at_most: 5.0}", "missing required key 'period'"),
+    ("{at_most: 5.0, period: 1.0, fastest: 3}", "signals[0].rate"),
+])
+def test_a_malformed_rate_bound_names_its_key(rate: str, where: str):
+    text = LIVENESS.replace("repeats: 5,", f"repeats: 5, rate: {rate},") % {"mean": -7.0}
+    with pytest.raises(ConfigError) as err:
+        liveness_from_config(ConfigNode.parse(text))
+    assert where in str(err.value)
+
+
+def test_the_publisher_of_signals_a_held_relation_vouches_for_is_not_closest_to_a_failure():
+    """A relation of the command and the wheel speeds fails; the wheel speeds' relation to
+    the IMU holds and clears them. The command's publisher reads the wheels (its input), so
+    the wheels' publisher explains a wrong command too, across the node: both are single
+    candidates. The one whose signal no passing relation vouches for is the closer, and
+    ranks first even when evidence short of an alarm builds against the wheels' publisher
+    (its own relation of the wheel angles, most of the way to its alarm)."""
+    nodes = (NodeSpec("/nav", ("/cmd",), ("/joints",)), NodeSpec("/motor", ("/joints",)),
+             NodeSpec("/imu_driver", ("/imu",)))
+    cmd_wheels = Resource(topic="/cmd", topic_b="/joints")
+    imu_wheels = Resource(topic="/imu", topic_b="/joints")
+    angles = Resource(topic="/joints", topic_b="/joints")
+    specs = [ObservationSpec("relation", r) for r in (cmd_wheels, imu_wheels, angles)]
+    signals = {("relation", cmd_wheels): JudgedSignals((("/cmd", "v"), ("/joints", "v[0]")),
+                                                       (("/cmd", "v"), ("/joints", "v[0]"))),
+               ("relation", imu_wheels): JudgedSignals((("/imu", "z"), ("/joints", "v[0]")),
+                                                       (("/imu", "z"), ("/joints", "v[0]"))),
+               ("relation", angles): JudgedSignals((("/joints", "p[0]"), ("/joints", "p[1]")),
+                                                   (("/joints", "p[0]"), ("/joints", "p[1]")))}
+    engine = DiagnosisEngine(build_model(nodes, specs), signals=signals)
+    d = engine.update(1.0, [
+        Observation(1.0, "relation", cmd_wheels, Code.NO_STATE_FITS,
+                    values={"v_evidence": 1.02}),
+        Observation(1.0, "relation", imu_wheels, Code.GENERAL_OK, values={"z_evidence": 0.1}),
+        Observation(1.0, "relation", angles, Code.NOT_AVAILABLE, values={"p_evidence": 0.9})])
+    assert d is not None
+    assert set(d.candidates[:2]) == {frozenset({"/nav"}), frozenset({"/motor"})}, d.candidates
+    assert d.candidates[0] == frozenset({"/nav"}), d.candidates

@@ -378,19 +378,40 @@ class DiagnosisEngine:
             ex = self._upstream[topic] = self.structure.producers(topic)
         return ex
 
-    def _own_producers(self, key: Key) -> frozenset[str]:
+    def _cleared_now(self) -> frozenset[tuple[str, str]]:
+        """The (topic, field) signals that relation observations passing now clear."""
+        out: set[tuple[str, str]] = set()
+        for key, obs in zip(self._keys, self._obs, strict=True):
+            judged = self._signals.get(key)
+            if judged is not None and obs is not None and observation_fact(obs.code) is True:
+                out.update(judged.cleared)
+        return frozenset(out)
+
+    def _own_producers(self, key: Key,
+                       cleared: frozenset[tuple[str, str]] = frozenset()) -> frozenset[str]:
         """The observed topics themselves, their publishers and those publishers' hardware:
         in a feedback loop (a command and the odometry it is computed from) every node of
         the loop explains the observation, but the publisher of the observed topic is
         closer to it than the node across the loop (ranking only; the diagnoses are the
-        same)."""
+        same). A failed relation's topic whose every signal in it a passing relation
+        clears (``cleared``) is not its own: its publisher explains the failure only through
+        the other topic, across the node that reads it (the wheel speeds a held IMU relation
+        vouches for, when a relation of the command and the wheels fails: the command's
+        publisher reads the wheels, so the wheels' publisher explains a wrong command as
+        well, one node away; issue 22, round learn7)."""
         r = key[1]
         out: set[str] = set()
         if r.node:
             out.add(r.node)
         if r.interface:
             out.add(f"iface:{r.interface}")
-        for t in (r.topic, r.topic_b):
+        topics = [t for t in (r.topic, r.topic_b) if t]
+        judged = self._signals.get(key)
+        if judged is not None and cleared:
+            open_topics = {t for t, f in judged.accused if (t, f) not in cleared}
+            if open_topics:
+                topics = [t for t in topics if t in open_topics]
+        for t in topics:
             if not t:
                 continue
             out.add(t)
@@ -401,15 +422,20 @@ class DiagnosisEngine:
                     out.update(spec.hardware)
         return frozenset(out)
 
-    def closeness(self, failed: Iterable[Key]) -> dict[str, int]:
+    def closeness(self, failed: Iterable[Key],
+                  cleared: frozenset[tuple[str, str]] | None = None) -> dict[str, int]:
         """For every component that can explain one of the ``failed`` observations, how
         many nodes its fault must cross to reach the nearest (0: it is among that
-        observation's own producers). One breadth-first walk upstream from all of them."""
+        observation's own producers, less those of a topic whose signals in a failed
+        relation passing relations all clear: ``cleared``, by default the signals cleared
+        now). One breadth-first walk upstream from all of them."""
         out: dict[str, int] = {}
         frontier: list[str] = []
+        if cleared is None:
+            cleared = self._cleared_now()
         for key in failed:
             ex = self._explain(key)
-            own = self._own_producers(key)
+            own = self._own_producers(key, cleared)
             for c in ex.components:
                 out[c] = min(out.get(c, 1), 0 if c in own else 1)
             frontier.extend(ex.inputs)
@@ -450,7 +476,8 @@ class DiagnosisEngine:
             return tuple(k[3] for k in keyed)
         keys = list(dict.fromkeys(failed))
         far = len(self.model.topics) + 1
-        nears = [self.closeness((key,)) for key in keys]
+        cleared = self._cleared_now()
+        nears = [self.closeness((key,), cleared) for key in keys]
 
         def distance(s: frozenset[str]) -> int:
             return sum(min(near.get(c, far) for near in nears) if nears else 0 for c in s) \

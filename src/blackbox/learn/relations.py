@@ -194,6 +194,11 @@ class Liveness:
     std: float
     z: np.ndarray | None
     calibration: Calibration | None = None
+    rate: float | None = None
+    """For a signal that climbs (a trend): the most it may change per second between
+    consecutive samples (:func:`rate_bound`), else ``None``."""
+    fastest: float = 0.0
+    """The fastest change per second seen while learning."""
 
 
 @dataclass
@@ -369,11 +374,30 @@ def grid_of(sig: Signal, g0: float, count: int) -> np.ndarray:
     return window_means(t, x, g0 + np.arange(count) * STEP, STEP, freshness(sig))
 
 
+ARRIVAL_QUANTILE = 0.999
+"""The share of healthy inter-arrival times a relation's judging delay waits out."""
+
+
+def longest_period(sig: Signal) -> float:
+    """The signal's longest healthy inter-arrival time (the ``ARRIVAL_QUANTILE`` quantile,
+    so one hiccup does not set it; at least its median period)."""
+    t, _ = increasing(sig.times, sig.values)
+    if t.size < 2:
+        return sig.period
+    return max(float(np.quantile(np.diff(t), ARRIVAL_QUANTILE)), sig.period)
+
+
 def delay_of(signals: Sequence[Signal]) -> float:
-    """How late a relation judges a grid point: the sample after its cell must have arrived
-    (two periods of the slowest signal, whole grid steps)."""
-    slowest = max((s.period for s in signals if math.isfinite(s.period)), default=STEP)
-    return math.ceil((STEP / 2 + 2.0 * slowest) / STEP - 1e-9) * STEP
+    """How late a relation judges a grid point: the sample after its cell must have arrived,
+    which takes at most the longest healthy inter-arrival time of its slowest signal after
+    the cell (plus a grid step, whole grid steps). Two median periods were waited before:
+    a second more than needed for a 1 Hz signal, and every verdict of such a relation came
+    that much later, its alarm outlasting the fault by seconds (a GPS relation to a 1 Hz
+    odometer still failed 3 s after a GPS fault had ended, naming the odometer; issue 22).
+    A sample later than that loses its grid points (the relation is unjudged there), never
+    a wrong verdict."""
+    waits = [longest_period(s) for s in signals if math.isfinite(s.period)]
+    return math.ceil((STEP / 2 + max(waits, default=STEP) + STEP) / STEP - 1e-9) * STEP
 
 
 def freshness(sig: Signal) -> float:
@@ -943,9 +967,44 @@ def _longest_run(x: np.ndarray) -> int:
     return best
 
 
+RATE_MARGIN = 1.5
+"""A climbing signal may change this many times as fast as it did while learning."""
+
+
+def fastest_change(s: Signal) -> float:
+    """The largest ``|x[k] - x[k-1]| / max(t[k] - t[k-1], period)`` of the healthy samples
+    (angles the short way round): the time between samples is at least the median period,
+    as arrivals in bursts share a receive time."""
+    t, x = increasing(s.times, s.values)
+    if t.size < 2:
+        return 0.0
+    d = np.diff(x)
+    if s.wrap:
+        d = _wrapped(d)
+    return float(np.max(np.abs(d) / np.maximum(np.diff(t), s.period)))
+
+
+def rate_bound(s: Signal) -> float | None:
+    """The most a signal that climbs (``Signal.trend``: a wheel angle, an odometer, a
+    warming motor) may change per second between consecutive samples: ``RATE_MARGIN``
+    times the fastest seen while learning (item 7 of issue 22: a trend is related or its
+    rate is bounded). Such a signal is an integral of something (distance, heat), smooth
+    by nature, so a step is a fault: an odometer scaled or offset jumps by thousands of
+    counts where it climbed by a hundred a second, a temperature scaled by 0.65 by nine
+    degrees; neither is in any relation's reach (an odometer is related on its changes
+    only, a warming motor to nothing). A margin of 1.5: the largest of an hour's noise
+    steps is about 1.35 times that of two minutes (Gaussian tails, 3600 against 120
+    samples), and a robot may drive a little faster later."""
+    if s.trend is None or not math.isfinite(s.period) or s.period <= 0:
+        return None
+    fastest = fastest_change(s)
+    return RATE_MARGIN * fastest if fastest > 0 else None
+
+
 def learn_liveness(s: Signal) -> Liveness | None:
     if not math.isfinite(s.period):
         return None  # every sample at one time: nothing says how often it moves
+    rate = rate_bound(s)
     x = s.values
     longest = _longest_run(x)
     repeats = max(5, 2 * longest + 1) if longest <= 3 else None
@@ -970,9 +1029,10 @@ def learn_liveness(s: Signal) -> Liveness | None:
             if sq.size < LIVE_BLOCKS:  # few blocks: their spread is widened (widening)
                 std *= widening(sq.size)
             z = (v - mean) / std
-    if repeats is None and z is None:
+    if repeats is None and z is None and rate is None:
         return None
-    return Liveness(s, repeats, longest, block, mean, std, z)
+    return Liveness(s, repeats, longest, block, mean, std, z, rate=rate,
+                    fastest=fastest_change(s) if rate is not None else 0.0)
 
 
 # ---- configuration entries ----------------------------------------------------------------------
@@ -1092,6 +1152,9 @@ def liveness_entry(topic: str, lives: Sequence[Liveness]) -> dict[str, Any]:
                              "std": _g(live.std, 4),
                              "cusum": {"k": live.calibration.k,
                                        "h": round_up(live.calibration.h, 3)}}
+        if live.rate is not None:
+            item["rate"] = {"at_most": round_up(live.rate, 3),
+                            "period": _g(live.signal.period, 4)}
         if live.signal.wrap:
             item["wrap"] = True
         items.append(item)
@@ -1114,5 +1177,9 @@ def liveness_comments(lives: Sequence[Liveness]) -> list[str]:
                          f"{live.mean:.3g} +- {live.std:.3g}, {live.calibration.describe()}")
         else:
             parts.append("no noise check (frozen blocks or too few samples while healthy)")
+        if live.rate is not None:
+            parts.append(f"it climbs: changes at most {live.rate:.4g} a second between "
+                         f"samples ({RATE_MARGIN:g} x the fastest while learning, "
+                         f"{live.fastest:.4g}; a step is a fault)")
         out.append(f"alive {live.signal.ref.field}: " + "; ".join(parts))
     return out

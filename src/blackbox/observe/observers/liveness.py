@@ -11,7 +11,12 @@ A healthy sensor's reading moves a little from one message to the next (noise, m
   standardised by its healthy ``mean`` and ``std``; an upward CUSUM (``k``, ``h``
   calibrated for a stated false-alarm rate) finds a *noise burst*. Only upward: a signal
   moves less when the robot stands still, so a variance collapse is no fault by itself
-  (a frozen value is caught by ``repeats`` and by the relations).
+  (a frozen value is caught by ``repeats`` and by the relations);
+* **rate** (signals that climb: a wheel angle, an odometer, a warming motor): the change
+  between consecutive samples per second (the time between them at least ``period``:
+  arrivals in bursts share a receive time) above ``at_most`` is a *step*, a fault: such a
+  signal is an integral of something (distance, heat) and moves smoothly. It fails the
+  evaluation after the step.
 
 Angles (``wrap: true``) take differences the short way round, so a heading crossing +-pi is
 not a jump. A failed ``liveness`` accuses the topic's producers; a passing one clears
@@ -25,6 +30,11 @@ nobody (it cannot see an offset), so its type does not exonerate.
       signals:
         - {name: angular_velocity_z, field: angular_velocity.z, repeats: 5,
            noise: {block: 10, mean: -7.8, std: 0.45, cusum: {k: 0.5, h: 12.1}}}
+    - type: liveness
+      topic: /odometer
+      fresh: 6.0
+      signals:
+        - {name: data, field: data, rate: {at_most: 192.0, period: 1.0}}
 """
 
 from __future__ import annotations
@@ -62,17 +72,27 @@ class NoiseSpec:
 
 
 @dataclass(frozen=True, slots=True)
+class RateSpec:
+    """The most a climbing signal changes per second between consecutive samples, the
+    time between them taken as at least ``period``."""
+
+    at_most: float
+    period: float
+
+
+@dataclass(frozen=True, slots=True)
 class LivenessSpec:
     name: str
     signal: SignalRef
     repeats: int | None
     noise: NoiseSpec | None
     wrap: bool = False
+    rate: RateSpec | None = None
 
 
 class _Signal:
-    __slots__ = ("blocks", "cusum", "last", "last_d", "last_z", "reader", "run", "spec", "sq",
-                 "sq_n")
+    __slots__ = ("blocks", "cusum", "last", "last_d", "last_t", "last_z", "reader", "run",
+                 "spec", "sq", "sq_n", "step")
 
     def __init__(self, spec: LivenessSpec) -> None:
         self.spec = spec
@@ -81,22 +101,28 @@ class _Signal:
                       else None)
         self.last = math.nan
         self.last_d = math.nan
+        self.last_t = math.nan
+        self.step = 0.0
+        """The fastest change per second since the last evaluation (``rate``)."""
         self.run = 0
         self.sq = 0.0
         self.sq_n = 0
         self.blocks = 0
         self.last_z = math.nan
 
-    def add(self, x: float) -> None:
-        last = self.last
-        self.last = x
+    def add(self, x: float, t: float) -> None:
+        last, last_t = self.last, self.last_t
+        self.last, self.last_t = x, t
         if math.isnan(last):
             return
         self.run = self.run + 1 if x == last else 0
+        d = wrapped_difference(x, last) if self.spec.wrap else x - last
+        rate = self.spec.rate
+        if rate is not None:
+            self.step = max(self.step, abs(d) / max(t - last_t, rate.period))
         noise = self.spec.noise
         if noise is None or self.cusum is None:
             return
-        d = wrapped_difference(x, last) if self.spec.wrap else x - last
         last_d = self.last_d
         self.last_d = d
         if math.isnan(last_d):
@@ -116,6 +142,9 @@ class _Signal:
         if spec.repeats is not None and self.run + 1 >= spec.repeats:
             return (f"{spec.name} stuck: {self.run + 1} equal samples in a row "
                     f"({self.last:.6g})")
+        if spec.rate is not None and self.step > spec.rate.at_most:
+            return (f"{spec.name} stepped: changed {self.step:.4g} a second between samples "
+                    f"(at most {spec.rate.at_most:.4g}: it climbs smoothly)")
         if self.cusum is not None and self.cusum.alarm:
             return (f"{spec.name} noise burst: log squared difference {self.last_z:+.1f} "
                     f"std, CUSUM {self.cusum.statistic:.1f} >= {self.cusum.spec.h:.1f}")
@@ -160,7 +189,7 @@ class LivenessObserver(ObserverBase):
         for s in self._signals:
             x = s.reader.read(value)
             if x is not None:
-                s.add(x)
+                s.add(x, msg.time)
 
     def evaluate(self, now: float) -> list[Observation]:
         if now - self._last_time > self.fresh:
@@ -175,6 +204,7 @@ class LivenessObserver(ObserverBase):
                 if s.blocks == 0:
                     waiting.append(s.spec.name)
             problem = s.problem()
+            s.step = 0.0  # a step fails the one evaluation after it
             if problem:
                 problems.append(problem)
         if problems:
@@ -196,12 +226,14 @@ class LivenessObserver(ObserverBase):
             if spec.noise is not None:
                 checks.append(f"noise CUSUM h {spec.noise.cusum.h:g} over blocks of "
                               f"{spec.noise.block}")
+            if spec.rate is not None:
+                checks.append(f"changes at most {spec.rate.at_most:g} a second")
             parts.append(f"{spec.signal.field}: {', '.join(checks) or 'nothing'}")
         return f"liveness {self.topic}: {'; '.join(parts)}, every {self.interval:g} s"
 
 
 def _signal(node: ConfigNode, topic: str, names: set[str]) -> LivenessSpec:
-    node.check_keys(("name", "field", "repeats", "noise", "wrap"))
+    node.check_keys(("name", "field", "repeats", "noise", "wrap", "rate"))
     name_node = node["name"]
     name = name_node.str()
     if not name or not set(name) <= _NAME_CHARS or name[0].isdigit():
@@ -222,7 +254,14 @@ def _signal(node: ConfigNode, topic: str, names: set[str]) -> LivenessSpec:
                           noise_node["std"].float(min=0.0, min_exclusive=True),
                           CusumSpec.read(noise_node["cusum"]))
     wrap = node.get("wrap")
-    return LivenessSpec(name, ref, repeats, noise, wrap.bool() if wrap is not None else False)
+    rate_node = node.get("rate")
+    rate = None
+    if rate_node is not None and not rate_node.is_null:
+        rate_node.check_keys(("at_most", "period"))
+        rate = RateSpec(rate_node["at_most"].float(min=0.0, min_exclusive=True),
+                        rate_node["period"].float(min=0.0, min_exclusive=True))
+    return LivenessSpec(name, ref, repeats, noise, wrap.bool() if wrap is not None else False,
+                        rate)
 
 
 def liveness_from_config(node: ConfigNode) -> LivenessObserver:
