@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any
 
 HERE = Path(__file__).resolve()
-ROBOTS_PER_ROUTER = 250
+FLEET_SIM = HERE.with_name("fleet_sim.py")
 
 
 # ---- simulated black boxes (child) ----------------------------------------------------------
@@ -334,8 +334,8 @@ def main() -> int:
                    help="robots and station meet through a Zenoh router (in this process, "
                         "on 127.0.0.1) instead of DDS")
     p.add_argument("--routers", type=int, default=0,
-                   help=f"Zenoh routers of the robots (default: one per {ROBOTS_PER_ROUTER} "
-                        "robots), joined to the station's")
+                   help="Zenoh routers of the robots, joined to the station's (default: "
+                        "the station's own router carries them all)")
     p.add_argument("--db", default="",
                    help="the station's database: a file (SQLite; default a temporary one) or "
                         "postgresql://... (passed to blackbox station --db as it is)")
@@ -371,9 +371,10 @@ def main() -> int:
     if args.zenoh:
         from blackbox.transport.zenoh_router import RouterSettings, open_router
 
-        # one Zenoh router here took at most 351 sessions (clients or peers alike), so the
-        # robots spread over several routers joined to the station's one, as sites would
-        for_robots = args.routers or max(1, math.ceil(args.robots / ROBOTS_PER_ROUTER))
+        # the lightweight robots share one session per process (benchmarks/fleet_sim.py),
+        # so one router carries them all; --routers N spreads them over N routers joined
+        # to the station's one, as sites would
+        for_robots = args.routers or 1
         count = for_robots + 1 if for_robots > 1 else 1
         endpoints = [f"tcp/127.0.0.1:{free_port()}" for _ in range(count)]
         for i, endpoint in enumerate(endpoints):
@@ -416,13 +417,21 @@ def main() -> int:
     ids = [f"fleet-{i:04d}" for i in range(args.robots)]
     watched = ids[:min(args.watch, 10)] if web is not None else []
     browser = FleetWatcher(url, "bench", password, "fleet-000") if watched else None
-    groups = [ids[i::args.processes] for i in range(args.processes) if ids[i::args.processes]]
+    size = math.ceil(len(ids) / args.processes)
+    groups = [ids[i:i + size] for i in range(0, len(ids), size)]
     robots = []
     for index, group in enumerate(groups):
-        robot_bus = ["--zenoh", robot_routers[index % len(robot_routers)]] if robot_routers \
-            else bus_args
+        if robot_routers:  # Zenoh: lightweight robots, one session per process
+            robots.append(subprocess.Popen(
+                [py, str(FLEET_SIM), "--zenoh", robot_routers[index % len(robot_routers)],
+                 "--ids", ",".join(group), "--index", str(ids.index(group[0])),
+                 "--watch-ids", ",".join(watched), "--duration", str(args.duration),
+                 "--interval", str(args.interval), "--fault-every", str(args.fault_every),
+                 "--fault-length", str(args.fault_length)],
+                env=_env(), stdout=subprocess.PIPE, text=True))
+            continue
         child = subprocess.Popen([py, str(HERE), "--robots-child", "--ids", ",".join(group),
-                                  *robot_bus, "--watch-ids", ",".join(watched),
+                                  *bus_args, "--watch-ids", ",".join(watched),
                                   *(["--matched"] if args.matched else []), "--duration",
                                   str(args.duration), "--interval", str(args.interval),
                                   "--fault-every", str(args.fault_every), "--fault-length",
@@ -457,10 +466,15 @@ def main() -> int:
                 page_errors += 1
     elapsed = time.monotonic() - t0
     cpu1 = proc.cpu_times()
-    published: dict[str, dict[str, int]] = {}
+    published: dict[str, dict[str, Any]] = {}
+    fleet_cpu = 0.0
     for child in robots:
-        out, _ = child.communicate(timeout=60)
-        published.update(json.loads(out.strip().splitlines()[-1]))
+        out, _ = child.communicate(timeout=120)
+        report = json.loads(out.strip().splitlines()[-1])
+        if "robots" in report:  # benchmarks/fleet_sim.py
+            fleet_cpu += report["cpu_seconds"]
+            report = report["robots"]
+        published.update(report)
     time.sleep(3.0)  # the last samples reach the station and are committed
     seen = browser.close() if browser is not None else []
     if web is not None:
@@ -490,6 +504,10 @@ def main() -> int:
           f"measured {elapsed:.0f} s")
     print(f"station CPU {cpu:.1f} % of one core ({100 * cpu / max(1, args.robots):.1f} % per "
           f"100 robots); RSS max {max(rss) / 2**20:.0f} MiB, last {rss[-1] / 2**20:.0f} MiB")
+    if fleet_cpu:
+        print(f"simulated fleet CPU {100 * fleet_cpu / elapsed:.1f} % of one core in "
+              f"{len(groups)} processes ({100 * fleet_cpu / elapsed / args.robots * 100:.1f} % "
+              f"per 100 robots)")
     kinds = ("values", "exceedances", "failures", "rectifications")
     total_pub = {k: sum(p[k] for p in published.values()) for k in kinds}
     total_sto = {k: sum(s[k] for s in stored.values()) for k in kinds}
