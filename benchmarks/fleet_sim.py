@@ -43,10 +43,11 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from blackbox.health.identity import EventLedger
 from blackbox.health.types import (
     C_Failure_Event,
     C_Monitored_Characteristic,
@@ -151,11 +152,13 @@ class LightFleet:
     """``robot_ids`` on one Zenoh session to ``settings``' routers."""
 
     def __init__(self, settings: ZenohSettings, robot_ids: Sequence[str], *,
-                 first_index: int = 0) -> None:
+                 first_index: int = 0, clock: Callable[[], float] = time.time,
+                 boot: str | None = None) -> None:
         # as a real robot's session: a peer that opens without a router and connects to it
         self.settings = dataclasses.replace(settings, router_optional=True)
         self.session = ZenohBus.open(self.settings, "fleet").session
-        self.robots = [LightRobot(CountingSink(rid, zenoh=self.settings,
+        self.robots = [LightRobot(CountingSink(rid, zenoh=self.settings, clock=clock,
+                                               ledger=EventLedger(boot) if boot else None,
                                                bus=ZenohBus.sharing(self.settings,
                                                                     self.session, rid)),
                                   first_index + i)
