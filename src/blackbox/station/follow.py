@@ -199,6 +199,9 @@ class _Char:
     last_sample: tuple[float, float] | None = None
     """The robot's time and value of the last sample taken: a durable sample delivered again
     (a reader that matched the robot anew) is not a new chart point."""
+    exceeded: bool | None = None
+    """Whether the last value taken named an active exceedance (``None``: not yet known in
+    this run), so the flag is written when it changes, not with every value."""
 
 
 @dataclass(slots=True)
@@ -679,8 +682,10 @@ class StationFollower:
                 c.last_sample = (robot_time, value)
                 self.store.put_value(rid, iid, self.clocks.time_of(robot.name, robot_time, now),
                                      value, c.entity)
-            self.store.put_characteristic(rid, iid,
-                                          exceeded=bool(s.A_thresholdExceedenceEvents_sourceID))
+            exceeded = bool(s.A_thresholdExceedenceEvents_sourceID)
+            if c.exceeded is not exceeded:
+                c.exceeded = exceeded
+                self.store.put_characteristic(rid, iid, exceeded=exceeded)
         elif isinstance(s, C_Monitored_Characteristic_Specification):
             for ident in _items(s.A_specifiedCharacteristics_sourceID)[:16]:
                 if int(ident.A_resourceId) != rid:

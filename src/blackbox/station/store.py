@@ -358,12 +358,10 @@ class StationStore:
 
     def heard(self, resource_id: int, at: float) -> None:
         """A sample of robot ``resource_id`` arrived at wall time ``at``."""
-        def op(db: Connection) -> None:
-            db.execute("INSERT INTO robots (resource_id, first_heard, last_heard) "
-                       "VALUES (?, ?, ?) ON CONFLICT (resource_id) DO UPDATE SET "
-                       "last_heard = greatest(robots.last_heard, excluded.last_heard)",
-                       (resource_id, at, at))
-        self._queue(op, resource_id, "fleet")
+        self._writes.add_row("INSERT INTO robots (resource_id, first_heard, last_heard) "
+                             "VALUES (?, ?, ?) ON CONFLICT (resource_id) DO UPDATE SET "
+                             "last_heard = greatest(robots.last_heard, excluded.last_heard)",
+                             (resource_id, at, at), resource_id, "fleet")
 
     def put_robot_id(self, resource_id: int, robot_id: str) -> None:
         rid = clip(robot_id, MAX_NAME)
@@ -466,11 +464,9 @@ class StationStore:
         if entity is not None:
             values["entity"] = entity
         self._upsert_characteristic(resource_id, instance_id, values, only_newer=True)
-
-        def op(db: Connection) -> None:
-            db.execute("INSERT INTO samples VALUES (?, ?, ?, ?)",
-                       (resource_id, instance_id, t, value))
-        self._queue(op, resource_id, "", droppable=True)
+        self._writes.add_row("INSERT INTO samples VALUES (?, ?, ?, ?)",
+                             (resource_id, instance_id, t, value), resource_id, "",
+                             droppable=True)
 
     def _upsert_characteristic(self, resource_id: int, instance_id: int,
                                values: dict[str, Any], only_newer: bool = False) -> None:
@@ -479,12 +475,16 @@ class StationStore:
         update = ", ".join(f"{k} = excluded.{k}" for k in values) or "name = name"
         where = " WHERE characteristics.time IS NULL OR characteristics.time <= excluded.time" \
             if only_newer else ""
+        sql = (f"INSERT INTO characteristics (resource_id, instance_id{columns}) "
+               f"VALUES (?, ?{marks}) ON CONFLICT (resource_id, instance_id) DO "
+               f"UPDATE SET {update}{where}")
+        args = (resource_id, instance_id, *values.values())
+        if only_newer:  # a new value: whichever order, the newest time's value stays
+            self._writes.add_row(sql, args, resource_id, "characteristics")
+            return
 
         def op(db: Connection) -> None:
-            db.execute(f"INSERT INTO characteristics (resource_id, instance_id{columns}) "
-                       f"VALUES (?, ?{marks}) ON CONFLICT (resource_id, instance_id) DO "
-                       f"UPDATE SET {update}{where}",
-                       (resource_id, instance_id, *values.values()))
+            db.execute(sql, args)
         self._queue(op, resource_id, "characteristics")
 
     def put_threshold(self, resource_id: int, instance_id: int, characteristic: int,
