@@ -171,13 +171,17 @@ class LightFleet:
             watched: set[str], stop: threading.Event) -> None:
         """Each robot ticks every ``interval`` s, the fleet spread evenly over it."""
         start = time.time()
+        end = start + duration
         n = len(self.robots)
         slot = interval / max(1, n)
         tick = 0
-        while not stop.is_set() and time.time() - start < duration:
+        while not stop.is_set() and time.time() < end:
             base = start + tick * interval
             for k, robot in enumerate(self.robots):
                 due = base + k * slot
+                if due >= end:
+                    stop.wait(max(0.0, end - time.time()))
+                    return
                 if due > time.time() and stop.wait(due - time.time()):
                     return
                 now = time.time()
