@@ -211,6 +211,20 @@ class WebClient:
         return time.perf_counter() - t0, answer.status_code, len(answer.content)
 
 
+def thread_cpu(proc: Any) -> dict[str, float]:
+    """CPU seconds of a process by thread name ("python" for its Python threads, Zenoh's
+    own threads by their names: rx-0, tx-0, net-0, ...): where a station's time goes."""
+    out: dict[str, float] = {}
+    for thread in proc.threads():
+        try:
+            name = Path(f"/proc/{proc.pid}/task/{thread.id}/comm").read_text().strip()
+        except OSError:
+            continue
+        name = re.sub(r"-\d+$", "", name)
+        out[name] = out.get(name, 0.0) + thread.user_time + thread.system_time
+    return out
+
+
 def free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
@@ -444,6 +458,7 @@ def main() -> int:
             return 1
 
     cpu0 = proc.cpu_times()
+    threads0, router0 = thread_cpu(proc), thread_cpu(psutil.Process())
     t0 = time.monotonic()
     rss: list[int] = []
     page_times: list[float] = []
@@ -466,6 +481,7 @@ def main() -> int:
                 page_errors += 1
     elapsed = time.monotonic() - t0
     cpu1 = proc.cpu_times()
+    threads1, router1 = thread_cpu(proc), thread_cpu(psutil.Process())
     published: dict[str, dict[str, Any]] = {}
     fleet_cpu = 0.0
     for child in robots:
@@ -504,6 +520,15 @@ def main() -> int:
           f"measured {elapsed:.0f} s")
     print(f"station CPU {cpu:.1f} % of one core ({100 * cpu / max(1, args.robots):.1f} % per "
           f"100 robots); RSS max {max(rss) / 2**20:.0f} MiB, last {rss[-1] / 2**20:.0f} MiB")
+    by_thread = {k: threads1.get(k, 0.0) - threads0.get(k, 0.0) for k in threads1}
+    print("station CPU by thread: " + ", ".join(
+        f"{name} {100 * t / elapsed:.1f} %" for name, t in sorted(
+            by_thread.items(), key=lambda kv: -kv[1]) if t > 0.005 * elapsed))
+    if routers:
+        zenoh_threads = sum(t - router0.get(k, 0.0) for k, t in router1.items()
+                            if k != "python")
+        print(f"Zenoh router(s) (threads of this process) {100 * zenoh_threads / elapsed:.1f} % "
+              "of one core")
     if fleet_cpu:
         print(f"simulated fleet CPU {100 * fleet_cpu / elapsed:.1f} % of one core in "
               f"{len(groups)} processes ({100 * fleet_cpu / elapsed / args.robots * 100:.1f} % "
