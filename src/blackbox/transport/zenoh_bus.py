@@ -228,7 +228,7 @@ class ZenohReader:
         else:
             self._subscriber = zext.declare_advanced_subscriber(
                 session, key, channel,
-                history=zext.HistoryConfig(detect_late_publishers=True),
+                history=zext.HistoryConfig(detect_late_publishers=False),
                 recovery=zext.RecoveryConfig(heartbeat=True, periodic_queries=None),
                 subscriber_detection=True)
 
