@@ -212,6 +212,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--fault-length", type=float, default=6.0)
     p.add_argument("--fault-start", type=float, default=0.0)
     p.add_argument("--watch-ids", default="")
+    p.add_argument("--wait-go", action="store_true",
+                   help="after 'ready', tick only once a line comes on standard input")
     args = p.parse_args(argv)
     fleet = LightFleet(ZenohSettings((args.zenoh,)), args.ids.split(","),
                        first_index=args.index)
@@ -222,6 +224,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 1
         time.sleep(0.1)
     print("ready", flush=True)
+    if args.wait_go:  # the benchmark says when: once the station has heard every robot
+        sys.stdin.readline()
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     cpu0 = time.process_time()

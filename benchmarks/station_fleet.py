@@ -42,6 +42,8 @@ from typing import Any
 
 HERE = Path(__file__).resolve()
 FLEET_SIM = HERE.with_name("fleet_sim.py")
+HEARD_TIMEOUT = 600.0
+"""Seconds the Zenoh fleet may take until the station has heard every robot."""
 
 
 # ---- simulated black boxes (child) ----------------------------------------------------------
@@ -262,6 +264,27 @@ def stored_counts(db: str, ids: list[str]) -> dict[str, dict[str, int]]:
     return stored
 
 
+def robots_heard(db: str) -> int:
+    """Robots the station's database has heard from (SQLite file or PostgreSQL URL)."""
+    try:
+        if db.startswith(("postgresql://", "postgres://")):
+            import psycopg
+
+            with psycopg.connect(db) as con:
+                row = con.execute("SELECT count(*) FROM robots WHERE last_heard IS NOT NULL"
+                                  ).fetchone()
+        else:
+            con2 = sqlite3.connect(db, timeout=5.0)
+            try:
+                row = con2.execute("SELECT count(*) FROM robots WHERE last_heard IS NOT NULL"
+                                   ).fetchone()
+            finally:
+                con2.close()
+    except Exception:  # the station has not made its tables yet
+        return 0
+    return int(row[0]) if row else 0
+
+
 SEEN_JS = """() => {
   window.__seen = [];
   const last = {};
@@ -441,8 +464,8 @@ def main() -> int:
                  "--ids", ",".join(group), "--index", str(ids.index(group[0])),
                  "--watch-ids", ",".join(watched), "--duration", str(args.duration),
                  "--interval", str(args.interval), "--fault-every", str(args.fault_every),
-                 "--fault-length", str(args.fault_length)],
-                env=_env(), stdout=subprocess.PIPE, text=True))
+                 "--fault-length", str(args.fault_length), "--wait-go"],
+                env=_env(), stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True))
             continue
         child = subprocess.Popen([py, str(HERE), "--robots-child", "--ids", ",".join(group),
                                   *bus_args, "--watch-ids", ",".join(watched),
@@ -456,6 +479,25 @@ def main() -> int:
         assert child.stdout is not None
         if child.stdout.readline().strip() != "ready":
             return 1
+    if robot_routers:
+        # Zenoh: each robot declares 15 publishers (a cache, a liveliness token and
+        # heartbeats each); the router and the station take time to learn 15,000 of them,
+        # during which nothing is routed. Measure once the station has heard every robot.
+        heard_after = time.monotonic()
+        deadline = heard_after + HEARD_TIMEOUT
+        heard = 0
+        while time.monotonic() < deadline:
+            heard = robots_heard(db)
+            if heard >= args.robots:
+                break
+            time.sleep(1.0)
+        heard_after = time.monotonic() - heard_after
+        print(f"station heard {heard} of {args.robots} robots {heard_after:.0f} s after all "
+              "robot sessions reached the router", flush=True)
+        for child in robots:
+            if child.stdin is not None:
+                child.stdin.write("go\n")
+                child.stdin.flush()
 
     cpu0 = proc.cpu_times()
     threads0, router0 = thread_cpu(proc), thread_cpu(psutil.Process())
@@ -465,7 +507,9 @@ def main() -> int:
     page_sizes: list[int] = []
     page_errors = 0
     next_page = t0 + 10.0
-    while any(c.poll() is None for c in robots):
+    # Zenoh robots close 250 sinks each after their run (50 ms each): not part of the run
+    run_end = t0 + args.duration + 2.0 if robot_routers else math.inf
+    while any(c.poll() is None for c in robots) and time.monotonic() < run_end:
         if browser is not None:
             browser.wait(1.0)
         else:
