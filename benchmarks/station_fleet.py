@@ -42,6 +42,8 @@ from typing import Any
 
 HERE = Path(__file__).resolve()
 FLEET_SIM = HERE.with_name("fleet_sim.py")
+DRAIN_TIMEOUT = 180.0
+"""Seconds the station may take, after the robots stopped, to store what it was behind."""
 HEARD_TIMEOUT = 600.0
 """Seconds the Zenoh fleet may take until the station has heard every robot."""
 
@@ -325,11 +327,22 @@ class FleetWatcher:
     def wait(self, seconds: float) -> None:
         self.page.wait_for_timeout(seconds * 1000)
 
-    def close(self) -> list[tuple[str, str, float]]:
-        seen = [(r, s, t / 1000) for r, s, t in self.page.evaluate("window.__seen")]
+    def load_times(self, repeat: int = 5) -> list[float]:
+        """Seconds from navigating to the whole fleet page to its ``load`` event."""
+        times = []
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            self.page.goto("/", wait_until="load")
+            times.append(time.perf_counter() - t0)
+        return times
+
+    def seen(self) -> list[tuple[str, str, float]]:
+        """(robot, status, when) of every change of a watched row (before navigating)."""
+        return [(r, s, t / 1000) for r, s, t in self.page.evaluate("window.__seen")]
+
+    def close(self) -> None:
         self._browser.close()
         self._pw.stop()
-        return seen
 
 
 def colour_changes(published: dict[str, Any], seen: list[tuple[str, str, float]]) -> str:
@@ -535,11 +548,24 @@ def main() -> int:
             fleet_cpu += report["cpu_seconds"]
             report = report["robots"]
         published.update(report)
-    time.sleep(3.0)  # the last samples reach the station and are committed
-    seen = browser.close() if browser is not None else []
+    # the station may be behind: give it until what it stored stops growing (late is not
+    # lost), at most DRAIN_TIMEOUT s, and say how long that took
+    drain_start = time.monotonic()
+    stored_total = -1
+    while time.monotonic() - drain_start < DRAIN_TIMEOUT:
+        time.sleep(3.0)
+        now_total = sum(sum(c.values()) for c in stored_counts(db, ids).values())
+        if now_total == stored_total:
+            break
+        stored_total = now_total
+    drained = time.monotonic() - drain_start
+    seen = browser.seen() if browser is not None else []
+    loads = browser.load_times() if browser is not None else []
+    if browser is not None:
+        browser.close()
     if web is not None:
         fleet_page = web.time_get("/")
-        total = re.search(r'data-field="total">(\d+)<', web.http.get("/").text)
+        total = re.search(r'data-field="total"[^>]*>(\d+)<', web.http.get("/").text)
         robot_count = int(total.group(1)) if total else 0
         told = [line for line in web.http.get("/metrics").text.splitlines()
                 if line.startswith(("blackbox_station_samples_dropped_total",
@@ -602,6 +628,11 @@ def main() -> int:
         print(f"fleet page after the run: {fleet_page[0] * 1000:.1f} ms, status "
               f"{fleet_page[1]}, robots on the station: {robot_count}")
         print("what the station told (/metrics):", "; ".join(told))
+    print(f"stored counted {drained:.0f} s after the robots stopped (until it stopped "
+          "growing)")
+    if loads:
+        print(f"fleet page in Chromium after the run ({args.robots} robots), navigation to "
+              f"load: {', '.join(f'{t * 1000:.0f}' for t in loads)} ms")
     if watched:
         print(colour_changes(published, seen))
     if args.keep:
