@@ -14,8 +14,9 @@ that joins late asks for them (the TransientLocal of DDS), and a station that mi
 notices the gap in the publisher's sequence numbers (heartbeats) and fetches exactly
 those, in order, when the link returns. The station does not query each robot's history
 as it appears (``detect_late_publishers``): with 7,500 or more publishers (500 robots of
-15 topics) a subscriber doing so delivered nothing at all (docs/benchmarks.md). Beyond the cache the station's hole
-fetch by event identity reads the rest from the recorder's log. Requests and replies are
+15 topics) a subscriber doing so delivered nothing at all (docs/benchmarks.md). Beyond
+the cache the station's hole fetch by event identity reads the rest from the recorder's
+log. Requests and replies are
 volatile, as on DDS: a lost request is retried by its caller.
 """
 
