@@ -41,7 +41,11 @@ from pathlib import Path
 from typing import Any
 
 HERE = Path(__file__).resolve()
-ROBOTS_PER_ROUTER = 250
+FLEET_SIM = HERE.with_name("fleet_sim.py")
+DRAIN_TIMEOUT = 180.0
+"""Seconds the station may take, after the robots stopped, to store what it was behind."""
+HEARD_TIMEOUT = 600.0
+"""Seconds the Zenoh fleet may take until the station has heard every robot."""
 
 
 # ---- simulated black boxes (child) ----------------------------------------------------------
@@ -211,6 +215,20 @@ class WebClient:
         return time.perf_counter() - t0, answer.status_code, len(answer.content)
 
 
+def thread_cpu(proc: Any) -> dict[str, float]:
+    """CPU seconds of a process by thread name ("python" for its Python threads, Zenoh's
+    own threads by their names: rx-0, tx-0, net-0, ...): where a station's time goes."""
+    out: dict[str, float] = {}
+    for thread in proc.threads():
+        try:
+            name = Path(f"/proc/{proc.pid}/task/{thread.id}/comm").read_text().strip()
+        except OSError:
+            continue
+        name = re.sub(r"-\d+$", "", name)
+        out[name] = out.get(name, 0.0) + thread.user_time + thread.system_time
+    return out
+
+
 def free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
@@ -246,6 +264,27 @@ def stored_counts(db: str, ids: list[str]) -> dict[str, dict[str, int]]:
     finally:
         con.close()
     return stored
+
+
+def robots_heard(db: str) -> int:
+    """Robots the station's database has heard from (SQLite file or PostgreSQL URL)."""
+    try:
+        if db.startswith(("postgresql://", "postgres://")):
+            import psycopg
+
+            with psycopg.connect(db) as con:
+                row = con.execute("SELECT count(*) FROM robots WHERE last_heard IS NOT NULL"
+                                  ).fetchone()
+        else:
+            con2 = sqlite3.connect(db, timeout=5.0)
+            try:
+                row = con2.execute("SELECT count(*) FROM robots WHERE last_heard IS NOT NULL"
+                                   ).fetchone()
+            finally:
+                con2.close()
+    except Exception:  # the station has not made its tables yet
+        return 0
+    return int(row[0]) if row else 0
 
 
 SEEN_JS = """() => {
@@ -288,11 +327,22 @@ class FleetWatcher:
     def wait(self, seconds: float) -> None:
         self.page.wait_for_timeout(seconds * 1000)
 
-    def close(self) -> list[tuple[str, str, float]]:
-        seen = [(r, s, t / 1000) for r, s, t in self.page.evaluate("window.__seen")]
+    def load_times(self, repeat: int = 5) -> list[float]:
+        """Seconds from navigating to the whole fleet page to its ``load`` event."""
+        times = []
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            self.page.goto("/", wait_until="load")
+            times.append(time.perf_counter() - t0)
+        return times
+
+    def seen(self) -> list[tuple[str, str, float]]:
+        """(robot, status, when) of every change of a watched row (before navigating)."""
+        return [(r, s, t / 1000) for r, s, t in self.page.evaluate("window.__seen")]
+
+    def close(self) -> None:
         self._browser.close()
         self._pw.stop()
-        return seen
 
 
 def colour_changes(published: dict[str, Any], seen: list[tuple[str, str, float]]) -> str:
@@ -334,8 +384,8 @@ def main() -> int:
                    help="robots and station meet through a Zenoh router (in this process, "
                         "on 127.0.0.1) instead of DDS")
     p.add_argument("--routers", type=int, default=0,
-                   help=f"Zenoh routers of the robots (default: one per {ROBOTS_PER_ROUTER} "
-                        "robots), joined to the station's")
+                   help="Zenoh routers of the robots, joined to the station's (default: "
+                        "the station's own router carries them all)")
     p.add_argument("--db", default="",
                    help="the station's database: a file (SQLite; default a temporary one) or "
                         "postgresql://... (passed to blackbox station --db as it is)")
@@ -371,9 +421,10 @@ def main() -> int:
     if args.zenoh:
         from blackbox.transport.zenoh_router import RouterSettings, open_router
 
-        # one Zenoh router here took at most 351 sessions (clients or peers alike), so the
-        # robots spread over several routers joined to the station's one, as sites would
-        for_robots = args.routers or max(1, math.ceil(args.robots / ROBOTS_PER_ROUTER))
+        # the lightweight robots share one session per process (benchmarks/fleet_sim.py),
+        # so one router carries them all; --routers N spreads them over N routers joined
+        # to the station's one, as sites would
+        for_robots = args.routers or 1
         count = for_robots + 1 if for_robots > 1 else 1
         endpoints = [f"tcp/127.0.0.1:{free_port()}" for _ in range(count)]
         for i, endpoint in enumerate(endpoints):
@@ -416,13 +467,21 @@ def main() -> int:
     ids = [f"fleet-{i:04d}" for i in range(args.robots)]
     watched = ids[:min(args.watch, 10)] if web is not None else []
     browser = FleetWatcher(url, "bench", password, "fleet-000") if watched else None
-    groups = [ids[i::args.processes] for i in range(args.processes) if ids[i::args.processes]]
+    size = math.ceil(len(ids) / args.processes)
+    groups = [ids[i:i + size] for i in range(0, len(ids), size)]
     robots = []
     for index, group in enumerate(groups):
-        robot_bus = ["--zenoh", robot_routers[index % len(robot_routers)]] if robot_routers \
-            else bus_args
+        if robot_routers:  # Zenoh: lightweight robots, one session per process
+            robots.append(subprocess.Popen(
+                [py, str(FLEET_SIM), "--zenoh", robot_routers[index % len(robot_routers)],
+                 "--ids", ",".join(group), "--index", str(ids.index(group[0])),
+                 "--watch-ids", ",".join(watched), "--duration", str(args.duration),
+                 "--interval", str(args.interval), "--fault-every", str(args.fault_every),
+                 "--fault-length", str(args.fault_length), "--wait-go"],
+                env=_env(), stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True))
+            continue
         child = subprocess.Popen([py, str(HERE), "--robots-child", "--ids", ",".join(group),
-                                  *robot_bus, "--watch-ids", ",".join(watched),
+                                  *bus_args, "--watch-ids", ",".join(watched),
                                   *(["--matched"] if args.matched else []), "--duration",
                                   str(args.duration), "--interval", str(args.interval),
                                   "--fault-every", str(args.fault_every), "--fault-length",
@@ -433,15 +492,37 @@ def main() -> int:
         assert child.stdout is not None
         if child.stdout.readline().strip() != "ready":
             return 1
+    if robot_routers:
+        # Zenoh: each robot declares 15 publishers (a cache, a liveliness token and
+        # heartbeats each); the router and the station take time to learn 15,000 of them,
+        # during which nothing is routed. Measure once the station has heard every robot.
+        heard_after = time.monotonic()
+        deadline = heard_after + HEARD_TIMEOUT
+        heard = 0
+        while time.monotonic() < deadline:
+            heard = robots_heard(db)
+            if heard >= args.robots:
+                break
+            time.sleep(1.0)
+        heard_after = time.monotonic() - heard_after
+        print(f"station heard {heard} of {args.robots} robots {heard_after:.0f} s after all "
+              "robot sessions reached the router", flush=True)
+        for child in robots:
+            if child.stdin is not None:
+                child.stdin.write("go\n")
+                child.stdin.flush()
 
     cpu0 = proc.cpu_times()
+    threads0, router0 = thread_cpu(proc), thread_cpu(psutil.Process())
     t0 = time.monotonic()
     rss: list[int] = []
     page_times: list[float] = []
     page_sizes: list[int] = []
     page_errors = 0
     next_page = t0 + 10.0
-    while any(c.poll() is None for c in robots):
+    # Zenoh robots close 250 sinks each after their run (50 ms each): not part of the run
+    run_end = t0 + args.duration + 2.0 if robot_routers else math.inf
+    while any(c.poll() is None for c in robots) and time.monotonic() < run_end:
         if browser is not None:
             browser.wait(1.0)
         else:
@@ -457,15 +538,34 @@ def main() -> int:
                 page_errors += 1
     elapsed = time.monotonic() - t0
     cpu1 = proc.cpu_times()
-    published: dict[str, dict[str, int]] = {}
+    threads1, router1 = thread_cpu(proc), thread_cpu(psutil.Process())
+    published: dict[str, dict[str, Any]] = {}
+    fleet_cpu = 0.0
     for child in robots:
-        out, _ = child.communicate(timeout=60)
-        published.update(json.loads(out.strip().splitlines()[-1]))
-    time.sleep(3.0)  # the last samples reach the station and are committed
-    seen = browser.close() if browser is not None else []
+        out, _ = child.communicate(timeout=120)
+        report = json.loads(out.strip().splitlines()[-1])
+        if "robots" in report:  # benchmarks/fleet_sim.py
+            fleet_cpu += report["cpu_seconds"]
+            report = report["robots"]
+        published.update(report)
+    # the station may be behind: give it until what it stored stops growing (late is not
+    # lost), at most DRAIN_TIMEOUT s, and say how long that took
+    drain_start = time.monotonic()
+    stored_total = -1
+    while time.monotonic() - drain_start < DRAIN_TIMEOUT:
+        time.sleep(3.0)
+        now_total = sum(sum(c.values()) for c in stored_counts(db, ids).values())
+        if now_total == stored_total:
+            break
+        stored_total = now_total
+    drained = time.monotonic() - drain_start
+    seen = browser.seen() if browser is not None else []
+    loads = browser.load_times() if browser is not None else []
+    if browser is not None:
+        browser.close()
     if web is not None:
         fleet_page = web.time_get("/")
-        total = re.search(r'data-field="total">(\d+)<', web.http.get("/").text)
+        total = re.search(r'data-field="total"[^>]*>(\d+)<', web.http.get("/").text)
         robot_count = int(total.group(1)) if total else 0
         told = [line for line in web.http.get("/metrics").text.splitlines()
                 if line.startswith(("blackbox_station_samples_dropped_total",
@@ -490,6 +590,19 @@ def main() -> int:
           f"measured {elapsed:.0f} s")
     print(f"station CPU {cpu:.1f} % of one core ({100 * cpu / max(1, args.robots):.1f} % per "
           f"100 robots); RSS max {max(rss) / 2**20:.0f} MiB, last {rss[-1] / 2**20:.0f} MiB")
+    by_thread = {k: threads1.get(k, 0.0) - threads0.get(k, 0.0) for k in threads1}
+    print("station CPU by thread: " + ", ".join(
+        f"{name} {100 * t / elapsed:.1f} %" for name, t in sorted(
+            by_thread.items(), key=lambda kv: -kv[1]) if t > 0.005 * elapsed))
+    if routers:
+        zenoh_threads = sum(t - router0.get(k, 0.0) for k, t in router1.items()
+                            if k != "python")
+        print(f"Zenoh router(s) (threads of this process) {100 * zenoh_threads / elapsed:.1f} % "
+              "of one core")
+    if fleet_cpu:
+        print(f"simulated fleet CPU {100 * fleet_cpu / elapsed:.1f} % of one core in "
+              f"{len(groups)} processes ({100 * fleet_cpu / elapsed / args.robots * 100:.1f} % "
+              f"per 100 robots)")
     kinds = ("values", "exceedances", "failures", "rectifications")
     total_pub = {k: sum(p[k] for p in published.values()) for k in kinds}
     total_sto = {k: sum(s[k] for s in stored.values()) for k in kinds}
@@ -515,6 +628,11 @@ def main() -> int:
         print(f"fleet page after the run: {fleet_page[0] * 1000:.1f} ms, status "
               f"{fleet_page[1]}, robots on the station: {robot_count}")
         print("what the station told (/metrics):", "; ".join(told))
+    print(f"stored counted {drained:.0f} s after the robots stopped (until it stopped "
+          "growing)")
+    if loads:
+        print(f"fleet page in Chromium after the run ({args.robots} robots), navigation to "
+              f"load: {', '.join(f'{t * 1000:.0f}' for t in loads)} ms")
     if watched:
         print(colour_changes(published, seen))
     if args.keep:

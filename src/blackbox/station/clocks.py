@@ -29,7 +29,10 @@ WINDOW = 10.0
 @dataclass(slots=True)
 class _Offsets:
     samples: deque[tuple[float, float]] = field(default_factory=deque)
-    """(received, received - robot time), oldest first, over :data:`WINDOW`."""
+    """(received, received - robot time) over :data:`WINDOW`, oldest first, keeping only
+    those that can still be the window's smallest difference (each smaller than every later
+    one): the first is the minimum, found without walking the window on every sample (a
+    robot sends a dozen samples a second, a fleet of 1,000 some 11,000)."""
     first: float | None = None
     skewed: bool = False
 
@@ -57,10 +60,13 @@ class ClockWatch:
         """A live sample of ``robot`` stamped ``robot_time`` arrived at ``received``."""
         o = self._robots.setdefault(robot, _Offsets())
         o.first = received if o.first is None else o.first
-        o.samples.append((received, received - robot_time))
-        while o.samples and received - o.samples[0][0] > self.window:
+        difference = received - robot_time
+        while o.samples and o.samples[-1][1] >= difference:
+            o.samples.pop()  # never the minimum again while this one is in the window
+        o.samples.append((received, difference))
+        while received - o.samples[0][0] > self.window:
             o.samples.popleft()
-        offset = min(d for _, d in o.samples)
+        offset = o.samples[0][1]
         whole_window = received - o.first >= self.window
         skewed = offset < -self.limit or (offset > self.limit and whole_window)
         if skewed:

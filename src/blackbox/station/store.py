@@ -358,12 +358,10 @@ class StationStore:
 
     def heard(self, resource_id: int, at: float) -> None:
         """A sample of robot ``resource_id`` arrived at wall time ``at``."""
-        def op(db: Connection) -> None:
-            db.execute("INSERT INTO robots (resource_id, first_heard, last_heard) "
-                       "VALUES (?, ?, ?) ON CONFLICT (resource_id) DO UPDATE SET "
-                       "last_heard = greatest(robots.last_heard, excluded.last_heard)",
-                       (resource_id, at, at))
-        self._queue(op, resource_id, "fleet")
+        self._writes.add_row("INSERT INTO robots (resource_id, first_heard, last_heard) "
+                             "VALUES (?, ?, ?) ON CONFLICT (resource_id) DO UPDATE SET "
+                             "last_heard = greatest(robots.last_heard, excluded.last_heard)",
+                             (resource_id, at, at), resource_id, "fleet")
 
     def put_robot_id(self, resource_id: int, robot_id: str) -> None:
         rid = clip(robot_id, MAX_NAME)
@@ -410,12 +408,17 @@ class StationStore:
         marks = ", ".join("?" for _ in values)
         update = ", ".join(f"{k} = excluded.{k}" for k in values) or "name = name"
 
+        sql = (f"INSERT INTO entities (resource_id, instance_id"
+               f"{', ' + columns if columns else ''}) VALUES (?, ?"
+               f"{', ' + marks if marks else ''}) ON CONFLICT (resource_id, "
+               f"instance_id) DO UPDATE SET {update}")
+        args = (resource_id, instance_id, *values.values())
+        if "status" not in values:  # a description: a row among many (see add_row)
+            self._writes.add_row(sql, args, resource_id, "entities")
+            return
+
         def op(db: Connection) -> None:
-            db.execute(f"INSERT INTO entities (resource_id, instance_id"
-                       f"{', ' + columns if columns else ''}) VALUES (?, ?"
-                       f"{', ' + marks if marks else ''}) ON CONFLICT (resource_id, "
-                       f"instance_id) DO UPDATE SET {update}",
-                       (resource_id, instance_id, *values.values()))
+            db.execute(sql, args)
             if "status" in values:
                 status_history.note(db, resource_id, instance_id, values["status"],
                                     self.clock() if updated is None else updated)
@@ -466,11 +469,9 @@ class StationStore:
         if entity is not None:
             values["entity"] = entity
         self._upsert_characteristic(resource_id, instance_id, values, only_newer=True)
-
-        def op(db: Connection) -> None:
-            db.execute("INSERT INTO samples VALUES (?, ?, ?, ?)",
-                       (resource_id, instance_id, t, value))
-        self._queue(op, resource_id, "", droppable=True)
+        self._writes.add_row("INSERT INTO samples VALUES (?, ?, ?, ?)",
+                             (resource_id, instance_id, t, value), resource_id, "",
+                             droppable=True)
 
     def _upsert_characteristic(self, resource_id: int, instance_id: int,
                                values: dict[str, Any], only_newer: bool = False) -> None:
@@ -479,13 +480,14 @@ class StationStore:
         update = ", ".join(f"{k} = excluded.{k}" for k in values) or "name = name"
         where = " WHERE characteristics.time IS NULL OR characteristics.time <= excluded.time" \
             if only_newer else ""
-
-        def op(db: Connection) -> None:
-            db.execute(f"INSERT INTO characteristics (resource_id, instance_id{columns}) "
-                       f"VALUES (?, ?{marks}) ON CONFLICT (resource_id, instance_id) DO "
-                       f"UPDATE SET {update}{where}",
-                       (resource_id, instance_id, *values.values()))
-        self._queue(op, resource_id, "characteristics")
+        sql = (f"INSERT INTO characteristics (resource_id, instance_id{columns}) "
+               f"VALUES (?, ?{marks}) ON CONFLICT (resource_id, instance_id) DO "
+               f"UPDATE SET {update}{where}")
+        # one row among many (see WriteQueue.add_row): upserts of one characteristic set
+        # other columns (a description, its flag, its newest value), so their order does
+        # not matter; two of one statement keep theirs
+        self._writes.add_row(sql, (resource_id, instance_id, *values.values()), resource_id,
+                             "characteristics")
 
     def put_threshold(self, resource_id: int, instance_id: int, characteristic: int,
                       name: str, type_: str, value: float) -> None:
@@ -493,13 +495,11 @@ class StationStore:
             return
         args = (resource_id, instance_id, characteristic, clip(name, 60),
                 "min" if type_ == "min" else "max", value)
-
-        def op(db: Connection) -> None:
-            db.execute("INSERT INTO thresholds VALUES (?, ?, ?, ?, ?, ?) ON CONFLICT (resource_id, "
-                       "instance_id) DO UPDATE SET characteristic = excluded.characteristic, "
-                       "name = excluded.name, type = excluded.type, value = excluded.value",
-                       args)
-        self._queue(op, resource_id, "characteristics")
+        self._writes.add_row(
+            "INSERT INTO thresholds VALUES (?, ?, ?, ?, ?, ?) ON CONFLICT (resource_id, "
+            "instance_id) DO UPDATE SET characteristic = excluded.characteristic, "
+            "name = excluded.name, type = excluded.type, value = excluded.value",
+            args, resource_id, "characteristics")
 
     # Events ------------------------------------------------------------------------------
 

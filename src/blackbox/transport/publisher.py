@@ -39,7 +39,12 @@ from blackbox.transport.buses import open_bus
 from blackbox.transport.cdr_encoder import sample_writer
 from blackbox.transport.ibit import IbitService
 from blackbox.transport.logservice import DEFAULT_CHUNK, LogService, LogSource, open_store
-from blackbox.transport.participant import ALL_TOPICS, TOPIC_OF_TYPE, TransportSettings
+from blackbox.transport.participant import (
+    ALL_TOPICS,
+    TOPIC_OF_TYPE,
+    HealthBus,
+    TransportSettings,
+)
 from blackbox.transport.provenance import SIGNATURE_TOPIC, SampleSigner
 from blackbox.transport.qos import EVENT_TOPICS
 from blackbox.transport.zenoh_bus import ZenohSettings
@@ -73,7 +78,9 @@ class DdsHealthSink(SinkBase):
     ``signing_key_file`` (``blackbox keygen``): the robot's own key; every sample and
     reply is then signed (:mod:`blackbox.transport.provenance`) so that stations that
     enrolled the key can tell it from a forgery. ``replay_file``: where accepted request
-    nonces survive a restart (default: :func:`replay_file_for`).
+    nonces survive a restart (default: :func:`replay_file_for`). ``bus``: a bus already
+    open for this robot (e.g. :meth:`ZenohBus.sharing`, one Zenoh session for many robots
+    of a gateway or a simulated fleet) instead of one of its own.
     """
 
     def __init__(
@@ -98,6 +105,7 @@ class DdsHealthSink(SinkBase):
         signing_key_file: str | Path | None = None,
         replay_file: str | Path | None = None,
         zenoh: ZenohSettings | None = None,
+        bus: HealthBus | None = None,
     ) -> None:
         if not robot_id:
             raise ValueError("robot id must not be empty")
@@ -115,7 +123,7 @@ class DdsHealthSink(SinkBase):
                                    failure_actions=failure_actions, hysteresis=hysteresis,
                                    logging_interval=logging_interval, ledger=ledger)
         self.ledger = self.mapper.ledger
-        self.bus = open_bus(self.settings, robot_id)
+        self.bus = bus if bus is not None else open_bus(self.settings, robot_id)
         self._writers: dict[type, Any] = {
             t: self.bus.writer(name) for name, t in ALL_TOPICS.items()
             if (name.startswith("C_") and name != "C_Monitored_Entity_run_IBIT")

@@ -10,9 +10,13 @@ Cyclone IDL types, serialised with their own CDR, under the key expression
 What DDS's durability gives the station, Zenoh's advanced publisher and subscriber give here:
 every published topic keeps its last :data:`CACHED_SAMPLES` samples on the robot; a station
 that joins late asks for them (the TransientLocal of DDS), and a station that missed samples
-while a router was down notices the gap in the publisher's sequence numbers (heartbeats) and
-fetches exactly those, in order, when the link returns. Beyond the cache the station's hole
-fetch by event identity reads the rest from the recorder's log. Requests and replies are
+(a robot that published before the station heard of it, or while a router was down)
+notices the gap in the publisher's sequence numbers (heartbeats) and fetches exactly
+those, in order, when the link returns. The station does not query each robot's history
+as it appears (``detect_late_publishers``): with 7,500 or more publishers (500 robots of
+15 topics) a subscriber doing so delivered nothing at all (docs/benchmarks.md). Beyond
+the cache the station's hole fetch by event identity reads the rest from the recorder's
+log. Requests and replies are
 volatile, as on DDS: a lost request is retried by its caller.
 """
 
@@ -21,6 +25,7 @@ from __future__ import annotations
 import contextlib
 import re
 import threading
+import time
 from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -30,6 +35,7 @@ import zenoh
 import zenoh.ext as zext
 
 from blackbox.errors import BlackBoxError
+from blackbox.transport.cdr_encoder import Encoder, encoder_for
 from blackbox.transport.topics import ALL_TOPICS
 
 CACHED_SAMPLES = 4096
@@ -41,6 +47,12 @@ CONNECT_WAIT_MS = 10_000
 """How long opening a session waits for a router before it gives up with an error."""
 READER_DEPTH = 100_000
 """Samples a reader holds between two takes; beyond it the oldest go (and are counted)."""
+CHANNEL_DEPTH = 100_000
+"""Samples Zenoh holds for a reader until they are moved to its queue (at every take and
+every wait, so a full channel means the reading thread is stuck: Zenoh then holds back
+delivery rather than dropping)."""
+WAIT_STEP = 0.01
+"""Seconds between two looks at the readers while waiting for samples."""
 VOLATILE_TOPICS = frozenset({"BlackBox_Log_Request", "BlackBox_Log_Reply",
                              "C_Monitored_Entity_run_IBIT", "BlackBox_IBIT_Request",
                              "BlackBox_IBIT_Result"})
@@ -144,6 +156,16 @@ class _Matched:
     participant_key: str = "zenoh"
 
 
+def _encoder(topic: str) -> Encoder | None:
+    """The precompiled encoder of the topic's type (``cdr_encoder``: the bytes
+    ``serialize()`` gives, about 1 us instead of 27 us for a characteristic value), or
+    ``None`` where the type has none and keeps ``serialize()``."""
+    datatype: Any = ALL_TOPICS.get(topic)
+    if datatype is None:
+        return None
+    return encoder_for(datatype, datatype.__idl__.default_version == 2)
+
+
 class ZenohWriter:
     """Writes one topic's samples under this bus's origin, like a DDS DataWriter."""
 
@@ -151,6 +173,7 @@ class ZenohWriter:
         self.key = key
         self.topic = topic
         self._volatile = topic in VOLATILE_TOPICS
+        self._encode = _encoder(topic)
         self._publisher: Any
         if self._volatile:
             self._publisher = session.declare_publisher(key)
@@ -165,7 +188,10 @@ class ZenohWriter:
                 publisher_detection=True)
 
     def write(self, sample: Any) -> None:
-        self._publisher.put(sample.serialize())
+        if self._encode is not None and type(sample) is ALL_TOPICS[self.topic]:
+            self._publisher.put(self._encode(sample))
+        else:
+            self._publisher.put(sample.serialize())
 
     def unregister_instance(self, sample: Any) -> None:
         """DDS frees an event instance here; Zenoh keeps no instances."""
@@ -183,35 +209,52 @@ class ZenohWriter:
 
 class ZenohReader:
     """Holds one topic's samples from every origin until :meth:`take`, like a DDS
-    DataReader; payloads that are not a sample of the topic are counted and skipped."""
+    DataReader; payloads that are not a sample of the topic are counted and skipped.
 
-    def __init__(self, session: zenoh.Session, key: str, topic: str,
-                 arrived: threading.Event) -> None:
+    Samples wait in a channel of Zenoh's own (:data:`CHANNEL_DEPTH`) and are moved into
+    this reader's queue (:data:`READER_DEPTH`, the oldest dropped and counted beyond it)
+    by whoever takes or waits. Why not a callback per sample: each one takes the GIL on
+    Zenoh's receive thread, and at a fleet's ten thousand samples a second those threads
+    and the station's thread spent their time handing the GIL to each other (measured:
+    a callback costs about 10 us more per sample than draining a channel)."""
+
+    def __init__(self, session: zenoh.Session, key: str, topic: str) -> None:
         self.topic = topic
         self.type: Any = ALL_TOPICS[topic]
-        self._arrived = arrived
         self._payloads: deque[bytes] = deque(maxlen=READER_DEPTH)
         self._lock = threading.Lock()
         self.malformed = 0
-        self.overflowed = 0
+        self._overflowed = 0
         self._subscriber: Any
+        channel: Any = zenoh.handlers.FifoChannel(CHANNEL_DEPTH)
         if topic in VOLATILE_TOPICS:
-            self._subscriber = session.declare_subscriber(key, self._on_sample)
+            self._subscriber = session.declare_subscriber(key, channel)
         else:
             self._subscriber = zext.declare_advanced_subscriber(
-                session, key, self._on_sample,
-                history=zext.HistoryConfig(detect_late_publishers=True),
+                session, key, channel,
+                history=zext.HistoryConfig(detect_late_publishers=False),
                 recovery=zext.RecoveryConfig(heartbeat=True, periodic_queries=None),
                 subscriber_detection=True)
 
-    def _on_sample(self, sample: zenoh.Sample) -> None:
+    def pull(self) -> int:
+        """Move what the channel holds into the queue; how many samples wait there."""
         with self._lock:
-            if len(self._payloads) == self._payloads.maxlen:
-                self.overflowed += 1
-            self._payloads.append(sample.payload.to_bytes())
-        self._arrived.set()
+            payloads = self._payloads
+            receive = self._subscriber.try_recv
+            while (sample := receive()) is not None:
+                if len(payloads) == payloads.maxlen:
+                    self._overflowed += 1
+                payloads.append(sample.payload.to_bytes())
+            return len(payloads)
+
+    @property
+    def overflowed(self) -> int:
+        """Samples dropped because the queue was full (counted as they come in)."""
+        self.pull()
+        return self._overflowed
 
     def take(self, N: int = 1) -> list[Any]:  # the DataReader's own argument name
+        self.pull()
         with self._lock:
             payloads = [self._payloads.popleft() for _ in range(min(N, len(self._payloads)))]
         samples = []
@@ -237,24 +280,31 @@ class ZenohReader:
 
 @dataclass
 class ZenohWaiter:
-    """Waits until some reader of the bus has samples (or the timeout passes)."""
+    """Waits until some reader of the bus has samples (or the timeout passes), looking
+    every :data:`WAIT_STEP` seconds (the readers' channels cannot wake a thread)."""
 
-    arrived: threading.Event
+    readers: list[ZenohReader]
 
     def wait(self, seconds: float) -> None:
-        self.arrived.wait(seconds)
-        self.arrived.clear()
+        deadline = time.monotonic() + seconds
+        while not any(reader.pull() for reader in self.readers):
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return
+            time.sleep(min(WAIT_STEP, left))
 
 
 @dataclass
 class ZenohBus:
     """One Zenoh client session; writers publish under ``origin``, readers hear every
-    origin in the partition."""
+    origin in the partition. A bus made by :meth:`sharing` uses a session that someone
+    else opened (many robots of one gateway or of a simulated fleet in one process): it
+    closes its own writers and readers, never the session."""
 
     settings: ZenohSettings
     session: zenoh.Session
     origin: str
-    arrived: threading.Event = field(default_factory=threading.Event)
+    owns_session: bool = True
     readers: list[ZenohReader] = field(default_factory=list)
     writers_: list[ZenohWriter] = field(default_factory=list)
 
@@ -267,6 +317,11 @@ class ZenohBus:
                              f"{', '.join(settings.endpoints)}: {first_line(exc)}") from None
         return cls(settings, session, key_part(origin or f"node-{session.info.zid()}"))
 
+    @classmethod
+    def sharing(cls, settings: ZenohSettings, session: zenoh.Session, origin: str) -> ZenohBus:
+        """A bus publishing under ``origin`` on an open ``session`` it does not own."""
+        return cls(settings, session, key_part(origin), owns_session=False)
+
     def key(self, origin: str, topic: str) -> str:
         return f"{key_part(self.settings.partition)}/{origin}/{topic}"
 
@@ -276,12 +331,12 @@ class ZenohBus:
         return writer
 
     def reader(self, name: str, qos: Any = None) -> ZenohReader:
-        reader = ZenohReader(self.session, self.key("*", name), name, self.arrived)
+        reader = ZenohReader(self.session, self.key("*", name), name)
         self.readers.append(reader)
         return reader
 
     def waiter(self, readers: Iterable[Any]) -> ZenohWaiter:
-        return ZenohWaiter(self.arrived)
+        return ZenohWaiter([r for r in readers if isinstance(r, ZenohReader)])
 
     def malformed(self) -> int:
         return sum(r.malformed for r in self.readers)
@@ -293,6 +348,8 @@ class ZenohBus:
                 endpoint.close()
         self.readers.clear()
         self.writers_.clear()
+        if not self.owns_session:
+            return
         session: Any = self.session  # its stub leaves close() untyped
         session.close()
 
