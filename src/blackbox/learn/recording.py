@@ -16,6 +16,7 @@ interval between arrivals that spans it is not a period.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -36,6 +37,7 @@ from blackbox.model import BlackBoxEvent
 from blackbox.observe.fieldpath import compile_field_access
 from blackbox.observe.observers.fields import summarise
 from blackbox.observe.observers.timestamp import stamp_seconds
+from blackbox.observe.signals import sample_time
 from blackbox.sources.base import Source
 
 ARRAY_SUMMARIES = ("mean", "min", "max", "finite")
@@ -104,6 +106,8 @@ class TopicRecord:
     split_gaps: int = 0
     unmeasured: int = 0
     """Messages stamped inside a measurement gap (not learned from)."""
+    stamp_path: str | None = None
+    """The header stamp that times this topic's samples for relations (``sample_time``)."""
 
     @property
     def total(self) -> int:
@@ -241,6 +245,14 @@ class Recorder:
             topic.discovery = discover(value)
             topic.fields = [FieldRecord(f, compile_field_access(f.path))
                             for f in topic.discovery.fields]
+            topic.stamp_path = next((r.info.path for r in topic.fields
+                                     if r.info.kind == "stamp"), None)
+        t = msg.time
+        for rec in topic.fields:
+            if rec.info.kind == "stamp" and rec.info.path == topic.stamp_path:
+                with contextlib.suppress(ValueError):  # counted below with its problems
+                    t = sample_time(msg.time, stamp_seconds(rec.access(value)))
+                break
         for rec in topic.fields:
             try:
                 raw = rec.access(value)
@@ -251,10 +263,10 @@ class Recorder:
                 elif rec.info.kind == "scalar":
                     x = summarise(raw, "value", rec.info.path)
                     rec.series.setdefault("value", Series()).add(x)
-                    rec.timed.setdefault("value", TimedSeries()).add(msg.time, x)
+                    rec.timed.setdefault("value", TimedSeries()).add(t, x)
                 else:
                     self._array(rec, raw)
-                    self._elements(rec, raw, msg.time)
+                    self._elements(rec, raw, t)
             except ValueError as exc:
                 rec.problems += 1
                 rec.last_problem = str(exc)

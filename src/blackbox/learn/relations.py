@@ -143,6 +143,8 @@ class Signal:
     monotonic: bool = False
     """Only grows or only falls (an odometer): related as an input on its changes, never on
     its level nor as a target (its level carries every past error of the count)."""
+    stamp: str | None = None
+    """Its topic's header stamp, which times its samples (``sample_time``)."""
 
 
 @dataclass
@@ -260,7 +262,7 @@ def signals_of(rec: Recording, notes: list[str]) -> list[Signal]:
                     noise = float(np.std(d)) / math.sqrt(2)
                 sig = Signal(SignalRef(topic.name, path), name, t, x, period, noise, wrap,
                              _trend(t, x, noise), frec.info.integer,
-                             monotonic=kind == "monotonic")
+                             monotonic=kind == "monotonic", stamp=topic.stamp_path)
                 out.append(sig)
     return out
 
@@ -1091,9 +1093,12 @@ def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict
             **({} if r.clears else {"clears": False}),
             "span": [round_down(r.span[0]), round_up(r.span[1])],
         })
+    stamps = {s.ref.topic: s.stamp for s in signals if s.stamp is not None}
     return {"type": "relation", "topic": pair[0], "topic_b": pair[1], "step": STEP,
             "block": _entry_block(relations), "window": WINDOW, "fresh": round_up(fresh, 2),
-            "delay": _g(delay_of(signals)), "relations": items}
+            "delay": _g(delay_of(signals)),
+            **({"stamps": dict(sorted(stamps.items()))} if stamps else {}),
+            "relations": items}
 
 
 def _few(r: Relation) -> str:

@@ -69,6 +69,22 @@ def number_of(value: Any) -> float | None:
     return None
 
 
+STAMP_LIMIT = 1.0
+"""Seconds a header stamp may lie from its message's arrival and still time the sample."""
+
+
+def sample_time(arrival: float, stamp: float | None) -> float:
+    """When a sample was measured: its header stamp when it has one within ``STAMP_LIMIT``
+    of its arrival, else its arrival. A driver stamps at acquisition; the arrival adds
+    the publisher's and the transport's lateness, which under load moved the real ROS 1
+    diffdrive robot's samples by tens of milliseconds, a turning robot's yaw rate by
+    several noise std (a relation between two such signals failed 54 times an hour).
+    A stamp of zero, of another clock or far off is no measurement time."""
+    if stamp is None or stamp == 0.0 or abs(arrival - stamp) > STAMP_LIMIT:
+        return arrival
+    return stamp
+
+
 class SignalReader:
     """Reads one signal from decoded messages; counts what could not be read, and why."""
 

@@ -8,6 +8,8 @@ checks them on a common grid of ``step`` seconds:
 
 * every signal is put on the grid ``delay`` seconds late, when the sample after each cell
   has arrived (``blackbox.observe.signals``: the mean of the lines joining its samples);
+  a sample is placed at its message's header stamp (``stamps``: topic -> stamp field)
+  when that lies within a second of its arrival, else at its arrival (``sample_time``);
 * the residual ``target - prediction`` is averaged over blocks of ``block`` grid steps and
   standardised by the healthy block noise; a two-sided CUSUM (drift ``k``, alarm ``h``,
   ``h`` calibrated while learning for a stated false-alarm rate) accumulates it, so a slow
@@ -43,6 +45,7 @@ checks them on a common grid of ``step`` seconds:
       window: 5.0
       fresh: 0.3
       delay: 0.15
+      stamps: {/imu/data: header.stamp}
       relations:
         - name: imu_data_angular_velocity_z
           target: {topic: /imu/data, field: angular_velocity.z}
@@ -57,9 +60,10 @@ checks them on a common grid of ``step`` seconds:
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -75,7 +79,9 @@ from blackbox.observe.base import (
     ObserverKind,
     Subject,
 )
+from blackbox.observe.fieldpath import compile_field_access
 from blackbox.observe.observers.entry import COMMON_KEYS, read_every, read_name
+from blackbox.observe.observers.timestamp import stamp_seconds
 from blackbox.observe.signals import (
     Cusum,
     CusumSpec,
@@ -83,6 +89,7 @@ from blackbox.observe.signals import (
     SignalReader,
     SignalRef,
     read_signal_ref,
+    sample_time,
 )
 
 MAX_GAP = 30.0
@@ -240,9 +247,12 @@ class RelationObserver(ObserverBase):
 
     def __init__(self, topic: str, topic_b: str, relations: Sequence[RelationSpec], *,
                  step: float, block: int, window: float, fresh: float,
-                 delay: float | None = None, every: float = 1.0) -> None:
+                 delay: float | None = None, every: float = 1.0,
+                 stamps: Mapping[str, str] | None = None) -> None:
         if not relations:
             raise ValueError("a relation observer needs at least one relation")
+        self.stamps = dict(stamps or {})
+        self._stamps = {topic: compile_field_access(path) for topic, path in self.stamps.items()}
         self.topic, self.topic_b = topic, topic_b
         self.resource = Resource(topic=topic, topic_b=topic_b)
         self.interval = every
@@ -340,10 +350,15 @@ class RelationObserver(ObserverBase):
         if value is None:
             self._undecodable += 1
             return
+        t = msg.time
+        stamp = self._stamps.get(msg.topic)
+        if stamp is not None:
+            with contextlib.suppress(ValueError):  # no stamp: its arrival times it
+                t = sample_time(t, stamp_seconds(stamp(value)))
         for reader, cell in pairs:
             x = reader.read(value)
             if x is not None:
-                cell.add(msg.time, x)
+                cell.add(t, x)
 
     def evaluate(self, now: float) -> list[Observation]:
         self._advance(now)
@@ -490,7 +505,7 @@ def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
 
 def relation_from_config(node: ConfigNode) -> RelationObserver:
     node.check_keys((*COMMON_KEYS, "topic", "topic_b", "step", "block", "window", "fresh",
-                     "delay", "relations"))
+                     "delay", "stamps", "relations"))
     topic, topic_b = read_name(node, "topic"), read_name(node, "topic_b")
     step = node["step"].float(min=0.001, max=10.0) if node.get("step") else 0.05
     block = node["block"].int(min=1, max=10_000) if node.get("block") else 10
@@ -504,8 +519,14 @@ def relation_from_config(node: ConfigNode) -> RelationObserver:
     if not items:
         raise node["relations"].error("relations lists no relation")
     relations = [_relation(item, step, (topic, topic_b), names) for item in items]
+    stamps: dict[str, str] = {}
+    if node.get("stamps") is not None:
+        for name, path in node["stamps"].items():
+            if name not in (topic, topic_b):
+                raise path.error(f"{name} is neither topic nor topic_b")
+            stamps[name] = path.str()
     return RelationObserver(topic, topic_b, relations, step=step, block=block, window=window,
-                            fresh=fresh, delay=delay, every=read_every(node))
+                            fresh=fresh, delay=delay, every=read_every(node), stamps=stamps)
 
 
 OBSERVERS.add("relation", ObserverKind("relation", relation_from_config, Subject.TOPIC_PAIR,
