@@ -174,7 +174,7 @@ class ProcessFaults:
 
 @contextmanager
 def robot_running(middleware: str, motion_seed: int, plan: Plan, fault_seed: int,
-                  logs: Path) -> Iterator[tuple[str, Any]]:
+                  logs: Path, transports: str | None) -> Iterator[tuple[str, Any]]:
     """The diffdrive robot with the fault schedule, started; yields (source spec, robot)."""
     faults = (fault_seed, plan.fault_start, plan.duration - TAIL)
     if middleware == "ros1":
@@ -193,7 +193,8 @@ def robot_running(middleware: str, motion_seed: int, plan: Plan, fault_seed: int
 
     domain = fresh_domain()
     robot2 = ros2_diffdrive.DiffdriveRobot2(domain, seed=motion_seed, log_dir=logs,
-                                            epoch=plan.epoch, faults=faults)
+                                            epoch=plan.epoch, faults=faults,
+                                            transports=transports)
     try:
         robot2.start()
         topics = frozenset(ros2_diffdrive.TOPICS)
@@ -288,6 +289,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--duration", type=float, default=900.0, help="seconds of faults (900)")
     p.add_argument("--seed", type=int, default=0, help="the fault schedule's seed")
     p.add_argument("--motion-seed", type=int, default=5, help="the robot's motion script")
+    p.add_argument("--shared-memory", action="store_true",
+                   help="ROS 2: let the robot's Fast DDS nodes use shared memory (default: "
+                        "UDPv4 only; a killed node then froze others)")
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--out", type=Path, default=None, help="keep files of the run here")
     args = p.parse_args(argv)
@@ -306,8 +310,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     windows = [(plan.wall(f.start), plan.wall(f.end) + DEFAULT_GRACE + 1.0)
                for f in plan.faults]
     keep = Keep(windows)
-    with robot_running(args.middleware, args.motion_seed, plan, args.seed,
-                       out / "logs") as (source, robot):
+    transports = None if args.shared_memory else "UDPv4"
+    with robot_running(args.middleware, args.motion_seed, plan, args.seed, out / "logs",
+                       transports) as (source, robot):
         ready = time.time() - epoch
         if ready + args.learn > fault_start - SETTLE:
             raise SystemExit(f"the robot took {ready - LEAD:.0f} s to start (> {READY:g} s): "
