@@ -66,6 +66,9 @@ this, the learning and the black box's settling, so learning never sees a fault.
 SETTLE = 15.0
 """Seconds after the black box's first observation that are not scored: DDS discovery,
 the first graph snapshot, the learned filters' first windows."""
+LATE = 1.0
+"""A kill or stall this harness could begin only within this many seconds of its scheduled
+end (its thread starved: seen at load average 49) is not injected and not scored."""
 TAIL = 5.0
 """No fault starts in the last seconds of the run (the simulated campaign's rule)."""
 
@@ -118,6 +121,7 @@ class ProcessFaults:
         self.plan = plan
         self.group = group  # ROS 1 nodes run in sessions of their own
         self.truth: list[GroundTruth] = []
+        self.skipped: list[Any] = []
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, name="process-faults", daemon=True)
 
@@ -148,8 +152,13 @@ class ProcessFaults:
                 return
             node = f.node
             if what == "begin":
+                if time.time() > self.plan.wall(f.end) - LATE:
+                    self.skipped.append(f)  # this thread ran too late: not injected
+                    continue
                 began[id(f)] = time.time()
                 self._signal(node, signal.SIGKILL if f.kind == "kill" else signal.SIGSTOP)
+                continue
+            if id(f) not in began:
                 continue
             if f.kind == "kill":
                 proc = self.robot.nodes.get(node)
@@ -337,6 +346,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                     print(f"{time.time() - plan.wall(fault_start):6.0f} s of faults: "
                           f"{len(keep.diagnoses)} diagnoses", flush=True)
         process_truth = process.truth
+        if process.skipped:
+            print(f"not injected (the harness ran late): {len(process.skipped)} process "
+                  "faults", flush=True)
     load_end = os.getloadavg()[0]
     with keep.lock:
         if keep.first is None:
@@ -380,7 +392,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     result = {"middleware": args.middleware, "seed": args.seed, "motion_seed": args.motion_seed,
               "learn_s": args.learn, "duration_s": args.duration, "scored_s": end - start,
               "healthy_s": healthy, "load_start": load_start, "load_end": load_end,
-              "learned": kinds, "faults": o_all.faults, "tp": o_all.detected,
+              "learned": kinds, "faults": o_all.faults,
+              "not_injected": len(process.skipped), "transports": transports, "tp": o_all.detected,
               "fp": o_all.false_alarms, "precision": o_all.precision, "recall": o_all.recall,
               "f1": o_all.f1,
               "first_ranked": o_all.first_ranked / o_all.faults if o_all.faults else None,
