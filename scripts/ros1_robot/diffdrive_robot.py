@@ -18,6 +18,10 @@ the same signals as on the other:
   private parameter ``~yaw_offset`` (rad/s, default 0) is added to what it reports. The node
   reads it through rospy's parameter cache every cycle, so one ``setParam`` on the master
   (:meth:`DiffdriveRobot1.set_yaw_offset`) injects an IMU offset at run time.
+- ``--fault-seed S --fault-start T --fault-duration D``: every node applies the value faults
+  (stuck, drift, offset, scale, noise) that the seeded schedule of
+  ``scripts/robots/diffdrive_faults.py`` puts on its own fields from motion second ``T``
+  on; kill and stall are the harness's (``benchmarks/learned_campaign_real.py``).
 - ``/battery_monitor``: ``/battery_state`` (sensor_msgs/BatteryState ``voltage``,
   ``current``), 2 Hz
 
@@ -44,6 +48,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "robots"))  # the motion model both robots share
 sys.path.insert(0, str(HERE))
 
+from diffdrive_faults import FaultPlan  # noqa: E402
 from diffdrive_motion import DiffdriveMotion  # noqa: E402
 from robot import ROS_PYTHON, ThesisRobot, free_port  # noqa: E402
 
@@ -71,7 +76,8 @@ YAW_OFFSET_PARAM = "/imu_driver/yaw_offset"
 __all__ = ["ROLES", "SIGNALS", "TOPICS", "DiffdriveRobot1", "free_port", "run_node"]
 
 
-def run_node(role: str, epoch: float, seed: int) -> None:
+def run_node(role: str, epoch: float, seed: int,
+             faults: tuple[int, float, float] = (0, 0.0, 0.0)) -> None:
     """One rospy node, publishing the shared motion plus its own sensor noise until shut down.
 
     Same noise and delays as the ROS 2 nodes (``scripts/ros2_robot/diffdrive_robot.py``)."""
@@ -83,6 +89,8 @@ def run_node(role: str, epoch: float, seed: int) -> None:
     rate = ROLES[name][1]
     motion = DiffdriveMotion(seed)
     noise = random.Random(f"{seed}:{role}")
+    topic = next(tp for tp, node in TOPICS.items() if node == name)
+    plan = FaultPlan(topic, *faults)  # the seeded schedule's faults on my topic
     rospy.init_node(name.strip("/"), anonymous=False)
     if name in SUBSCRIPTIONS:
         kind = Twist if SUBSCRIPTIONS[name] == "/cmd_vel" else JointState
@@ -92,8 +100,10 @@ def run_node(role: str, epoch: float, seed: int) -> None:
 
         def make(t):
             msg = Twist()
-            msg.linear.x = motion.v(t) + noise.gauss(0, 0.01)
-            msg.angular.z = motion.w(t) + noise.gauss(0, 0.01)
+            msg.linear.x = plan.apply("linear.x", t,
+                                      motion.v(t) + noise.gauss(0, 0.01))
+            msg.angular.z = plan.apply("angular.z", t,
+                                       motion.w(t) + noise.gauss(0, 0.01))
             return msg
     elif role == "base_driver":
         pub = rospy.Publisher("/joint_states", JointState, queue_size=10)
@@ -103,8 +113,10 @@ def run_node(role: str, epoch: float, seed: int) -> None:
             msg = JointState()
             msg.header.stamp = rospy.Time.now()
             msg.name = ["left_wheel", "right_wheel"]
-            msg.velocity = [(v - 0.2 * w) / 0.1 + noise.gauss(0, 0.1),
-                            (v + 0.2 * w) / 0.1 + noise.gauss(0, 0.1)]
+            left = (v - 0.2 * w) / 0.1 + noise.gauss(0, 0.1)
+            right = (v + 0.2 * w) / 0.1 + noise.gauss(0, 0.1)
+            msg.velocity = [plan.apply("velocity[0]", t, left),
+                            plan.apply("velocity[1]", t, right)]
             return msg
     elif role == "odometry":
         pub = rospy.Publisher("/odom/twist", TwistStamped, queue_size=10)
@@ -112,8 +124,10 @@ def run_node(role: str, epoch: float, seed: int) -> None:
         def make(t):
             msg = TwistStamped()
             msg.header.stamp = rospy.Time.now()
-            msg.twist.linear.x = motion.v(t - 0.03) + noise.gauss(0, 0.015)
-            msg.twist.angular.z = motion.w(t - 0.03) + noise.gauss(0, 0.02)
+            msg.twist.linear.x = plan.apply("twist.linear.x", t,
+                                            motion.v(t - 0.03) + noise.gauss(0, 0.015))
+            msg.twist.angular.z = plan.apply("twist.angular.z", t,
+                                             motion.w(t - 0.03) + noise.gauss(0, 0.02))
             return msg
     elif role == "imu_driver":
         rospy.set_param("~yaw_offset", 0.0)
@@ -126,7 +140,8 @@ def run_node(role: str, epoch: float, seed: int) -> None:
                 offset = float(rospy.get_param_cached("~yaw_offset", 0.0))
             except (KeyError, TypeError, ValueError):
                 offset = 0.0
-            msg.angular_velocity.z = motion.w(t) + offset + noise.gauss(0, 0.02)
+            msg.angular_velocity.z = plan.apply("angular_velocity.z", t,
+                                                  motion.w(t) + offset + noise.gauss(0, 0.02))
             msg.linear_acceleration.z = 9.81 + noise.gauss(0, 0.05)
             return msg
     else:
@@ -135,8 +150,10 @@ def run_node(role: str, epoch: float, seed: int) -> None:
         def make(t):
             msg = BatteryState()
             msg.header.stamp = rospy.Time.now()
-            msg.voltage = motion.voltage(t) + noise.gauss(0, 0.02)
-            msg.current = motion.current(t) + noise.gauss(0, 0.05)
+            msg.voltage = plan.apply("voltage", t,
+                                     motion.voltage(t) + noise.gauss(0, 0.02))
+            msg.current = plan.apply("current", t,
+                                     motion.current(t) + noise.gauss(0, 0.05))
             return msg
 
     next_t = time.time()
@@ -158,6 +175,9 @@ class DiffdriveRobot1(ThesisRobot):
 
     seed: int = 0
     epoch: float = field(default_factory=time.time)
+    faults: tuple[int, float, float] = (0, 0.0, 0.0)
+    """(seed, start, duration) of the fault schedule every node applies to its own values
+    (``scripts/robots/diffdrive_faults.py``; motion seconds); duration 0: none."""
 
     def start(self, timeout: float = 30.0) -> DiffdriveRobot1:
         self.start_master(timeout)
@@ -168,8 +188,10 @@ class DiffdriveRobot1(ThesisRobot):
 
     def start_node(self, name: str, rate: float | None = None) -> subprocess.Popen[bytes]:
         """Start node ``name`` of :data:`ROLES` (``rate`` is not used: rates are fixed)."""
+        seed, start, duration = self.faults
         cmd = [ROS_PYTHON, str(Path(__file__).resolve()), "node", ROLES[name][0],
-               "--epoch", repr(self.epoch), "--seed", str(self.seed)]
+               "--epoch", repr(self.epoch), "--seed", str(self.seed), "--fault-seed",
+               str(seed), "--fault-start", repr(start), "--fault-duration", repr(duration)]
         fd = self._log(name)
         proc = subprocess.Popen(cmd, env=self.env, stdout=fd, stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL, start_new_session=True)
@@ -193,15 +215,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--epoch", type=float, default=None)
     parser.add_argument("--log-dir", type=Path, help="node logs (default: a temporary ROS_HOME)")
+    parser.add_argument("--fault-seed", type=int, default=0, help="the fault schedule's seed")
+    parser.add_argument("--fault-start", type=float, default=0.0,
+                        help="motion second the fault schedule starts at")
+    parser.add_argument("--fault-duration", type=float, default=0.0,
+                        help="seconds of faults (0: none)")
     args = parser.parse_args(argv)
+    faults = (args.fault_seed, args.fault_start, args.fault_duration)
     if args.what == "node":
         import rospy
 
         with contextlib.suppress(rospy.ROSInterruptException):
             run_node(args.role, args.epoch if args.epoch is not None else time.time(),
-                     args.seed)
+                     args.seed, faults)
         return 0
-    robot = DiffdriveRobot1(args.port, log_dir=args.log_dir, seed=args.seed)
+    robot = DiffdriveRobot1(args.port, log_dir=args.log_dir, seed=args.seed, faults=faults)
     stop = {"now": False}
 
     def on_signal(signum: int, frame: object) -> None:

@@ -19,8 +19,14 @@ A healthy sensor's reading moves a little from one message to the next (noise, m
   evaluation after the step.
 
 Angles (``wrap: true``) take differences the short way round, so a heading crossing +-pi is
-not a jump. A failed ``liveness`` accuses the topic's producers; a passing one clears
-nobody (it cannot see an offset), so its type does not exonerate.
+not a jump. A topic silent for longer than ``fresh`` (a node killed and started again, a
+stalled publisher) starts its differences, blocks and equal-sample runs afresh when it
+resumes: the first difference across the gap is the motion of the silent seconds, not noise
+(on the real diffdrive robots it raised a noise burst one to three seconds after every
+restarted node, three false alarms in a 900 s ROS 1 campaign).
+
+A failed ``liveness`` accuses the topic's producers; a passing one clears nobody (it cannot
+see an offset), so its type does not exonerate.
 
 .. code-block:: yaml
 
@@ -110,6 +116,15 @@ class _Signal:
         self.blocks = 0
         self.last_z = math.nan
 
+    def restart(self) -> None:
+        """Forget the samples before a gap: the next one starts a new difference chain."""
+        self.last = math.nan
+        self.last_t = math.nan
+        self.last_d = math.nan
+        self.run = 0
+        self.sq = 0.0
+        self.sq_n = 0
+
     def add(self, x: float, t: float) -> None:
         last, last_t = self.last, self.last_t
         self.last, self.last_t = x, t
@@ -185,8 +200,11 @@ class LivenessObserver(ObserverBase):
         if value is None:
             self._undecodable += 1
             return
+        resumed = msg.time - self._last_time > self.fresh
         self._last_time = msg.time
         for s in self._signals:
+            if resumed:
+                s.restart()
             x = s.reader.read(value)
             if x is not None:
                 s.add(x, msg.time)
