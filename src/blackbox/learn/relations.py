@@ -1086,7 +1086,7 @@ def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict
             "block_noise": _g(r.moving[1], 4),
             "still": (None if r.still is None else
                       {"bias": _g(r.still[0], 4), "block_noise": _g(r.still[1], 4)}),
-            "cusum": {"k": r.calibration.k, "h": round_up(r.calibration.h, 3)},
+            "cusum": {"k": _g(r.calibration.k, 4), "h": round_up(r.calibration.h, 3)},
             "excitation": _g(r.excitation, 4),
             **({"track": r.track, "track_rate": _g(r.track_rate or 0.0, 4)}
                if r.track is not None else {}),
