@@ -41,16 +41,19 @@ def described(condition: Callable[[], object]) -> str:
 
 
 def wait_until(condition: Callable[[], object], what: str = "", timeout: float = 15.0,
-               step: float = 0.05) -> object:
+               step: float = 0.05, state: Callable[[], object] | None = None) -> object:
     """Poll ``condition`` until it returns something true (and return that); fail the test
-    with what it waited for (``what``, else the condition's source) after ``timeout``."""
+    with what it waited for (``what``, else the condition's source) after ``timeout``, and
+    with what ``state`` returns then (what was seen instead)."""
     deadline = time.monotonic() + timeout
     while True:
         value = condition()
         if value:
             return value
         if time.monotonic() >= deadline:
-            raise AssertionError(f"waited {timeout:g} s for {what or described(condition)}")
+            seen = "" if state is None else f"; saw {state()!r}"
+            raise AssertionError(
+                f"waited {timeout:g} s for {what or described(condition)}{seen}")
         time.sleep(step)
 
 
