@@ -26,7 +26,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 from blackbox.app import RunOptions
@@ -40,7 +40,7 @@ from blackbox.sources import open_source
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 from conftest import black_box_running  # noqa: E402
-from diffdrive_support import ros1_diffdrive, ros2_diffdrive  # noqa: E402
+from diffdrive_support import ros1_diffdrive, ros2_diffdrive_publishing  # noqa: E402
 
 LEAD = 5.0
 """Seconds into the robot's motion script at which learning starts (as in the tests)."""
@@ -109,22 +109,13 @@ def robot_running(middleware: str, seed: int, logs: Path) -> Iterator[str]:
             robot1.stop()
         return
     domain = 150 + os.getpid() % 50
-    robot2 = ros2_diffdrive.DiffdriveRobot2(domain, seed=seed, log_dir=logs, epoch=epoch)
-    try:
-        robot2.start()
-        from blackbox.events import Interest
-        from ros2_support import Watched
-
-        topics = frozenset(ros2_diffdrive.TOPICS)
-        watched = Watched(domain, Interest(topics))
+    with ExitStack() as stack:
         try:
-            if not watched.until(lambda: all(watched.arrivals(t) for t in topics), 60):
-                raise SystemExit("the ROS 2 robot did not publish every topic within 60 s")
-        finally:
-            watched.close()
+            stack.enter_context(ros2_diffdrive_publishing(domain, seed=seed, log_dir=logs,
+                                                          epoch=epoch, within=60.0))
+        except AssertionError as silent:  # the robot did not come up: one line, no traceback
+            raise SystemExit(str(silent)) from None
         yield f"ros2:{domain}"
-    finally:
-        robot2.stop()
 
 
 def main() -> int:

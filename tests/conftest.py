@@ -18,7 +18,9 @@ from blackbox.app import RunOptions, build
 from blackbox.model import Observation, Resource
 from blackbox.sinks import SinkBase
 
-pytest_plugins = ["cpu_time"]  # BLACKBOX_TEST_CPU=FILE: CPU seconds per test
+# cpu_time: BLACKBOX_TEST_CPU=FILE gives CPU seconds per test; learned_ros2_diffdrive: one
+# real ROS 2 robot learned once for the tests that learn on it.
+pytest_plugins = ["cpu_time", "learned_ros2_diffdrive"]
 
 # Byte-code caches on, for this process and every process a test starts: with
 # PYTHONDONTWRITEBYTECODE set (as in some shells and containers) every `blackbox`

@@ -7,47 +7,29 @@ or upstream neighbours.
 
 The fault is applied by the odometry process itself from the schedule it drew from the
 seed, so the test knows when and what without talking to the node, as the campaign does.
+The robot, its schedule and the learned configuration are shared with the ROS 2 case of
+test_learn_real_imu.py (``learned_ros2_diffdrive.py``): one robot, one learning run.
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator, Sequence
-from pathlib import Path
+from collections.abc import Sequence
 
 import pytest
 
 from blackbox.app import RunOptions
-from blackbox.events import Interest
-from blackbox.learn import learn_from, render_config, render_model
 from blackbox.model import Diagnosis, Observation
 from blackbox.observe.build import load_config
 from blackbox.sinks import SinkBase
-from blackbox.sources import open_source
 from conftest import black_box_running, wait_until
-from diffdrive_support import SCRIPTS, load_script, ros2_diffdrive
-from isolation import fresh_domain
-from ros2_support import Watched, needs_rclpy
-
-faults_model = load_script(SCRIPTS / "robots" / "diffdrive_faults.py", "diffdrive_faults")
+from learned_ros2_diffdrive import GROUP, LearnedRobot
+from ros2_support import needs_rclpy
 
 pytestmark = [pytest.mark.slow, pytest.mark.ros2,
-              pytest.mark.xdist_group("test_learn_real_faults")]  # a real robot: one worker
+              pytest.mark.xdist_group(GROUP)]  # the robot learned once, shared: one worker
 
-MOTION_SEED = 5
-"""The motion script of the real-middleware tests: learning from motion second ~10 on sees
-it go straight, stand, turn and go straight (test_learn_real_imu.py)."""
-LEAD = 5.0
-LEARN_SECONDS = 90.0
-FAULT_SEED = 204
-"""Its schedule's only fault in the first 25 s: an offset of 0.132 m/s (8.8 times the
-odometry's noise) on ``/odom/twist`` ``twist.linear.x``, 7.7 s after the schedule starts."""
-SCHEDULE_START = 143.0
-"""Motion second the schedule starts at: the offset falls at 150.7-159.8 s, while the robot
-goes straight (148.8-174.4 s for motion seed 5), and leaves the robot 37 s to start before
-learning (5 + 37 + 90 + 10 s of settling = 142 s)."""
-SCHEDULE_LENGTH = 25.0
 DETECT_WITHIN = 8.0
 ODOMETRY = "/odometry"
 
@@ -73,41 +55,17 @@ class Diagnoses(SinkBase):
                             for o in d.failed)]
 
 
-@pytest.fixture
-def faulty_robot(tmp_path: Path) -> Iterator[ros2_diffdrive.DiffdriveRobot2]:
-    robot = ros2_diffdrive.DiffdriveRobot2(
-        fresh_domain(), seed=MOTION_SEED, log_dir=tmp_path / "logs", epoch=time.time() - LEAD,
-        faults=(FAULT_SEED, SCHEDULE_START, SCHEDULE_LENGTH))
-    try:
-        robot.start()
-        topics = frozenset(ros2_diffdrive.TOPICS)
-        watched = Watched(robot.domain_id, Interest(topics))
-        try:
-            assert watched.until(lambda: all(watched.arrivals(t) for t in topics), 30), \
-                "every topic of the ROS 2 robot publishing within 30 s"
-        finally:
-            watched.close()
-        yield robot
-    finally:
-        robot.stop()
-
-
 @needs_rclpy
 def test_ros2_an_odometry_offset_from_the_robots_schedule_is_found_and_named(
-        faulty_robot: ros2_diffdrive.DiffdriveRobot2, tmp_path: Path) -> None:
-    robot = faulty_robot
-    (fault,) = faults_model.schedule(FAULT_SEED, SCHEDULE_START, SCHEDULE_LENGTH)
+        learned_ros2_diffdrive: LearnedRobot) -> None:
+    learned = learned_ros2_diffdrive
+    fault = learned.scheduled_fault()
     assert (fault.kind, fault.component, fault.field, fault.node) == \
         ("offset", "/odom/twist", "twist.linear.x", ODOMETRY), fault
-    begins, ends = robot.epoch + fault.start, robot.epoch + fault.end
+    begins, ends = learned.epoch + fault.start, learned.epoch + fault.end
 
-    source = f"ros2:{robot.domain_id}"
-    learned = learn_from(lambda: open_source(source), LEARN_SECONDS)
-    assert time.time() + 5.0 < begins, "learning ended at least 5 s before the fault began"
-    config = tmp_path / "robot.yaml"
-    config.write_text(render_config(learned, "robot", "robot.model.yaml", "test"),
-                      encoding="utf-8")
-    (tmp_path / "robot.model.yaml").write_text(render_model(learned, "test"), encoding="utf-8")
+    assert learned.learn_end + 5.0 < begins, "learning ended at least 5 s before the fault began"
+    source, config = learned.source, learned.config
     relations = [(e["topic"].str(), e["topic_b"].str()) for e in load_config(config).observers
                  if e["type"].str() == "relation"]
     assert any("/odom/twist" in pair for pair in relations), \

@@ -11,6 +11,9 @@ the learned rate, age and time-out bounds measure the robot's processes, which a
 2-core test machine under load really slows, all topics at once (seen: every topic at
 60-80 % of its rate for a second while other tests ran). Those diagnoses are about the
 machine, not about relations, and are counted in the printed summary instead.
+
+The ROS 2 case shares its robot and learned configuration with test_learn_real_faults.py
+(``learned_ros2_diffdrive.py``): one robot, one learning run for both.
 """
 
 from __future__ import annotations
@@ -25,35 +28,27 @@ from pathlib import Path
 import pytest
 
 from blackbox.app import RunOptions
-from blackbox.events import Interest
-from blackbox.learn import learn_from, render_config, render_model
 from blackbox.model import Diagnosis, Observation
 from blackbox.observe.build import load_config
 from blackbox.sinks import SinkBase
-from blackbox.sources import open_source
-from conftest import black_box_running, wait_for
-from diffdrive_support import motion_model, ros1_diffdrive, ros2_diffdrive
-from isolation import fresh_domain
-from ros2_support import Watched, needs_rclpy, ros2_robot
+from conftest import black_box_running, wait_for, wait_until
+from diffdrive_support import motion_model, ros1_diffdrive
+from learned_ros2_diffdrive import GROUP, LEAD, MOTION_SEED, LearnedRobot, learn
+from ros2_support import needs_rclpy, ros2_robot
 
 pytestmark = pytest.mark.slow
 
-SEED = 5
-LEAD = 5.0
-"""The robots' motion starts this many seconds into its script (seed 5), so that the
-learning run sees it go straight, turn, stand, go straight, stand and turn, with a turn in
-the held-out last 30 %, and is followed by more than 30 s of driving without standing
-still (standing still is unjudged when learning saw less than 20 s of it)."""
-LEARN_SECONDS = 90.0
-"""With 60 s (a window starting 30 s later), one ROS 1 run of nine learned no relation of the
-IMU and three learned only one (the loaded rospy IMU comes in bursts); 90 s learned all
-five relations in six of six runs."""
+HELD_WITHIN = 30.0
+"""Seconds the black box may take until a relation of the IMU holds (it needs motion)."""
 OFFSET = 0.2
 """rad/s added to the IMU's yaw rate: a quarter of its healthy spread or less (asserted)."""
 DETECT_WITHIN = 15.0
 IMU_DRIVER = "/imu_driver"
 VALUE_OBSERVERS = frozenset({"relation", "liveness", "fields"})
 RELATION = frozenset({"relation"})
+SETTLE = 2.0
+"""Seconds after the shared ROS 2 robot's scheduled odometry offset ends before this test's
+black box starts, so its relations see only healthy values before the IMU offset."""
 
 
 class Collect(SinkBase):
@@ -106,26 +101,17 @@ class RealRobot:
     set_yaw_offset: Callable[[float], None]
 
 
-def learn(source: str, out: Path) -> Path:
-    learned = learn_from(lambda: open_source(source), LEARN_SECONDS)
-    config = out / "robot.yaml"
-    config.write_text(render_config(learned, "robot", "robot.model.yaml", "test"),
-                      encoding="utf-8")
-    (out / "robot.model.yaml").write_text(render_model(learned, "test"), encoding="utf-8")
-    return config
-
-
 def yaw_rates(epoch: float, start: float, end: float) -> list[float]:
     """The yaw rate every node of the robot measures, from wall clock ``start`` to ``end``."""
-    motion = motion_model.DiffdriveMotion(SEED)
+    motion = motion_model.DiffdriveMotion(MOTION_SEED)
     steps = int((end - start) / 0.01)
     return [motion.w(start + i * 0.01 - epoch) for i in range(steps + 1)]
 
 
-def imu_offset_is_caught_and_blamed_on_the_driver(robot: RealRobot, tmp_path: Path) -> None:
-    learn_start = time.time()
-    config = learn(robot.source, tmp_path)
-    learn_end = time.time()
+def imu_offset_is_caught_and_blamed_on_the_driver(robot: RealRobot, config: Path,
+                                                  learn_start: float, learn_end: float) -> None:
+    """The scenario on a robot whose configuration was learned from ``learn_start`` to
+    ``learn_end``."""
     relations = [(e["topic"].str(), e["topic_b"].str()) for e in load_config(config).observers
                  if e["type"].str() == "relation"]
     assert any("/imu/data" in pair for pair in relations), \
@@ -134,7 +120,8 @@ def imu_offset_is_caught_and_blamed_on_the_driver(robot: RealRobot, tmp_path: Pa
     sink = Collect()
     options = RunOptions(config=config, source=robot.source, live=False, extra_sinks=[sink])
     with black_box_running(options):
-        assert wait_for(sink.imu_relation_held, 30), "a relation of the IMU held within 30 s"
+        assert wait_for(sink.imu_relation_held, HELD_WITHIN), \
+            f"a relation of the IMU held within {HELD_WITHIN:g} s"
         started = min((o.time for o in sink.observations), default=time.time())
         inject = time.time()
         robot.set_yaw_offset(OFFSET)
@@ -165,7 +152,7 @@ def imu_offset_is_caught_and_blamed_on_the_driver(robot: RealRobot, tmp_path: Pa
 @pytest.fixture
 def ros1_robot(tmp_path: Path) -> Iterator[ros1_diffdrive.DiffdriveRobot1]:
     robot = ros1_diffdrive.DiffdriveRobot1(ros1_diffdrive.free_port(), log_dir=tmp_path / "logs",
-                                           seed=SEED, epoch=time.time() - LEAD)
+                                           seed=MOTION_SEED, epoch=time.time() - LEAD)
     try:
         yield robot.start()
     finally:
@@ -176,40 +163,38 @@ def ros1_robot(tmp_path: Path) -> Iterator[ros1_diffdrive.DiffdriveRobot1]:
 @pytest.mark.skipif(shutil.which("roscore") is None, reason="needs Debian's ROS 1")
 def test_ros1_a_learned_configuration_names_the_imu_driver_for_an_offset_inside_the_range(
         ros1_robot: ros1_diffdrive.DiffdriveRobot1, tmp_path: Path) -> None:
+    source = f"ros1://127.0.0.1:{ros1_robot.port}"
+    learn_start = time.time()
+    config = learn(source, tmp_path)
     imu_offset_is_caught_and_blamed_on_the_driver(
-        RealRobot(f"ros1://127.0.0.1:{ros1_robot.port}", ros1_robot.epoch,
-                  ros1_robot.set_yaw_offset), tmp_path)
+        RealRobot(source, ros1_robot.epoch, ros1_robot.set_yaw_offset), config, learn_start,
+        time.time())
 
 
-@pytest.fixture
-def ros2_robot_running(tmp_path: Path) -> Iterator[ros2_diffdrive.DiffdriveRobot2]:
-    robot = ros2_diffdrive.DiffdriveRobot2(fresh_domain(), seed=SEED, log_dir=tmp_path / "logs",
-                                           epoch=time.time() - LEAD)
-    try:
-        robot.start()
-        # Learning watches a running robot: wait until every node publishes (rclpy nodes
-        # take seconds to start here), or discovery sees only part of the graph.
-        topics = frozenset(ros2_diffdrive.TOPICS)
-        watched = Watched(robot.domain_id, Interest(topics))
-        try:
-            assert watched.until(lambda: all(watched.arrivals(t) for t in topics), 30), \
-                "every topic of the ROS 2 robot publishing within 30 s"
-        finally:
-            watched.close()
-        yield robot
-    finally:
-        robot.stop()
+def wait_out_the_scheduled_fault(learned: LearnedRobot) -> None:
+    """The shared ROS 2 robot puts an odometry offset on itself at a set motion time (for
+    test_learn_real_faults.py): if this test could still be running when it begins, wait
+    until it has ended, so no relation of this test's black box sees it."""
+    fault = learned.scheduled_fault()
+    begins, ends = learned.epoch + fault.start, learned.epoch + fault.end + SETTLE
+    needs = HELD_WITHIN + DETECT_WITHIN + 1.0
+    if time.time() + needs > begins and time.time() < ends:
+        wait_until(lambda: time.time() >= ends, "the shared robot's scheduled odometry offset "
+                   "to end", timeout=ends - time.time() + 5.0, step=0.2)
 
 
 @needs_rclpy
 @pytest.mark.ros2
+@pytest.mark.xdist_group(GROUP)  # the robot learned once, shared: one worker
 def test_ros2_a_learned_configuration_names_the_imu_driver_for_an_offset_inside_the_range(
-        ros2_robot_running: ros2_diffdrive.DiffdriveRobot2, tmp_path: Path) -> None:
-    robot = ros2_robot_running
-    parameters = ros2_robot.ParameterClient(robot.domain_id)
+        learned_ros2_diffdrive: LearnedRobot) -> None:
+    learned = learned_ros2_diffdrive
+    wait_out_the_scheduled_fault(learned)
+    parameters = ros2_robot.ParameterClient(learned.robot.domain_id)
     try:
         imu_offset_is_caught_and_blamed_on_the_driver(
-            RealRobot(f"ros2:{robot.domain_id}", robot.epoch,
-                      lambda value: parameters.set(IMU_DRIVER, yaw_offset=value)), tmp_path)
+            RealRobot(learned.source, learned.epoch,
+                      lambda value: parameters.set(IMU_DRIVER, yaw_offset=value)),
+            learned.config, learned.learn_start, learned.learn_end)
     finally:
         parameters.close()
