@@ -2,6 +2,8 @@
 # Lint, type-check and run every test: ruff first (a second), mypy beside pytest (it needs
 # one core for ~15 s while the tests mostly wait on robots and sockets), pytest in parallel
 # workers (tests/isolation.py keeps their DDS domains apart). Extra arguments go to pytest.
+# --no-loadscope-reorder: xdist hands out units of work (a test, or an xdist_group) in the
+# order tests/ordering.py gives them, longest first, not by their number of tests.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 bin=${VENV:-.venv}/bin
@@ -15,7 +17,8 @@ unset PYTHONDONTWRITEBYTECODE
 mypy_log=$(mktemp)
 "$bin/mypy" >"$mypy_log" 2>&1 &
 mypy_pid=$!
-"$bin/python" -m pytest -q -n "$workers" --dist loadgroup --durations=20 "$@"
+"$bin/python" -m pytest -q -n "$workers" --dist loadgroup --no-loadscope-reorder \
+    --durations=20 "$@"
 tests=$?
 wait "$mypy_pid"
 typed=$?

@@ -5,9 +5,11 @@ end starts when the other workers are almost done and the run waits for it alone
 out first, it runs while the other workers take the many short tests. ``tests/slowest.txt``
 lists the tests measured slow (seconds and node id, longest first; a node id without its
 ``[parameters]`` covers every case); :func:`longest_first` moves them to the front.
-Tests that share a worker through ``xdist_group`` stay where they are: xdist hands a group
-out as one unit and already starts with the largest groups. A stale or missing line costs
-only speed, never a test.
+Tests that share a worker through ``xdist_group`` are one unit of work: the unit's seconds
+are the sum of its tests' and the unit moves as a whole, its tests in their own order.
+``scripts/test.sh`` runs xdist with ``--no-loadscope-reorder``: by default xdist sorts the
+units by their number of tests, which put a 160 s group of two tests behind a 20 s group
+of forty. A stale or missing line costs only speed, never a test.
 """
 
 from __future__ import annotations
@@ -19,10 +21,15 @@ from typing import Protocol
 SLOWEST = Path(__file__).with_name("slowest.txt")
 
 
+class Marker(Protocol):
+    args: tuple[object, ...]
+    kwargs: dict[str, object]
+
+
 class Item(Protocol):
     nodeid: str
 
-    def get_closest_marker(self, name: str) -> object: ...
+    def get_closest_marker(self, name: str) -> Marker | None: ...
 
 
 def expected_seconds(path: Path = SLOWEST) -> dict[str, float]:
@@ -48,11 +55,22 @@ def _seconds(nodeid: str, table: dict[str, float]) -> float:
     return table.get(nodeid.split("[", 1)[0], 0.0)
 
 
+def unit(item: Item) -> str:
+    """The unit of work xdist's ``loadgroup`` hands out whole: the group, else the test."""
+    marker = item.get_closest_marker("xdist_group")
+    if marker is None:
+        return item.nodeid
+    name = marker.args[0] if marker.args else marker.kwargs.get("name", "default")
+    return f"@{name}"
+
+
 def longest_first(items: Sequence[Item], table: dict[str, float]) -> list[Item]:
-    """``items`` with the listed slow ones first, longest first; the rest keep their
-    order, and so do tests in an ``xdist_group``."""
-    slow = [item for item in items if _seconds(item.nodeid, table) > 0
-            and item.get_closest_marker("xdist_group") is None]
-    chosen = {id(item) for item in slow}
-    slow.sort(key=lambda item: -_seconds(item.nodeid, table))  # stable for equal times
-    return [*slow, *(item for item in items if id(item) not in chosen)]
+    """``items`` by unit of work, the units with listed seconds first, longest first; the
+    rest keep their order, and so do the tests inside a unit."""
+    units: dict[str, list[Item]] = {}
+    for item in items:
+        units.setdefault(unit(item), []).append(item)
+    seconds = {name: sum(_seconds(item.nodeid, table) for item in members)
+               for name, members in units.items()}
+    order = sorted(units, key=lambda name: -seconds[name])  # stable: unlisted keep order
+    return [item for name in order for item in units[name]]

@@ -1,12 +1,19 @@
-"""Parallel workers get the longest tests first (tests/ordering.py), so no 100 s test
-starts when the others are done; grouped tests and unlisted ones keep their order."""
+"""Parallel workers get the longest units of work first (tests/ordering.py), so no 100 s test
+starts when the others are done: a group's tests go as one unit weighing their sum, in
+their own order; unlisted tests keep their order."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ordering import SLOWEST, expected_seconds, longest_first
+
+
+@dataclass
+class Mark:
+    args: tuple[object, ...]
+    kwargs: dict[str, object] = field(default_factory=dict)
 
 
 @dataclass
@@ -14,17 +21,27 @@ class FakeItem:
     nodeid: str
     group: str | None = None
 
-    def get_closest_marker(self, name: str) -> object:
-        return self.group if name == "xdist_group" else None
+    def get_closest_marker(self, name: str) -> Mark | None:
+        return Mark((self.group,)) if name == "xdist_group" and self.group else None
 
 
 def test_listed_tests_go_first_longest_first_and_the_rest_keep_their_order() -> None:
     items = [FakeItem("a.py::quick"), FakeItem("b.py::slow"), FakeItem("c.py::slower[x]"),
-             FakeItem("d.py::grouped", group="g"), FakeItem("e.py::other")]
-    table = {"b.py::slow": 20.0, "c.py::slower": 90.0, "d.py::grouped": 500.0}
+             FakeItem("e.py::other")]
+    table = {"b.py::slow": 20.0, "c.py::slower": 90.0}
     ordered = [item.nodeid for item in longest_first(items, table)]
-    assert ordered == ["c.py::slower[x]", "b.py::slow", "a.py::quick", "d.py::grouped",
-                       "e.py::other"]
+    assert ordered == ["c.py::slower[x]", "b.py::slow", "a.py::quick", "e.py::other"]
+
+
+def test_a_group_moves_as_one_unit_weighing_the_sum_of_its_tests() -> None:
+    items = [FakeItem("a.py::quick"), FakeItem("b.py::slow"),
+             FakeItem("g1.py::first", group="g"), FakeItem("x.py::grouped_short", group="h"),
+             FakeItem("g2.py::second", group="g"), FakeItem("c.py::slower")]
+    table = {"b.py::slow": 20.0, "c.py::slower": 90.0, "g1.py::first": 50.0,
+             "g2.py::second": 60.0}
+    ordered = [item.nodeid for item in longest_first(items, table)]
+    assert ordered == ["g1.py::first", "g2.py::second", "c.py::slower", "b.py::slow",
+                       "a.py::quick", "x.py::grouped_short"]
 
 
 def test_the_table_reads_seconds_and_node_ids_and_skips_what_it_cannot_read(
