@@ -73,6 +73,21 @@ def test_summaries(summary: str, expected: float) -> None:
     assert summarise(b"\x00\x02", "mean", "data") == 1.0
 
 
+@pytest.mark.parametrize("dtype", [np.uint8, np.int8, np.uint16, np.int16, np.bool_])
+@pytest.mark.parametrize("summary", ["mean", "min", "max", "finite", "in_range"])
+def test_narrow_integers_summarise_to_the_numbers_of_their_float_copy(
+        dtype: type, summary: str) -> None:
+    """Frames and byte payloads are summarised without a float64 copy, to the same number."""
+    rng = np.random.default_rng(7)
+    for size in (1, 3, 1001, 640 * 480 * 3):
+        array = rng.integers(-128 if np.dtype(dtype).kind == "i" else 0, 256,
+                             size=size).astype(dtype)
+        expected = summarise(array.astype(np.float64), summary, "data", (3.0, 120.5))
+        assert summarise(array, summary, "data", (3.0, 120.5)) == expected
+        if dtype is np.uint8:
+            assert summarise(array.tobytes(), summary, "data", (3.0, 120.5)) == expected
+
+
 @pytest.mark.parametrize(("entry", "error"), [
     ("{name: a, field: x, summary: median}", "expected one of"),
     ("{name: a, field: x, summary: in_range}", "needs range"),
