@@ -50,6 +50,7 @@ def expected_seconds(path: Path = SLOWEST) -> dict[str, float]:
 
 
 def _seconds(nodeid: str, table: dict[str, float]) -> float:
+    nodeid = nodeid.split("@", 1)[0]  # xdist may have added its group ("...@group")
     if nodeid in table:
         return table[nodeid]
     return table.get(nodeid.split("[", 1)[0], 0.0)
