@@ -6,48 +6,24 @@ the messages they skip. Counted per evaluation, like theirs."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import textwrap
 
 from blackbox.events import MessageArrival
 from blackbox.model import Observation
 from blackbox.observe.build import build_observer, load_config_text
+from blackbox.observe.observers import relation
 from blackbox.observe.observers.relation import RelationObserver
 
-CONFIG = """
-version: 1
-observers:
-  - type: relation
-    topic: /cmd_yaw
-    topic_b: /imu/data
-    step: 0.05
-    block: 10
-    window: 5.0
-    fresh: 0.3
-    relations:
-      - name: imu_yaw
-        target: {topic: /imu/data, field: z}
-        inputs:
-          - {topic: /cmd_yaw, field: data, lags: [0.0], gains: [1.0]}
-        intercept: 0.0
-        block_noise: 0.01
-        cusum: {k: 0.5, h: 12.0}
-        excitation: 0.05
-        span: [-1.0, 1.0]
-"""
 
-
-@dataclass(frozen=True)
-class Cmd:
-    data: float
-
-
-@dataclass(frozen=True)
-class Imu:
-    z: float
+def documented_example() -> str:
+    """The observer entry of the module's own documentation (its ``code-block:: yaml``)."""
+    doc = relation.__doc__ or ""
+    block = doc.split(".. code-block:: yaml", 1)[1].split('"""', 1)[0]
+    return "version: 1\nobservers:\n" + textwrap.indent(textwrap.dedent(block).strip(), "  ")
 
 
 def observer() -> RelationObserver:
-    (entry,) = load_config_text(CONFIG, "robot.yaml").observers
+    (entry,) = load_config_text(documented_example(), "robot.yaml").observers
     obs = build_observer(entry)
     assert isinstance(obs, RelationObserver)
     return obs
@@ -71,10 +47,11 @@ def drive(obs: RelationObserver, start: float, end: float, *, imu_decodes: bool 
         if t >= end:
             break
         w = 0.5 * math.sin(2 * math.pi * t / 7.0)
-        obs.on_message(MessageArrival(t, "/cmd_yaw", "/teleop", 8, value=Cmd(w)))
+        obs.on_message(MessageArrival(t, "/cmd_yaw", "/teleop", 8, value={"data": w}))
         broken = not imu_decodes or (undecodable_every and k % undecodable_every == 0)
         if not broken:
-            obs.on_message(MessageArrival(t + 0.01, "/imu/data", "/imu", 8, value=Imu(w)))
+            obs.on_message(MessageArrival(t + 0.01, "/imu/data", "/imu", 8,
+                                          value={"angular_velocity": {"z": w}}))
         elif k % 2:
             obs.on_message(MessageArrival(t + 0.01, "/imu/data", "/imu", 8, decode=garbage))
         else:
