@@ -196,6 +196,26 @@ def test_an_event_named_late_is_rekeyed_or_merged_with_its_logged_copy(
     assert store.count_events() == 4
 
 
+def test_events_stored_under_an_entitys_id_take_its_name_once_it_is_described(
+        store: StationStore) -> None:
+    robot_with_a_failing_camera(store)
+    other = robot_resource_id("tug-2")
+    said = "#4 is no longer diagnosed faulty"
+    store.add_event(RID, T0, "rectification", dedup="rectification|t0|#4", entity="#4",
+                    text=said)
+    store.add_event(RID, T0, "failure", dedup="failure|t0|#4", entity="#4", text="no fix")
+    store.add_event(RID, T0, "failure", dedup="failure|t0|#5", entity="#5", text=said)
+    store.add_event(other, T0, "rectification", dedup="rectification|t0|#4", entity="#4",
+                    text=said)
+    store.name_entity_events(RID, "#4", "/gps", {said: "/gps is no longer diagnosed faulty"})
+    assert store.flush()
+    named = sorted((e.kind, e.entity, e.text) for e in store.events(RID).events)
+    assert named == [("failure", "#5", said), ("failure", "/gps", "no fix"),
+                     ("rectification", "/gps", "/gps is no longer diagnosed faulty")]
+    [untouched] = store.events(other).events
+    assert (untouched.entity, untouched.text) == ("#4", said)
+
+
 def test_events_page_newest_first_with_filters_and_a_cursor(store: StationStore) -> None:
     robot_with_a_failing_camera(store)
     for i in range(25):

@@ -36,7 +36,7 @@ PASSWORD = "station password 1"
 @pytest.fixture
 def served(tmp_path: Path) -> Iterator[tuple[str, StationStore]]:
     path = tmp_path / "station.db"
-    store = StationStore.open(path)
+    store = StationStore.open(path, stale_after=3600.0)  # the robot stays heard throughout
     auth = quick_auth(path)
     auth.add_user("vera", PASSWORD, Role.OPERATOR)
     stop = threading.Event()

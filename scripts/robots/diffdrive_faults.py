@@ -8,26 +8,50 @@ ground truth without talking to the nodes, and performs the two process faults, 
 node cannot do to itself: ``kill`` (SIGKILL, started again at the end) and ``stall``
 (SIGSTOP of the publisher, SIGCONT at the end).
 
-The draws follow the simulated campaign (``random_campaign`` in
+The draws are the simulated campaign's (``random_campaign`` in
 ``src/blackbox/sources/sim/faults.py`` with ``moving_only``, as ``benchmarks/
-learned_campaign.py`` calls it): fault starts a Poisson process with a 10 s mean gap after
-a 5 s warm-up, lengths 5-15 s, the kind uniform among the seven, the component uniform among
-the free ones (one fault per node at a time, 5 s apart), the field uniform among the
-topic's moving fields; offsets 4-10 and drift rates 0.5-2 per second times the field's own
-noise, scale factors 0.5-0.8 or 1.2-1.6, noise of 0.2-0.5 of the field's healthy spread and
-at least 3-6 times its own noise, stuck at the last value before the fault. A fault is
-therefore inside the signal's normal range. No ROS import: the ROS 1 nodes run under
-Debian's ``/usr/bin/python3``, the ROS 2 nodes and the harness under the project's venv.
+learned_campaign.py`` calls it), made by the same functions
+(``src/blackbox/sources/sim/fault_draws.py``, standard library only, loaded here by its
+path because the package is not installed for ``/usr/bin/python3``): fault starts a
+Poisson process with a 10 s mean gap after a 5 s warm-up, lengths 5-15 s, the kind uniform
+among the seven, the component uniform among the free ones (one fault per node at a time,
+5 s apart), the field uniform among the topic's moving fields; offsets 4-10 and drift rates
+0.5-2 per second times the field's own noise, scale factors 0.5-0.8 or 1.2-1.6, noise of
+0.2-0.5 of the field's healthy spread and at least 3-6 times its own noise, stuck at the
+last value before the fault. A fault is therefore inside the signal's normal range. No ROS
+import: the ROS 1 nodes run under Debian's ``/usr/bin/python3``, the ROS 2 nodes and the
+harness under the project's venv.
 """
 
 from __future__ import annotations
 
-import math
+import importlib.util
 import random
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
+from types import ModuleType
 
 from diffdrive_motion import DiffdriveMotion
+
+
+def _load_draws() -> ModuleType:
+    """``blackbox/sources/sim/fault_draws.py`` of this checkout, by its path (once per
+    process, under a name of its own so it never shadows or imports the package)."""
+    name = "blackbox_sim_fault_draws"
+    if name not in sys.modules:
+        path = Path(__file__).resolve().parents[2] / "src" / "blackbox" / "sources" / "sim" \
+            / "fault_draws.py"
+        spec = importlib.util.spec_from_file_location(name, path)
+        assert spec is not None and spec.loader is not None, path
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+fault_draws = _load_draws()
 
 KINDS = ("stuck", "drift", "offset", "scale", "noise", "kill", "stall")
 VALUE_KINDS = frozenset({"stuck", "drift", "offset", "scale", "noise"})
@@ -53,9 +77,6 @@ FIELDS: dict[tuple[str, str], tuple[float, Clean]] = {
 at motion time t). ``/imu/data`` ``linear_acceleration.z`` is a constant (gravity) and, as in
 the simulated campaign's ``moving_only``, not faulted."""
 
-WARMUP = 5.0
-MEAN_GAP = 10.0
-LENGTHS = (5.0, 15.0)
 SEPARATION = 5.0
 
 
@@ -88,28 +109,20 @@ def healthy_spread(topic: str, name: str, horizon: float = 600.0, step: float = 
         sigma, clean = FIELDS[key]
         motion = DiffdriveMotion(0)
         values = [clean(motion, k * step) for k in range(int(horizon / step))]
-        mean = sum(values) / len(values)
-        var = sum((x - mean) ** 2 for x in values) / len(values)
-        _SPREADS[key] = math.sqrt(var + sigma ** 2)
+        _SPREADS[key] = fault_draws.spread(values, sigma)
     return _SPREADS[key]
 
 
 def _params(rng: random.Random, kind: str, topic: str, name: str) -> dict[str, float]:
-    def sign() -> float:
-        return 1.0 if rng.random() < 0.5 else -1.0
-
     sigma = FIELDS[(topic, name)][0]
     if kind == "offset":
-        return {"value": round(sign() * rng.uniform(4.0, 10.0) * sigma, 4)}
+        return fault_draws.offset(rng, sigma)
     if kind == "drift":
-        return {"rate": round(sign() * rng.uniform(0.5, 2.0) * sigma, 4)}
+        return fault_draws.drift(rng, sigma)
     if kind == "scale":
-        low = rng.random() < 0.5
-        return {"factor": round(rng.uniform(0.5, 0.8) if low else rng.uniform(1.2, 1.6), 3)}
+        return fault_draws.scale(rng)
     if kind == "noise":
-        spread = healthy_spread(topic, name)
-        return {"sigma": round(max(rng.uniform(0.2, 0.5) * spread,
-                                   rng.uniform(3.0, 6.0) * sigma, 1e-3), 4)}
+        return fault_draws.noise(rng, healthy_spread(topic, name), sigma)
     return {}
 
 
@@ -119,32 +132,24 @@ def schedule(seed: int, start: float, duration: float,
     rng = random.Random(f"blackbox-real-diffdrive-faults:{seed}")
     nodes = sorted(set(TOPICS.values()))
     free_at = {n: 0.0 for n in nodes}
+
+    def free(kind: str, t: float) -> list[str]:
+        if kind == "kill":
+            return [n for n in nodes if free_at[n] <= t]
+        return [c for c in sorted(TOPICS) if free_at[TOPICS[c]] <= t]
+
     faults: list[ScheduledFault] = []
-    t = WARMUP
-    while True:
-        t += rng.expovariate(1.0 / MEAN_GAP)
-        if t >= duration:
-            return faults
-        choices: dict[str, list[str]] = {}
-        for kind in kinds:
-            pool = nodes if kind == "kill" else sorted(TOPICS)
-            free = [c for c in pool if free_at[c if kind == "kill" else TOPICS[c]] <= t]
-            if free:
-                choices[kind] = free
-        if not choices:
-            continue
-        kind = rng.choice(sorted(choices))
-        component = rng.choice(choices[kind])
-        length = rng.uniform(*LENGTHS)
+    for draw in fault_draws.draws(rng, duration, kinds, free):
         name = None
         params: dict[str, float] = {}
-        if kind in VALUE_KINDS:
-            name = rng.choice([f for (tp, f) in FIELDS if tp == component])
-            params = _params(rng, kind, component, name)
-        fault = ScheduledFault(kind, component, round(start + t, 3),
-                               round(start + t + length, 3), params, name)
+        if draw.kind in VALUE_KINDS:
+            name = rng.choice([f for (tp, f) in FIELDS if tp == draw.component])
+            params = _params(rng, draw.kind, draw.component, name)
+        fault = ScheduledFault(draw.kind, draw.component, round(start + draw.t, 3),
+                               round(start + draw.t + draw.length, 3), params, name)
         faults.append(fault)
-        free_at[fault.node] = t + length + SEPARATION
+        free_at[fault.node] = draw.t + draw.length + SEPARATION
+    return faults
 
 
 class FaultPlan:

@@ -16,7 +16,6 @@ interval between arrivals that spans it is not a period.
 
 from __future__ import annotations
 
-import contextlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -108,6 +107,8 @@ class TopicRecord:
     """Messages stamped inside a measurement gap (not learned from)."""
     stamp_path: str | None = None
     """The header stamp that times this topic's samples for relations (``sample_time``)."""
+    stamp_field: FieldRecord | None = None
+    """The field at ``stamp_path``, found once when the topic's fields are discovered."""
 
     @property
     def total(self) -> int:
@@ -156,6 +157,15 @@ class Recording:
     @property
     def duration(self) -> float:
         return max(0.0, self.ended - self.started)
+
+
+def _read_stamp(rec: FieldRecord, value: Any) -> float | str:
+    """Seconds of the stamp field ``rec`` in the decoded message ``value``, or why there
+    are none."""
+    try:
+        return stamp_seconds(rec.access(value))
+    except ValueError as exc:
+        return str(exc)
 
 
 class Recorder:
@@ -245,22 +255,27 @@ class Recorder:
             topic.discovery = discover(value)
             topic.fields = [FieldRecord(f, compile_field_access(f.path))
                             for f in topic.discovery.fields]
-            topic.stamp_path = next((r.info.path for r in topic.fields
-                                     if r.info.kind == "stamp"), None)
-        t = msg.time
+            topic.stamp_field = next((r for r in topic.fields if r.info.kind == "stamp"),
+                                     None)
+            topic.stamp_path = topic.stamp_field.info.path if topic.stamp_field else None
+        # The timing stamp is read once: it times this message's samples and is its own
+        # ``age`` sample.
+        timing = topic.stamp_field
+        stamp = _read_stamp(timing, value) if timing is not None else None
+        t = sample_time(msg.time, stamp) if isinstance(stamp, float) else msg.time
         for rec in topic.fields:
-            if rec.info.kind == "stamp" and rec.info.path == topic.stamp_path:
-                with contextlib.suppress(ValueError):  # counted below with its problems
-                    t = sample_time(msg.time, stamp_seconds(rec.access(value)))
-                break
-        for rec in topic.fields:
+            if rec.info.kind == "stamp":
+                seconds = stamp if rec is timing and stamp is not None else \
+                    _read_stamp(rec, value)
+                if isinstance(seconds, str):
+                    rec.problems += 1
+                    rec.last_problem = seconds
+                elif seconds != 0.0:  # a stamp of zero was never set: no age
+                    rec.series.setdefault("age", Series()).add(msg.time - seconds)
+                continue
             try:
                 raw = rec.access(value)
-                if rec.info.kind == "stamp":
-                    stamp = stamp_seconds(raw)
-                    if stamp != 0.0:
-                        rec.series.setdefault("age", Series()).add(msg.time - stamp)
-                elif rec.info.kind == "scalar":
+                if rec.info.kind == "scalar":
                     x = summarise(raw, "value", rec.info.path)
                     rec.series.setdefault("value", Series()).add(x)
                     rec.timed.setdefault("value", TimedSeries()).add(t, x)

@@ -82,6 +82,7 @@ from blackbox.station.store import (
     robot_resource,
 )
 from blackbox.station.trust import SampleGate, WriterWatch
+from blackbox.station.wording import rectified, unnamed_entity
 from blackbox.transport.auth import RequestSigner, public_key_text
 from blackbox.transport.buses import open_bus
 from blackbox.transport.logservice import LogAnswer, LogClient
@@ -228,6 +229,9 @@ class _Robot:
     rectifications as the robot announces them instead of inferring them."""
     sequences: EventSequences = field(default_factory=EventSequences)
     gap_fetch: bool = False
+    unnamed_events: set[int] = field(default_factory=set)
+    """Entities that events were stored for under their id (``#<id>``): their
+    description has not come yet (:meth:`StationFollower._name_entity_events`)."""
 
     @property
     def name(self) -> str:
@@ -672,6 +676,7 @@ class StationFollower:
         if isinstance(s, C_Entity_Description):
             iid = int(s.A_sourceID.A_instanceId)
             e = robot.entities.setdefault(iid, _Entity())
+            was_unnamed = iid in robot.unnamed_events or e.name == unnamed_entity(iid)
             e.name = self._text(s.A_name, "entity name", 200)
             e.kind = self._text(s.A_kind, "entity kind", 20)
             parent = s.A_parent_sourceID
@@ -679,6 +684,9 @@ class StationFollower:
                                   parent=int(parent.A_instanceId)
                                   if int(parent.A_resourceId) == rid else None,
                                   updated=seconds_of(s.A_timeOfDataGeneration))
+            if was_unnamed and e.name:
+                robot.unnamed_events.discard(iid)
+                self._name_entity_events(rid, iid, e.name)
         elif isinstance(s, C_Monitored_Entity):
             self._entity(robot, s, now)
         elif isinstance(s, C_Monitored_Characteristic):
@@ -819,16 +827,33 @@ class StationFollower:
             self.boots.see(robot.name, ident.boot)
         return f"id:{ident}"
 
+    @staticmethod
+    def _entity_name(robot: _Robot, e: _Entity | None, iid: int) -> str:
+        """What an event of entity ``iid`` (``e``, known or not) is stored under: its name,
+        or before its description came its id, remembered to be renamed then."""
+        if e is not None and e.name:
+            return e.name
+        robot.unnamed_events.add(iid)
+        return unnamed_entity(iid)
+
+    def _name_entity_events(self, rid: int, iid: int, name: str) -> None:
+        """The events stored before entity ``iid``'s description came, under its id, take
+        its name, and a rectification's words name it (an operator reads which component
+        recovered, not a number)."""
+        placeholder = unnamed_entity(iid)
+        self.store.name_entity_events(rid, placeholder, name,
+                                      {rectified(placeholder): rectified(name)})
+
     def _rectification(self, robot: _Robot, s: C_Event_Extension, now: float) -> None:
         rid = robot.resource_id
         ent = s.A_entity_sourceID
         e = robot.entities.get(int(ent.A_instanceId)) if int(ent.A_resourceId) == rid else None
-        name = e.name if e is not None else f"#{int(ent.A_instanceId)}"
+        name = self._entity_name(robot, e, int(ent.A_instanceId))
         t = seconds_of(s.A_timeOfDataGeneration)
         dedup = self._identity(robot, s.A_eventId, f"rectification|{_stamp(t)}|{name}", t, now)
         self.store.add_event(rid, self.clocks.time_of(robot.name, t, now), "rectification",
                              dedup=dedup, entity=name,
-                             text=f"{name} is no longer diagnosed faulty",
+                             text=rectified(name),
                              details={"event_id": s.A_eventId[:40], **self._robot_time(
                                  robot, t)})
 
@@ -888,7 +913,7 @@ class StationFollower:
         rid = robot.resource_id
         ent = s.A_monitoredEntity_sourceID
         e = robot.entities.get(int(ent.A_instanceId)) if int(ent.A_resourceId) == rid else None
-        name = e.name if e is not None else f"#{int(ent.A_instanceId)}"
+        name = self._entity_name(robot, e, int(ent.A_instanceId))
         t = seconds_of(s.A_eventOccurrenceDate)
         description = self._text(s.A_failureDescription, "failure description")
         cause = self._text(s.A_causeDescription, "cause description")
@@ -955,7 +980,7 @@ class StationFollower:
             self.store.add_event(r.resource_id, r.time, "rectification",
                                  dedup=f"rectification|{_stamp(r.time)}|{r.entity}",
                                  entity=r.entity,
-                                 text=f"{r.entity} is no longer diagnosed faulty")
+                                 text=rectified(r.entity))
         self._inferred = keep
 
     def _check_sequences(self, now: float) -> None:
@@ -1136,7 +1161,7 @@ class StationFollower:
                     self.store.add_event(rid, t, "rectification",
                                          dedup=f"rectification|{_stamp(t)}|{comp}",
                                          entity=comp, origin="log",
-                                         text=f"{comp} is no longer diagnosed faulty",
+                                         text=rectified(comp),
                                          details={"log_id": entry.id})
                 else:
                     self.store.add_event(rid, t, "failure", dedup=f"failure|{_stamp(t)}|{comp}",
@@ -1223,7 +1248,7 @@ class StationFollower:
             time_key = f"{kind}|{_stamp(t)}|{comp}"
             dedup = self._identity(robot, item.get("id"), time_key, t, self.clock(),
                                    live=False)
-            text = f"{comp} is no longer diagnosed faulty" if kind == "rectification" else \
+            text = rectified(comp) if kind == "rectification" else \
                 f"{comp} diagnosed faulty" + (f": {explanation}" if explanation else "")
             details: dict[str, Any] = {"log_id": log_id, "event_id": str(item.get("id"))[:40]}
             if kind == "failure":

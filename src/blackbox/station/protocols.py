@@ -10,7 +10,7 @@ SQLite (the embedded default) and on PostgreSQL (several station processes, one 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import IO, Any, Protocol
 
 from blackbox.record.store import LogEntry
@@ -74,6 +74,9 @@ class FleetWrites(Protocol):
                    entity: str = "", characteristic: str = "", text: str = "",
                    origin: str = "live", details: dict[str, Any] | None = None,
                    rewrite: bool = True) -> None: ...
+
+    def name_entity_events(self, resource_id: int, placeholder: str, name: str,
+                           texts: Mapping[str, str]) -> None: ...
 
     def flush(self, force: bool = False) -> bool: ...
 

@@ -34,7 +34,7 @@ import json
 import math
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
@@ -589,6 +589,21 @@ class StationStore:
             db.execute("UPDATE alert_alerts SET event_id = ? WHERE event_id = ?",
                        (found[0], old[0]))
             db.execute("DELETE FROM events WHERE id = ?", (old[0],))
+        self._queue(op, resource_id, "events")
+
+    def name_entity_events(self, resource_id: int, placeholder: str, name: str,
+                           texts: Mapping[str, str]) -> None:
+        """Events of robot ``resource_id`` stored under the entity ``placeholder`` (its id,
+        before its description came) take the entity's ``name``; one whose text is a key
+        of ``texts`` (the words said with the placeholder) takes its value."""
+        entity = clip(name, MAX_NAME)
+
+        def op(db: Connection) -> None:
+            for old, new in texts.items():
+                db.execute("UPDATE events SET text = ? WHERE resource_id = ? AND entity = ? "
+                           "AND text = ?", (clip(new), resource_id, placeholder, old))
+            db.execute("UPDATE events SET entity = ? WHERE resource_id = ? AND entity = ?",
+                       (entity, resource_id, placeholder))
         self._queue(op, resource_id, "events")
 
     def acknowledge(self, event_id: int, user: str, note: str = "") -> Event:

@@ -9,6 +9,16 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 
+def unnamed_entity(instance_id: int) -> str:
+    """How an entity is named before its description arrived: by its instance id."""
+    return f"#{instance_id}"
+
+
+def rectified(entity: str) -> str:
+    """A rectification: ``entity`` is diagnosed faulty no more."""
+    return f"{entity} is no longer diagnosed faulty"
+
+
 def explain(robot: str, components: Sequence[str], causes: dict[str, str],
             actions: dict[str, str], degraded: Sequence[str] = (), *, stale: bool = False,
             online: bool = True) -> str:

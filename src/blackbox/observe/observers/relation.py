@@ -276,7 +276,8 @@ class RelationObserver(ObserverBase):
         self._judges = [_Judge(r, self.window_blocks, step * block) for r in relations]
         self._next: float | None = None
         self._ticks = 0
-        self._undecodable = 0
+        self._undecodable: dict[str, int] = {}
+        """Messages per topic since the last evaluation that gave no value to read."""
 
     def interest(self) -> Interest:
         topics = frozenset({self.topic, self.topic_b})
@@ -348,7 +349,7 @@ class RelationObserver(ObserverBase):
         except Exception:  # the robot's garbage, never the black box's crash
             value = None
         if value is None:
-            self._undecodable += 1
+            self._undecodable[msg.topic] = self._undecodable.get(msg.topic, 0) + 1
             return
         t = msg.time
         stamp = self._stamps.get(msg.topic)
@@ -392,22 +393,36 @@ class RelationObserver(ObserverBase):
             else:
                 open_.append(f"{what}: unjudged, {judge.reason}")
                 open_all[-1] = open_[-1]
+        undecoded = self._undecoded(values)
         if failed:
             text = "; ".join(failed)
             if held:
                 text += "; held: " + "; ".join(held)
+            text += undecoded
             return [Observation(now, self.type_name, self.resource, Code.NO_STATE_FITS,
                                 values=values, message=text)]
         # OK clears the signals judged_signals names: every relation's target, and its
         # inputs when it sees their faults; it needs every relation held
         blocking = [o for o in open_all if o is not None]
         if blocking or not held:
-            return [self.unavailable(now, "; ".join(open_ + held), values)]
+            return [self.unavailable(now, "; ".join(open_ + held) + undecoded, values)]
         text = "holds: " + "; ".join(held)
         if open_:
             text += "; not counted: " + "; ".join(open_)
+        text += undecoded
         return [Observation(now, self.type_name, self.resource, Code.GENERAL_OK,
                             values=values, message=text)]
+
+    def _undecoded(self, values: dict[str, float]) -> str:
+        """The messages since the last evaluation that did not decode, said as a clause of
+        the observation's message and counted in ``values["undecodable"]`` (as the other
+        observers report messages they skip); counted afresh from here."""
+        counts, self._undecodable = self._undecodable, {}
+        if not counts:
+            return ""
+        values["undecodable"] = float(sum(counts.values()))
+        return "; " + ", ".join(f"{n} messages of {topic}" for topic, n in sorted(
+            counts.items())) + " did not decode since the last evaluation"
 
     def judged_signals(self) -> JudgedSignals:
         """Field-level diagnosis (docs/diagnosis.md): a failure accuses the signals of every

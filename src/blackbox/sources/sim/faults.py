@@ -18,6 +18,7 @@ from typing import Any
 
 from blackbox.config.node import ConfigNode
 
+from . import fault_draws
 from .messages import ScalarModel, ValueModel, scalars_of
 from .motion import Motion
 from .topology import Topology
@@ -209,12 +210,9 @@ def healthy_spread(model: ScalarModel, topology: Topology, horizon: float = 600.
     if cached is not None and cached[0] is topology:
         return cached[1]
     motion = Motion(topology.motion, topology.modes, seed=0)
-    n = int(horizon / step)
     total = [sum(gain * motion.at(signal, k * step) for signal, gain in model.follows)
-             for k in range(n)]
-    mean = sum(total) / n
-    var = sum((x - mean) ** 2 for x in total) / n
-    spread = math.sqrt(var + noise_std(model) ** 2)
+             for k in range(int(horizon / step))]
+    spread = fault_draws.spread(total, noise_std(model))
     _SPREADS[(id(topology), model)] = (topology, spread)
     return spread
 
@@ -227,16 +225,9 @@ _SPREADS: dict[tuple[int, ScalarModel], tuple[Topology, float]] = {}
 def _random_params(rng: random.Random, kind: str, topology: Topology,
                    model: ScalarModel | None) -> dict[str, float]:
     """Parameters large enough to be a real fault, drawn around the component's nominal
-    (``model``: the numeric field a value fault acts on)."""
-
-    def either(low: tuple[float, float], high: tuple[float, float]) -> float:
-        return rng.uniform(*(low if rng.random() < 0.5 else high))
-
-    def sign() -> float:
-        return 1.0 if rng.random() < 0.5 else -1.0
-
+    (``model``: the numeric field a value fault acts on; :mod:`.fault_draws` draws them)."""
     if kind == "rate":
-        return {"factor": round(either((0.3, 0.6), (1.6, 2.5)), 3)}
+        return fault_draws.rate(rng)
     if kind in ("offset", "drift"):
         assert model is not None
         if model.follows:
@@ -247,23 +238,17 @@ def _random_params(rng: random.Random, kind: str, topology: Topology,
                 unit = max(unit, 0.01 * healthy_spread(model, topology))
         else:
             unit = max(model.noise, 0.05 * abs(model.mean), 1e-3)
-        if kind == "offset":
-            return {"value": round(sign() * rng.uniform(4.0, 10.0) * unit, 4)}
-        return {"rate": round(sign() * rng.uniform(0.5, 2.0) * unit, 4)}
+        return fault_draws.offset(rng, unit) if kind == "offset" else \
+            fault_draws.drift(rng, unit)
     if kind == "scale":
-        return {"factor": round(either((0.5, 0.8), (1.2, 1.6)), 3)}
+        return fault_draws.scale(rng)
     if kind == "noise":
         assert model is not None
-        # Inside the normal range: a fraction of the signal's healthy spread, but always a
-        # few times its own measurement noise so it is a fault and not more of the same.
-        own = noise_std(model)
-        spread = healthy_spread(model, topology)
-        return {"sigma": round(max(rng.uniform(0.2, 0.5) * spread, rng.uniform(3.0, 6.0) * own,
-                                   1e-3), 4)}
+        return fault_draws.noise(rng, healthy_spread(model, topology), noise_std(model))
     if kind == "cpu_hog":
-        return {"percent": round(rng.uniform(85.0, 100.0), 1)}
+        return fault_draws.cpu_hog(rng)
     if kind == "memory_growth":
-        return {"rate": float(round(rng.uniform(2e6, 20e6)))}
+        return fault_draws.memory_growth(rng)
     return {}
 
 
@@ -301,23 +286,15 @@ def random_campaign(
     rng = random.Random(f"blackbox-sim-campaign:{seed}")
     free_at = {n: 0.0 for n in topology.nodes}
     owner = {t.name: t.publisher for t in topology.topics.values()}
+
+    def free(kind: str, t: float) -> list[str]:
+        return [c for c in _components(topology, kind, moving_only)
+                if free_at[owner.get(c, c)] <= t]
+
     faults: list[Fault] = []
-    t = warmup
-    while True:
-        t += rng.expovariate(1.0 / mean_gap)
-        if t >= duration:
-            return faults
-        choices: dict[str, list[str]] = {}
-        for kind in fixed:
-            free = [c for c in _components(topology, kind, moving_only)
-                    if free_at[owner.get(c, c)] <= t]
-            if free:
-                choices[kind] = free
-        if not choices:
-            continue
-        kind = rng.choice(sorted(choices))
-        component = rng.choice(choices[kind])
-        length = rng.uniform(low, high)
+    for draw in fault_draws.draws(rng, duration, fixed, free, warmup=warmup,
+                                  mean_gap=mean_gap, lengths=(low, high)):
+        kind, component = draw.kind, draw.component
         model: ScalarModel | None = None
         field_name: str | None = None
         if FAULT_KINDS[kind].target == "value":
@@ -328,10 +305,11 @@ def random_campaign(
             model = scalars[0] if len(scalars) == 1 else rng.choice(scalars)
             field_name = None if len(every) == 1 else model.field
         params = dict(fixed[kind]) or _random_params(rng, kind, topology, model)
-        start = round(t, 3)
-        end = round(t + length, 3)
+        start = round(draw.t, 3)
+        end = round(draw.t + draw.length, 3)
         faults.append(Fault(kind, component, start, end, params, field_name))
         free_at[owner.get(component, component)] = end + min_separation
+    return faults
 
 
 # ---- YAML ------------------------------------------------------------------------------------
