@@ -192,8 +192,8 @@ def ros2_robot_running(tmp_path: Path) -> Iterator[ros2_diffdrive.DiffdriveRobot
         topics = frozenset(ros2_diffdrive.TOPICS)
         watched = Watched(robot.domain_id, Interest(topics))
         try:
-            assert watched.until(lambda: all(watched.arrivals(t) for t in topics), 30), \
-                "every topic of the ROS 2 robot publishing within 30 s"
+            assert watched.until(lambda: all(watched.arrivals(t) for t in topics), 90), \
+                "every topic of the ROS 2 robot publishing within 90 s"
         finally:
             watched.close()
         yield robot
