@@ -11,7 +11,7 @@ import socket
 import subprocess
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -59,6 +59,15 @@ class Receiver:
             ok = self.cond.wait_for(lambda: len(self.received) >= count, timeout)
         assert ok, f"the receiver got {len(self.received)} of {count} webhooks in {timeout} s"
         return list(self.received)
+
+    def wait_for_one(self, match: Callable[[Received], bool], what: str,
+                     timeout: float) -> Received:
+        """The first accepted request that ``match`` accepts (others may come first)."""
+        with self.cond:
+            ok = self.cond.wait_for(lambda: any(match(r) for r in self.received), timeout)
+            assert ok, f"the receiver got no {what} in {timeout} s " \
+                       f"({len(self.received)} other webhooks)"
+            return next(r for r in self.received if match(r))
 
     def wait_attempts(self, count: int, timeout: float) -> None:
         with self.cond:
