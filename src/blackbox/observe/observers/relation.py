@@ -96,6 +96,9 @@ MAX_GAP = 30.0
 """A gap in time longer than this (seconds) restarts the grid instead of replaying it."""
 SEED_BLOCKS = 10
 """Judged blocks a relation that follows a moving bias first spends finding it (unjudged)."""
+ANCHOR_BELOW = 4.0
+"""The bias from before an alarm is the followed bias of the last block whose CUSUM was
+below ``h / ANCHOR_BELOW`` (not yet building up to the alarm)."""
 _NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
 
 
@@ -146,15 +149,17 @@ class RelationSpec:
 class _Judge:
     """The running test of one relation."""
 
-    __slots__ = ("alpha", "count", "cusum", "excite", "followed", "last_z", "pred_sum",
-                 "reason", "res_sum", "seeded", "spec", "step_limit", "unjudged_blocks",
-                 "verdict")
+    __slots__ = ("alpha", "anchor", "count", "cusum", "excite", "followed", "last_z",
+                 "pred_sum", "reason", "res_sum", "seeded", "spec", "step_limit",
+                 "unjudged_blocks", "verdict")
 
     def __init__(self, spec: RelationSpec, window_blocks: int, block_seconds: float) -> None:
         self.spec = spec
         self.alpha = 0.0 if spec.track is None else min(1.0, block_seconds / spec.track)
         self.step_limit = spec.track_rate * block_seconds
         self.followed = 0.0
+        self.anchor = 0.0
+        """The followed bias from before the current alarm (see :meth:`_follow`)."""
         self.seeded = 0
         self.cusum = Cusum(spec.cusum)
         self.excite: deque[float] = deque(maxlen=window_blocks)
@@ -217,14 +222,42 @@ class _Judge:
             self._unjudged(f"finding where its moving bias is now ({self.seeded} of "
                            f"{SEED_BLOCKS} blocks)", window_blocks)
             return
-        off = residual - mode.bias - self.followed
+        off = self._follow(residual - mode.bias, mode.block_noise)
         self.last_z = off / mode.block_noise
         if self.alpha:  # at a bounded rate: a fault's offset or drift is not followed
             self.followed += min(self.step_limit, max(-self.step_limit, self.alpha * off))
         stat = self.cusum.update(self.last_z)
+        if self.alpha and stat < spec.cusum.h / ANCHOR_BELOW and not self.cusum.alarmed:
+            self.anchor = self.followed
         h = spec.cusum.h
         self.verdict = "failed" if stat >= h else "undecided" if stat >= h / 2 else "held"
         self.reason = ""
+
+    def _follow(self, residual: float, noise: float) -> float:
+        """The residual less the followed bias; in an alarm, less the bias from before it
+        when that one explains the block better and calmly.
+
+        The followed bias moves during a fault (at its bounded rate: a few seconds of an
+        offset move it by a block noise or more), so when the fault ends the residual
+        sits that far off the followed bias, on the other side, and the relation failed
+        on for the 8-38 s the bias took to come back (issue 22: most false alarms of the
+        real diffdrive robots' campaigns, a battery voltage ~ current relation after a
+        battery fault). Freezing the bias in an alarm was worse: it could then not follow
+        a real slow change and the alarm never ended. So the bias goes on moving, and the
+        one from before the alarm is kept beside it: once the residual agrees with that
+        one again (a block the CUSUM's recovery would take as healthy, judged against the
+        old bias), the signals agree as they did before the fault, and the followed bias
+        goes back to it. A fault still on does not agree with the old bias (it is what
+        raised the alarm); a real slow change during a long alarm leaves the residual off
+        the old bias too, and the followed one goes on following it."""
+        off = residual - self.followed
+        if not self.alpha or self.cusum.statistic < self.spec.cusum.h / 2:
+            return off
+        old = residual - self.anchor
+        if abs(old) < abs(off) and self.cusum.calm(old / noise):
+            self.followed = self.anchor
+            return old
+        return off
 
     def _unjudged(self, reason: str, window_blocks: int) -> None:
         self.verdict = "unjudged"
