@@ -993,13 +993,18 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
     for ti, target in enumerate(signals):
         found = [r for topic in topics if topic != target.ref.topic
                  for r in [from_topic(ti, topic)] if r is not None]
+        own: Relation | None = None
         if not found and not target.monotonic and target.trend is None:
             # no linear relation to another topic: the same topics' absolute values may
-            # explain it (a current grows with the speed in either direction)
-            found = [r for topic in topics if topic != target.ref.topic
-                     for r in [from_absolute(ti, topic)] if r is not None]
-        if not found:
+            # explain it (a current grows with the speed in either direction), if they
+            # explain it at least as well as its own topic's signals do (a voltage that
+            # sags with its current is better related to that current)
             own = from_topic(ti, target.ref.topic)
+            found = [r for topic in topics if topic != target.ref.topic
+                     for r in [from_absolute(ti, topic)]
+                     if r is not None and (own is None or r.r2 >= own.r2)]
+        if not found:
+            own = own or from_topic(ti, target.ref.topic)
             found = [own] if own is not None else []
         found.sort(key=lambda r: -r.r2)
         by_target[ti] = found[:MAX_PEERS]
