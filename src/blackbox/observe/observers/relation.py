@@ -98,9 +98,11 @@ MAX_GAP = 30.0
 """A gap in time longer than this (seconds) restarts the grid instead of replaying it."""
 SEED_BLOCKS = 10
 """Judged blocks a relation that follows a moving bias first spends finding it (unjudged)."""
-ANCHOR_BELOW = 4.0
+ANCHOR_BELOW = 2.0
 """The bias from before an alarm is the followed bias of the last block whose CUSUM was
-below ``h / ANCHOR_BELOW`` (not yet building up to the alarm)."""
+below ``h / ANCHOR_BELOW`` (held). Below ``h / 4`` was tried: a healthy residual's CUSUM
+wanders above that for minutes, the old bias was then minutes old when a battery fault
+ended, and going back to it raised four false alarms in 30 s (sim:diffdrive seed 3)."""
 _NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
 
 
