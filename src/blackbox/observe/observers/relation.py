@@ -102,7 +102,11 @@ ANCHOR_BELOW = 2.0
 """The bias from before an alarm is the followed bias of the last block whose CUSUM was
 below ``h / ANCHOR_BELOW`` (held). Below ``h / 4`` was tried: a healthy residual's CUSUM
 wanders above that for minutes, the old bias was then minutes old when a battery fault
-ended, and going back to it raised four false alarms in 30 s (sim:diffdrive seed 3)."""
+ended, and going back to it raised four false alarms in 30 s (sim:diffdrive seed 3).
+Going back only after the CUSUM reached ``h``, not whenever it was undecided: a healthy
+residual's CUSUM is undecided now and then, and each time the followed bias went back a
+few blocks, so it lagged a discharging battery more and more (three false alarms in the
+last minute of a healthy hour of sim:diffdrive)."""
 _NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
 
 
@@ -158,8 +162,8 @@ class RelationSpec:
 class _Judge:
     """The running test of one relation."""
 
-    __slots__ = ("alpha", "anchor", "count", "cusum", "excite", "followed", "last_z",
-                 "pred_sum", "reason", "res_sum", "seeded", "spec", "step_limit",
+    __slots__ = ("alpha", "anchor", "count", "cusum", "excite", "followed", "in_alarm",
+                 "last_z", "pred_sum", "reason", "res_sum", "seeded", "spec", "step_limit",
                  "unjudged_blocks", "verdict")
 
     def __init__(self, spec: RelationSpec, window_blocks: int, block_seconds: float) -> None:
@@ -169,6 +173,8 @@ class _Judge:
         self.followed = 0.0
         self.anchor = 0.0
         """The followed bias from before the current alarm (see :meth:`_follow`)."""
+        self.in_alarm = False
+        """The CUSUM reached ``h`` and has not been back under ``h / 2`` since."""
         self.seeded = 0
         self.cusum = Cusum(spec.cusum)
         self.excite: deque[float] = deque(maxlen=window_blocks)
@@ -182,6 +188,7 @@ class _Judge:
 
     def reset(self, reason: str) -> None:
         self.cusum.reset()
+        self.in_alarm = False
         self.excite.clear()
         self.res_sum = self.pred_sum = 0.0
         self.count = 0
@@ -236,7 +243,10 @@ class _Judge:
         if self.alpha:  # at a bounded rate: a fault's offset or drift is not followed
             self.followed += min(self.step_limit, max(-self.step_limit, self.alpha * off))
         stat = self.cusum.update(self.last_z)
-        if self.alpha and stat < spec.cusum.h / ANCHOR_BELOW and not self.cusum.alarmed:
+        if stat >= spec.cusum.h:
+            self.in_alarm = True
+        elif stat < spec.cusum.h / ANCHOR_BELOW:
+            self.in_alarm = False
             self.anchor = self.followed
         h = spec.cusum.h
         self.verdict = "failed" if stat >= h else "undecided" if stat >= h / 2 else "held"
@@ -260,7 +270,7 @@ class _Judge:
         raised the alarm); a real slow change during a long alarm leaves the residual off
         the old bias too, and the followed one goes on following it."""
         off = residual - self.followed
-        if not self.alpha or self.cusum.statistic < self.spec.cusum.h / 2:
+        if not self.alpha or not self.in_alarm:
             return off
         old = residual - self.anchor
         if abs(old) < abs(off) and self.cusum.calm(old / noise):
@@ -274,6 +284,7 @@ class _Judge:
         self.unjudged_blocks += 1
         if self.unjudged_blocks >= window_blocks:
             self.cusum.reset()  # old evidence does not carry over a long blind spell
+            self.in_alarm = False
 
 
 def _std(values: deque[float]) -> float:
