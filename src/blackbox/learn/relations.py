@@ -145,11 +145,6 @@ class Signal:
     its level nor as a target (its level carries every past error of the count)."""
     stamp: str | None = None
     """Its topic's header stamp, which times its samples (``sample_time``)."""
-    absolute: bool = False
-    """The absolute value of the field (:func:`absolute_of`): an input only."""
-
-    def label(self) -> str:
-        return f"|{self.ref.label()}|" if self.absolute else self.ref.label()
 
 
 @dataclass
@@ -816,32 +811,6 @@ def _trending(s: Signal) -> bool:
     return s.trend is not None or s.drift is not None
 
 
-ABS_EXPLAINED = 0.9
-"""A signal's absolute value is a candidate input of its own when a straight line in the
-signal explains less than this share of the absolute value's variance (it takes both
-signs often enough for the two to differ)."""
-
-
-def absolute_of(s: Signal) -> Signal | None:
-    """``|s|`` as a candidate input, for a target no signal of another topic explains
-    linearly (:func:`_search`): a motor or battery current grows with the speed in either
-    direction, so it is linear in ``|v|`` and ``|w|``, not in ``v`` and ``w`` (a turn to
-    the left and one to the right draw the same current), and without them no linear fit
-    relates it. Signals that climb, count or wrap get none, and neither does one whose
-    absolute value a straight line in it already explains (it rarely changes sign)."""
-    if s.wrap or s.monotonic or s.trend is not None or s.absolute:
-        return None
-    a = np.abs(s.values)
-    if a.size < 3 or float(np.std(a)) == 0.0 or float(np.std(s.values)) == 0.0:
-        return None
-    r = float(np.corrcoef(s.values, a)[0, 1])
-    if r * r >= ABS_EXPLAINED:
-        return None
-    return Signal(s.ref, f"|{s.name}|", s.times, a, s.period, s.noise, False, None,
-                  s.integer, grid=np.abs(s.grid), drift=s.drift, stamp=s.stamp,
-                  absolute=True)
-
-
 def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
     """Per target, the best relation from each other topic; a signal with none from another
     topic (a battery voltage, a climbing wheel angle) may be related within its own topic.
@@ -957,54 +926,13 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
                 return relation_from_fit(target, inputs, best)
         return None
 
-    def from_absolute(ti: int, topic: str) -> Relation | None:
-        """The relation of target ``ti`` from ``topic``'s signals and their absolute values
-        (:func:`absolute_of`), the best ``MAX_JOINT`` by correlation with the target, each
-        at its own best lag or all at one; kept by the same held-out R² as any other."""
-        target = signals[ti]
-        plain = [x for x in signals if x.ref.topic == topic and x.trend is None
-                 and not x.wrap]
-        twins = [a for x in plain for a in [absolute_of(x)] if a is not None]
-        if not twins:
-            return None
-        g = changes.get(ti, target.grid)
-        ranked = []
-        for x in [*plain, *twins]:
-            lag, c = best_lag(g, change(x.grid) if ti in changes else x.grid, max_steps)
-            ranked.append((x, lag, c))
-        ranked.sort(key=lambda p: -abs(p[2]))
-        joint = ranked[:MAX_JOINT]
-        if not any(x.absolute for x, _, _ in joint):
-            return None
-        inputs = [x for x, _, _ in joint]
-        best: Fit | None = None
-        common = sorted({0, *(lag for _, lag, _ in joint)})
-        for lags in [[_taps(lag) for _, lag, _ in joint], *([_taps(c)] * len(joint)
-                                                            for c in common)]:
-            fitted = fitted_for(target, inputs, lags)
-            if fitted is not None and (best is None or fitted.r2 > best.r2 + 1e-4):
-                best = fitted
-        if best is None or best.r2 < R2_MIN:
-            return None
-        return relation_from_fit(target, inputs, best)
-
     by_target: dict[int, list[Relation]] = {}
     topics = sorted({s.ref.topic for s in signals})
     for ti, target in enumerate(signals):
         found = [r for topic in topics if topic != target.ref.topic
                  for r in [from_topic(ti, topic)] if r is not None]
-        own: Relation | None = None
-        if not found and not target.monotonic and target.trend is None:
-            # no linear relation to another topic: the same topics' absolute values may
-            # explain it (a current grows with the speed in either direction), if they
-            # explain it at least as well as its own topic's signals do (a voltage that
-            # sags with its current is better related to that current)
-            own = from_topic(ti, target.ref.topic)
-            found = [r for topic in topics if topic != target.ref.topic
-                     for r in [from_absolute(ti, topic)]
-                     if r is not None and (own is None or r.r2 >= own.r2)]
         if not found:
-            own = own or from_topic(ti, target.ref.topic)
+            own = from_topic(ti, target.ref.topic)
             found = [own] if own is not None else []
         found.sort(key=lambda r: -r.r2)
         by_target[ti] = found[:MAX_PEERS]
@@ -1149,7 +1077,6 @@ def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict
             "target": {"topic": r.target.ref.topic, "field": r.target.ref.field},
             **({"target_lag": _g(r.target_steps * STEP)} if r.target_steps else {}),
             "inputs": [{"topic": s.ref.topic, "field": s.ref.field,
-                        **({"abs": True} if s.absolute else {}),
                         "lags": [_g(lag * STEP) for lag in lags],
                         "gains": (_zero_sum(gains) if s.ref.label() in r.on_changes
                                   else [_g(g) for g in gains])}
@@ -1193,7 +1120,7 @@ def relation_comments(relations: Sequence[Relation]) -> list[str]:
     out = []
     for r in relations:
         assert r.calibration is not None
-        inputs = ", ".join(f"{s.label()} (lags {lags[0] * STEP:g}..{lags[-1] * STEP:g} s)"
+        inputs = ", ".join(f"{s.ref.label()} (lags {lags[0] * STEP:g}..{lags[-1] * STEP:g} s)"
                            for s, lags in r.inputs)
         mode = ("standing still judged with its own noise" if r.still is not None
                 else "unjudged while standing still (not seen while learning)")

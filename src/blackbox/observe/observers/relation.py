@@ -23,8 +23,6 @@ checks them on a common grid of ``step`` seconds:
   climbing wheel angles) have a residual bias that moves slowly: it is followed over
   ``track`` seconds, by at most ``track_rate`` a second (bounded by what it did while
   learning), so a fault's offset or drift is not learned as the new normal;
-* an input with ``abs: true`` enters through its absolute value (a current grows with the
-  speed in either direction);
 * ``topic_b`` may be ``topic``: a signal related to others of its own topic (the only
   relation it has) accuses that topic's producers alone;
 * ``clears: false``: the relation sees a fault of its target but not one of its inputs (a
@@ -112,16 +110,11 @@ _NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ012
 
 @dataclass(frozen=True, slots=True)
 class Tap:
-    """``gain * signal(t - lag)``, the lag in grid steps; with ``absolute``,
-    ``gain * |signal(t - lag)|``."""
+    """``gain * signal(t - lag)``, the lag in grid steps."""
 
     signal: SignalRef
     steps: int
     gain: float
-    absolute: bool = False
-
-    def label(self) -> str:
-        return f"|{self.signal.label()}|" if self.absolute else self.signal.label()
 
 
 @dataclass(frozen=True, slots=True)
@@ -156,7 +149,7 @@ class RelationSpec:
     their own), ``None``: the learned bias is fixed."""
 
     def inputs(self) -> str:
-        return ", ".join(dict.fromkeys(t.label() for t in self.taps))
+        return ", ".join(dict.fromkeys(t.signal.label() for t in self.taps))
 
 
 class _Judge:
@@ -373,8 +366,7 @@ class RelationObserver(ObserverBase):
             y = history[spec.target][spec.target_steps]
             predicted = spec.intercept
             for tap in spec.taps:
-                x = history[tap.signal][tap.steps]
-                predicted += tap.gain * (abs(x) if tap.absolute else x)
+                predicted += tap.gain * history[tap.signal][tap.steps]
             if math.isnan(y) or math.isnan(predicted):
                 stale = [ref.label() for ref in (spec.target, *(t.signal for t in spec.taps))
                          if math.isnan(history[ref][0])]
@@ -523,7 +515,7 @@ def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
     if not inputs:
         raise node["inputs"].error("a relation needs at least one input")
     for item in inputs:
-        item.check_keys(("topic", "field", "lags", "gains", "abs"))
+        item.check_keys(("topic", "field", "lags", "gains"))
         ref = read_signal_ref(ConfigNode.mapping({"topic": item["topic"],
                                                  "field": item["field"]}, item))
         if ref.topic not in topics:
@@ -533,8 +525,7 @@ def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
         if not lags or len(lags) != len(gains):
             raise item["gains"].error(f"lags and gains must be lists of one length, got "
                                       f"{len(lags)} and {len(gains)}")
-        absolute = item["abs"].bool() if item.get("abs") is not None else False
-        taps.extend(Tap(ref, _steps(lag, step), gain.float(), absolute)
+        taps.extend(Tap(ref, _steps(lag, step), gain.float())
                     for lag, gain in zip(lags, gains, strict=True))
     span_node = node["span"]
     span = span_node.list()
