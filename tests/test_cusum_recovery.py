@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from blackbox.model import Code
 from blackbox.observe.signals import RECOVER_Z, Cusum, CusumSpec
-from test_relations import drive, relation
+from test_relations import RELATION, drive, relation
 
 SPEC = CusumSpec(k=0.5, h=10.0)
 
@@ -88,3 +88,31 @@ def test_a_relation_stops_failing_within_two_seconds_of_the_end_of_an_offset():
     after = drive(obs, 10.0, start=40.0, seed=2)
     assert after[1].code != Code.NO_STATE_FITS, [o.message for o in after[:3]]
     assert all(o.code != Code.NO_STATE_FITS for o in after[1:]), [o.message for o in after]
+
+
+FOLLOWING = RELATION.replace("    span: [-2.0, 2.0]\n",
+                             "    span: [-2.0, 2.0]\n    track: 2.5\n    track_rate: 0.004\n")
+"""A relation that follows a moving bias (a battery voltage against its current) at up to
+0.4 block noise a second: ten seconds of a fault move the followed bias by four."""
+
+
+def test_a_followed_relation_recovers_within_a_few_seconds_of_its_signals_agreeing_again():
+    """The followed bias moved during the offset; once the signals agree as they did before
+    it, the relation stops failing as an unfollowed one does, instead of failing on for the
+    tens of seconds the bias takes to come back at its bounded rate."""
+    obs = relation(FOLLOWING)
+    healthy = drive(obs, 30.0)
+    assert healthy[-1].code == Code.GENERAL_OK, healthy[-1].message
+    faulty = drive(obs, 10.0, start=30.0, offset=0.1, seed=1)
+    assert faulty[-1].code == Code.NO_STATE_FITS, [o.message for o in faulty]
+    after = drive(obs, 20.0, start=40.0, seed=2)
+    assert all(o.code != Code.NO_STATE_FITS for o in after[2:]), [o.message for o in after]
+    assert after[-1].code == Code.GENERAL_OK, after[-1].message
+
+
+def test_a_followed_relation_keeps_failing_while_its_offset_goes_on():
+    obs = relation(FOLLOWING)
+    drive(obs, 30.0)
+    faulty = drive(obs, 20.0, start=30.0, offset=0.1, seed=1)
+    first = next(i for i, o in enumerate(faulty) if o.code == Code.NO_STATE_FITS)
+    assert all(o.code == Code.NO_STATE_FITS for o in faulty[first:]), [o.message for o in faulty]

@@ -258,10 +258,15 @@ class Cusum:
         self.down = 0.0
         self.alarmed = False
 
+    def calm(self, z: float) -> bool:
+        """Whether a block of ``z`` looks healthy and argues against the alarmed side (the
+        recovery test below)."""
+        side = z if self.up >= self.down else -z  # the evidence for the alarmed side
+        return side < CALM_SIDE * self.spec.k and (abs(z) if self.two_sided else z) < RECOVER_Z
+
     def update(self, z: float) -> float:
         k, top, h = self.spec.k, self.top, self.spec.h
-        side = z if self.up >= self.down else -z  # the evidence for the alarmed side
-        calm = side < CALM_SIDE * k and (abs(z) if self.two_sided else z) < RECOVER_Z
+        calm = self.calm(z)
         was_alarmed = self.alarmed
         self.up = min(top, max(0.0, self.up + z - k))
         if self.two_sided:

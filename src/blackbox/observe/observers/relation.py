@@ -96,6 +96,15 @@ MAX_GAP = 30.0
 """A gap in time longer than this (seconds) restarts the grid instead of replaying it."""
 SEED_BLOCKS = 10
 """Judged blocks a relation that follows a moving bias first spends finding it (unjudged)."""
+ANCHOR_BELOW = 2.0
+"""The bias from before an alarm is the followed bias of the last block whose CUSUM was
+below ``h / ANCHOR_BELOW`` (held). Below ``h / 4`` was tried: a healthy residual's CUSUM
+wanders above that for minutes, the old bias was then minutes old when a battery fault
+ended, and going back to it raised four false alarms in 30 s (sim:diffdrive seed 3).
+Going back only after the CUSUM reached ``h``, not whenever it was undecided: a healthy
+residual's CUSUM is undecided now and then, and each time the followed bias went back a
+few blocks, so it lagged a discharging battery more and more (three false alarms in the
+last minute of a healthy hour of sim:diffdrive)."""
 _NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
 
 
@@ -146,15 +155,19 @@ class RelationSpec:
 class _Judge:
     """The running test of one relation."""
 
-    __slots__ = ("alpha", "count", "cusum", "excite", "followed", "last_z", "pred_sum",
-                 "reason", "res_sum", "seeded", "spec", "step_limit", "unjudged_blocks",
-                 "verdict")
+    __slots__ = ("alpha", "anchor", "count", "cusum", "excite", "followed", "in_alarm",
+                 "last_z", "pred_sum", "reason", "res_sum", "seeded", "spec", "step_limit",
+                 "unjudged_blocks", "verdict")
 
     def __init__(self, spec: RelationSpec, window_blocks: int, block_seconds: float) -> None:
         self.spec = spec
         self.alpha = 0.0 if spec.track is None else min(1.0, block_seconds / spec.track)
         self.step_limit = spec.track_rate * block_seconds
         self.followed = 0.0
+        self.anchor = 0.0
+        """The followed bias from before the current alarm (see :meth:`_follow`)."""
+        self.in_alarm = False
+        """The CUSUM reached ``h`` and has not been back under ``h / 2`` since."""
         self.seeded = 0
         self.cusum = Cusum(spec.cusum)
         self.excite: deque[float] = deque(maxlen=window_blocks)
@@ -168,6 +181,7 @@ class _Judge:
 
     def reset(self, reason: str) -> None:
         self.cusum.reset()
+        self.in_alarm = False
         self.excite.clear()
         self.res_sum = self.pred_sum = 0.0
         self.count = 0
@@ -217,14 +231,45 @@ class _Judge:
             self._unjudged(f"finding where its moving bias is now ({self.seeded} of "
                            f"{SEED_BLOCKS} blocks)", window_blocks)
             return
-        off = residual - mode.bias - self.followed
+        off = self._follow(residual - mode.bias, mode.block_noise)
         self.last_z = off / mode.block_noise
         if self.alpha:  # at a bounded rate: a fault's offset or drift is not followed
             self.followed += min(self.step_limit, max(-self.step_limit, self.alpha * off))
         stat = self.cusum.update(self.last_z)
+        if stat >= spec.cusum.h:
+            self.in_alarm = True
+        elif stat < spec.cusum.h / ANCHOR_BELOW:
+            self.in_alarm = False
+            self.anchor = self.followed
         h = spec.cusum.h
         self.verdict = "failed" if stat >= h else "undecided" if stat >= h / 2 else "held"
         self.reason = ""
+
+    def _follow(self, residual: float, noise: float) -> float:
+        """The residual less the followed bias; in an alarm, less the bias from before it
+        when that one explains the block better and calmly.
+
+        The followed bias moves during a fault (at its bounded rate: a few seconds of an
+        offset move it by a block noise or more), so when the fault ends the residual
+        sits that far off the followed bias, on the other side, and the relation failed
+        on for the 8-38 s the bias took to come back (issue 22: most false alarms of the
+        real diffdrive robots' campaigns, a battery voltage ~ current relation after a
+        battery fault). Freezing the bias in an alarm was worse: it could then not follow
+        a real slow change and the alarm never ended. So the bias goes on moving, and the
+        one from before the alarm is kept beside it: once the residual agrees with that
+        one again (a block the CUSUM's recovery would take as healthy, judged against the
+        old bias), the signals agree as they did before the fault, and the followed bias
+        goes back to it. A fault still on does not agree with the old bias (it is what
+        raised the alarm); a real slow change during a long alarm leaves the residual off
+        the old bias too, and the followed one goes on following it."""
+        off = residual - self.followed
+        if not self.alpha or not self.in_alarm:
+            return off
+        old = residual - self.anchor
+        if abs(old) < abs(off) and self.cusum.calm(old / noise):
+            self.followed = self.anchor
+            return old
+        return off
 
     def _unjudged(self, reason: str, window_blocks: int) -> None:
         self.verdict = "unjudged"
@@ -232,6 +277,7 @@ class _Judge:
         self.unjudged_blocks += 1
         if self.unjudged_blocks >= window_blocks:
             self.cusum.reset()  # old evidence does not carry over a long blind spell
+            self.in_alarm = False
 
 
 def _std(values: deque[float]) -> float:
