@@ -34,7 +34,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -53,7 +53,12 @@ from blackbox.sources.sim import GroundTruth
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 from conftest import black_box_running  # noqa: E402
-from diffdrive_support import SCRIPTS, load_script, ros1_diffdrive, ros2_diffdrive  # noqa: E402
+from diffdrive_support import (  # noqa: E402
+    SCRIPTS,
+    load_script,
+    ros1_diffdrive,
+    ros2_diffdrive_publishing,
+)
 from learned_campaign import Row, fmt, print_table, tally  # noqa: E402
 
 faults_model = load_script(SCRIPTS / "robots" / "diffdrive_faults.py", "diffdrive_faults")
@@ -196,26 +201,17 @@ def robot_running(middleware: str, motion_seed: int, plan: Plan, fault_seed: int
         finally:
             robot1.stop()
         return
-    from blackbox.events import Interest
     from isolation import fresh_domain
-    from ros2_support import Watched
 
     domain = fresh_domain()
-    robot2 = ros2_diffdrive.DiffdriveRobot2(domain, seed=motion_seed, log_dir=logs,
-                                            epoch=plan.epoch, faults=faults,
-                                            transports=transports)
-    try:
-        robot2.start()
-        topics = frozenset(ros2_diffdrive.TOPICS)
-        watched = Watched(domain, Interest(topics))
+    with ExitStack() as stack:
         try:
-            if not watched.until(lambda: all(watched.arrivals(t) for t in topics), READY):
-                raise SystemExit(f"the ROS 2 robot did not publish every topic within {READY:g} s")
-        finally:
-            watched.close()
+            robot2 = stack.enter_context(ros2_diffdrive_publishing(
+                domain, seed=motion_seed, log_dir=logs, epoch=plan.epoch, faults=faults,
+                transports=transports, within=READY))
+        except AssertionError as exc:  # the robot's start, not the caller's code
+            raise SystemExit(str(exc)) from None
         yield f"ros2:{domain}", robot2
-    finally:
-        robot2.stop()
 
 
 def value_truth(plan: Plan) -> list[GroundTruth]:

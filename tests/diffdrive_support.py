@@ -38,6 +38,7 @@ motion_model = load_script(SCRIPTS / "robots" / "diffdrive_motion.py", "diffdriv
 @contextmanager
 def ros2_diffdrive_publishing(domain: int, *, seed: int, log_dir: Path, epoch: float,
                               faults: tuple[int, float, float] = (0, 0.0, 0.0),
+                              transports: str | None = None,
                               within: float = 30.0) -> Iterator[Any]:
     """The real ROS 2 diffdrive robot (a ``DiffdriveRobot2``), started and yielded once every
     one of its topics has published, stopped on exit.
@@ -50,7 +51,7 @@ def ros2_diffdrive_publishing(domain: int, *, seed: int, log_dir: Path, epoch: f
     from ros2_support import Watched
 
     robot = ros2_diffdrive.DiffdriveRobot2(domain, seed=seed, log_dir=log_dir, epoch=epoch,
-                                           faults=faults)
+                                           faults=faults, transports=transports)
     try:
         robot.start()
         topics = frozenset(ros2_diffdrive.TOPICS)
