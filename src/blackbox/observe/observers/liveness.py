@@ -105,14 +105,9 @@ class _Signal:
         self.reader = SignalReader(spec.signal)
         self.cusum = (Cusum(spec.noise.cusum, two_sided=False) if spec.noise is not None
                       else None)
-        self.last = math.nan
-        self.last_d = math.nan
-        self.last_t = math.nan
+        self.restart()
         self.step = 0.0
         """The fastest change per second since the last evaluation (``rate``)."""
-        self.run = 0
-        self.sq = 0.0
-        self.sq_n = 0
         self.blocks = 0
         self.last_z = math.nan
 
