@@ -14,9 +14,11 @@ that joins late asks for them (the TransientLocal of DDS), and a station that mi
 notices the gap in the publisher's sequence numbers (heartbeats) and fetches exactly
 those, in order, when the link returns. The station does not query each robot's history
 as it appears (``detect_late_publishers``): with 7,500 or more publishers (500 robots of
-15 topics) a subscriber doing so delivered nothing at all (docs/benchmarks.md). Beyond
-the cache the station's hole fetch by event identity reads the rest from the recorder's
-log. Requests and replies are
+15 topics) a subscriber doing so delivered nothing at all (docs/benchmarks.md). A
+publisher first met through a live sample would lose its earlier samples to the advanced
+subscriber's duplicate check; :mod:`~blackbox.transport.zenoh_contact` fetches them.
+Beyond the cache the station's hole fetch by event identity reads the rest from the
+recorder's log. Requests and replies are
 volatile, as on DDS: a lost request is retried by its caller.
 """
 
@@ -37,6 +39,7 @@ import zenoh.ext as zext
 from blackbox.errors import BlackBoxError
 from blackbox.transport.cdr_encoder import Encoder, encoder_for
 from blackbox.transport.topics import ALL_TOPICS
+from blackbox.transport.zenoh_contact import FirstContact
 
 CACHED_SAMPLES = 4096
 """Samples each published topic keeps for late or reconnecting stations (per robot)."""
@@ -227,6 +230,7 @@ class ZenohReader:
         self._overflowed = 0
         self._subscriber: Any
         channel: Any = zenoh.handlers.FifoChannel(CHANNEL_DEPTH)
+        self._first_contact: FirstContact | None = None
         if topic in VOLATILE_TOPICS:
             self._subscriber = session.declare_subscriber(key, channel)
         else:
@@ -235,17 +239,32 @@ class ZenohReader:
                 history=zext.HistoryConfig(detect_late_publishers=False),
                 recovery=zext.RecoveryConfig(heartbeat=True, periodic_queries=None),
                 subscriber_detection=True)
+            self._first_contact = FirstContact(session)
 
     def pull(self) -> int:
         """Move what the channel holds into the queue; how many samples wait there."""
         with self._lock:
-            payloads = self._payloads
             receive = self._subscriber.try_recv
+            contact = self._first_contact
             while (sample := receive()) is not None:
-                if len(payloads) == payloads.maxlen:
-                    self._overflowed += 1
-                payloads.append(sample.payload.to_bytes())
-            return len(payloads)
+                payload = sample.payload.to_bytes()
+                if contact is None or contact.passes(sample, payload):
+                    self._queue(payload)
+            if contact is not None:
+                for payload in contact.released():
+                    self._queue(payload)
+            return len(self._payloads)
+
+    def _queue(self, payload: bytes) -> None:
+        if len(self._payloads) == self._payloads.maxlen:
+            self._overflowed += 1
+        self._payloads.append(payload)
+
+    @property
+    def recovered(self) -> int:
+        """Samples fetched from publishers' caches that a first live sample would have
+        cost (:mod:`~blackbox.transport.zenoh_contact`)."""
+        return 0 if self._first_contact is None else self._first_contact.recovered
 
     @property
     def overflowed(self) -> int:
