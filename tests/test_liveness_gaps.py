@@ -92,3 +92,17 @@ def test_a_noise_burst_after_a_silence_is_still_found() -> None:
     burst = faulty(after)
     assert burst, "a tenfold noise from 41 s on is found"
     assert burst[0].time < 43.0 and "noise burst" in burst[0].message, burst[0]
+
+
+def test_messages_that_do_not_decode_are_counted_in_the_next_observation() -> None:
+    """They give the signals no sample, so the operator reads why a check goes stale."""
+    obs = observer()
+    play(obs, 0.0, 10.0, lambda t: NOISE, seed=3)
+    for k in range(4):
+        obs.on_message(MessageArrival(10.0 + k / RATE, "/speed", "/driver", 8))
+    (stale,) = obs.evaluate(11.0)
+    assert stale.code == Code.NOT_AVAILABLE
+    assert stale.values["undecodable"] == 4.0
+    assert "4 messages of /speed did not decode since the last evaluation" in stale.message
+    verdicts = play(obs, 11.0, 13.0, lambda t: NOISE, seed=4)
+    assert verdicts and all("undecodable" not in o.values for o in verdicts)

@@ -205,9 +205,11 @@ class LivenessObserver(ObserverBase):
                 s.add(x, msg.time)
 
     def evaluate(self, now: float) -> list[Observation]:
-        if now - self._last_time > self.fresh:
-            return [self.unavailable(now, f"no message on {self.topic} within {self.fresh:g} s")]
         values: dict[str, float] = {}
+        undecoded = self._undecoded(values)
+        if now - self._last_time > self.fresh:
+            return [self.unavailable(
+                now, f"no message on {self.topic} within {self.fresh:g} s{undecoded}", values)]
         problems: list[str] = []
         waiting: list[str] = []
         for s in self._signals:
@@ -222,12 +224,22 @@ class LivenessObserver(ObserverBase):
                 problems.append(problem)
         if problems:
             return [Observation(now, self.type_name, self.resource, Code.NO_STATE_FITS,
-                                values=values, message="; ".join(problems))]
+                                values=values, message="; ".join(problems) + undecoded)]
         if waiting:
-            return [self.unavailable(now, f"waiting for a first block of {', '.join(waiting)}",
-                                     values)]
+            return [self.unavailable(
+                now, f"waiting for a first block of {', '.join(waiting)}{undecoded}", values)]
         return [Observation(now, self.type_name, self.resource, Code.GENERAL_OK, values=values,
-                            message=f"{len(self._signals)} signals alive")]
+                            message=f"{len(self._signals)} signals alive{undecoded}")]
+
+    def _undecoded(self, values: dict[str, float]) -> str:
+        """The messages since the last evaluation that did not decode, as a clause of the
+        observation's message and ``values["undecodable"]`` (they give the signals no
+        sample, so the operator reads why a check waits or goes stale); counted afresh."""
+        count, self._undecodable = self._undecodable, 0
+        if not count:
+            return ""
+        values["undecodable"] = float(count)
+        return f"; {count} messages of {self.topic} did not decode since the last evaluation"
 
     def describe(self) -> str:
         parts = []
