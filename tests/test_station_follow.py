@@ -334,7 +334,8 @@ def test_a_full_station_disk_is_reported_and_nothing_heard_meanwhile_is_lost(
             raise AssertionError((store.count_events("thesis", kinds=["failure"]),
                                   store.count_events("thesis", kinds=["rectification"]),
                                   store.pending, store.problems())) from None
-        time.sleep(0.5)
+        # nothing more is queued to write, and what is stored has no copy
+        wait(lambda: store.pending == 0, timeout=20)
         assert store.count_events("thesis", kinds=["failure", "rectification"]) == 40
 
 
