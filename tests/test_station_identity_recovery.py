@@ -353,3 +353,38 @@ def test_every_change_of_diagnosis_is_kept_and_the_newest_is_the_robots_current_
     (newest,) = store.events("burst", kinds=["diagnosis"], limit=1).events
     assert newest.details["components"] == ["/usb_cam"]
     assert next(s for s in store.fleet() if s.robot_id == "burst").diagnosis == ("/usb_cam",)
+
+
+def test_an_event_stored_before_its_entity_was_described_meets_its_logged_copy(
+        tmp_path: Path, station: tuple[StationStore, StationFollower]) -> None:
+    """Stored under its time key and the entity's id (``#<id>``: the description had not
+    come), renamed when the description came, the event is still the one its logged copy
+    (which names the entity) finds: one row, not two."""
+    store, follower = station
+    robot = Robot(tmp_path)
+    heard_first(robot)
+
+    def camera_description(item: tuple[str, Any]) -> bool:
+        return item[0] == "BlackBox_Entity_Description" and item[1].A_name == "/usb_cam"
+
+    (description,) = [item for item in robot.published if camera_description(item)]
+    start = time.time()
+    follower.ingest([item for item in robot.published if not camera_description(item)], start)
+    late = robot.step(faulty, diagnosed=True) + robot.step(healthy)
+    extensions = stored_under_time_keys(follower, late, start + 1.0)
+    follower.ingest(rectifications(extensions), start + EXT_WAIT_MAX + 1.0)  # the rest lost
+    store.flush(force=True)
+    iid = int(description[1].A_sourceID.A_instanceId)
+    (unnamed,) = [e for e in store.events("burst", kinds=["failure"]).events
+                  if not e.details.get("event_id")]
+    assert unnamed.entity == f"#{iid}"
+    follower.ingest([description], start + EXT_WAIT_MAX + 2.0)
+    store.flush(force=True)
+    assert store.event(unnamed.id).entity == "/usb_cam"  # type: ignore[union-attr]
+    follower.take_logged(store.resource_of("burst"), robot.log())
+    follower.ingest([], start + EXT_WAIT_MAX + 20.0)
+    store.flush(force=True)
+    assert counts(store) == {"failure": 2, "rectification": 2, "exceedance": 2,
+                             "state_change": 0}
+    named = store.event(unnamed.id)
+    assert named is not None and EventId.parse(str(named.details.get("event_id")))

@@ -1223,6 +1223,9 @@ class StationFollower:
         # (events of one millisecond share the key).
         with self._time_keys_lock:
             owner = self._time_keys.get((robot.resource_id, time_key))
+            if owner is None and (placeholder := self._placeholder_key(robot, time_key)):
+                owner = self._time_keys.get((robot.resource_id, placeholder))
+                time_key = placeholder if owner is not None else time_key
             mine = owner is not None and abs(owner[1] - t) < 1e-6 and dedup.startswith("id:")
             if mine:
                 del self._time_keys[(robot.resource_id, time_key)]  # the key is free
@@ -1234,6 +1237,17 @@ class StationFollower:
         self.store.add_event(robot.resource_id, t, kind, dedup=dedup, entity=entity,
                              characteristic=characteristic, text=text, origin="log",
                              details=details)
+
+    @staticmethod
+    def _placeholder_key(robot: _Robot, time_key: str) -> str | None:
+        """The time key a live event of the entity ``time_key`` ends with was stored under
+        while that entity had no description yet (its id, ``#<id>``; renaming the entity
+        renames its events, never their keys), or ``None`` for no described entity."""
+        head, _, name = time_key.rpartition("|")
+        for iid, entity in list(robot.entities.items()):  # the reading thread may add
+            if entity.name == name:
+                return f"{head}|{unnamed_entity(iid)}"
+        return None
 
     def _logged_diagnosis_events(self, robot: _Robot, named: list[Any], t: float,
                                  explanation: str, log_id: int, snapshot: Any) -> int:
