@@ -21,11 +21,14 @@ STEP = 0.01
 """Seconds the monitor sleeps between two looks at the clock."""
 LATE = 0.03
 """A wake-up this much later than asked for is recorded as a stall."""
+READY_TIMEOUT = 60.0
+"""Seconds the monitor's interpreter may take to start on a loaded machine."""
 
 _PROGRAM = f"""
 import sys, time
 step, late = {STEP!r}, {LATE!r}
 last = time.time()
+print("ready", flush=True)
 while True:
     time.sleep(step)
     now = time.time()
@@ -42,6 +45,7 @@ class StallMonitor:
     def __init__(self) -> None:
         self.stalls: list[tuple[float, float]] = []
         self._lock = threading.Lock()
+        self._ready = threading.Event()
         self._process: subprocess.Popen[str] | None = None
         self._reader: threading.Thread | None = None
 
@@ -50,6 +54,10 @@ class StallMonitor:
                                          stdout=subprocess.PIPE, text=True)
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
+        # a stall before its loop runs (the interpreter still starting) would go unseen
+        if not self._ready.wait(READY_TIMEOUT):
+            self.__exit__(None, None, None)
+            raise AssertionError(f"waited {READY_TIMEOUT:g} s for the stall monitor to start")
         return self
 
     def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
@@ -64,6 +72,9 @@ class StallMonitor:
     def _read(self) -> None:
         assert self._process is not None and self._process.stdout is not None
         for line in self._process.stdout:
+            if line.strip() == "ready":
+                self._ready.set()
+                continue
             start, end = (float(x) for x in line.split())
             with self._lock:
                 self.stalls.append((start, end))
