@@ -43,6 +43,12 @@ def progress(log: Path) -> dict | None:
     return json.loads(row[0]) if row else None
 
 
+START_WITHIN = 120.0
+"""Seconds a ``blackbox run`` may take to start and commit its first progress: not the
+property under test, and at a load average of 30 on two cores the first start took more
+than 30 s."""
+
+
 @pytest.mark.slow
 def test_sigkill_under_load_lags_at_most_commit_interval_plus_one_second(
         tmp_path: Path) -> None:
@@ -61,10 +67,11 @@ def test_sigkill_under_load_lags_at_most_commit_interval_plus_one_second(
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
 
         def recording(proc: subprocess.Popen[bytes] = proc, log: Path = log) -> None:
-            deadline = time.monotonic() + 30
+            deadline = time.monotonic() + START_WITHIN
             while progress(log) is None:  # recording has begun
                 assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
-                assert time.monotonic() < deadline, "the black box never committed"
+                assert time.monotonic() < deadline, \
+                    f"the black box did not commit within {START_WITHIN:g} s of its start"
                 time.sleep(0.05)
 
         killed_at = sigkill_after(proc, recording, rng.uniform(0.2, 1.5))
