@@ -82,6 +82,7 @@ from blackbox.station.records import (
 )
 from blackbox.station.schema import APPLICATION, SCHEMA_VERSION
 from blackbox.station.status import robot_status
+from blackbox.station.status_batch import EntityStatusBatch, KeptStatuses
 from blackbox.station.status_history import StatusTrack
 from blackbox.station.wording import explain
 from blackbox.station.writequeue import Op, WriteQueue
@@ -135,6 +136,8 @@ class StationStore:
             "notify", f"change listener failed: {exc}"))
         self._last_prune = 0.0
         self._closed = False
+        self._kept_statuses = KeptStatuses()
+        self._status_batch: EntityStatusBatch | None = None
         if self.database.dialect == "sqlite" and not self.memory:
             parent = Path(self.database.url).parent
             if not parent.is_dir():
@@ -342,7 +345,14 @@ class StationStore:
             if now - self._last_prune > 30.0 and not self._writes.pending:
                 self._queue(self._prune_op(now - self.series_retention), None, "")
                 self._last_prune = now
-            committed = self._writes.flush(force)
+            committed = None
+            try:
+                committed = self._writes.flush(force)
+            finally:  # what the flush's status writes learnt holds once it committed
+                if committed is not None:
+                    self._kept_statuses.commit()
+                else:
+                    self._kept_statuses.discard()
         if committed is None:
             return False
         if committed.topics:
@@ -416,19 +426,22 @@ class StationStore:
         if "status" not in values:  # a description: a row among many (see add_row)
             self._writes.add_row(sql, args, resource_id, "entities")
             return
-
-        def op(db: Connection) -> None:
-            db.execute(sql, args)
-            if "status" in values:
-                status_history.note(db, resource_id, instance_id, values["status"],
-                                    self.clock() if updated is None else updated)
-        self._queue(op, resource_id, "entities")
+        with self._writes.lock:  # a status: one change for a run of them (status_batch)
+            batch = self._status_batch
+            if batch is None or not self._writes.joins_batch(batch.apply, resource_id):
+                batch = self._status_batch = EntityStatusBatch(self._kept_statuses,
+                                                               self.clock)
+                self._queue(batch.apply, resource_id, "entities")
+            batch.add(sql, args, resource_id, instance_id, values["status"], updated)
 
     def put_robot_online(self, resource_id: int, online: bool) -> None:
-        def op(db: Connection) -> None:
-            db.execute("UPDATE robots SET online = ? WHERE resource_id = ?",
-                       (int(online), resource_id))
-        self._queue(op, resource_id, "fleet")
+        """A row among many (see add_row; only this statement writes ``online``), which
+        creates the robot's row if its ``heard`` row is applied after it."""
+        now = self.clock()
+        self._writes.add_row("INSERT INTO robots (resource_id, first_heard, last_heard, "
+                             "online) VALUES (?, ?, ?, ?) ON CONFLICT (resource_id) DO "
+                             "UPDATE SET online = excluded.online",
+                             (resource_id, now, now, int(online)), resource_id, "fleet")
 
     def put_diagnosis(self, resource_id: int, components: Sequence[str],
                       since: float | None) -> None:
@@ -739,16 +752,35 @@ class StationStore:
 
     def fleet(self, now: float | None = None) -> list[RobotSummary]:
         """Every robot ever heard, identified ones first, by name."""
-        now = self.clock() if now is None else now
+        out = self._summaries(self.clock() if now is None else now, None)
+        out.sort(key=lambda r: (not r.robot_id, r.name))
+        return out
+
+    def robot(self, robot: RobotRef, now: float | None = None) -> RobotSummary:
+        """One robot's summary, read for that robot alone: the alert engine asks it for
+        every alarm and a page for every view, and the whole fleet's summary costs
+        thousands of rows at fleet scale."""
+        rid = robot_resource(robot)
+        found = self._summaries(self.clock() if now is None else now, rid)
+        if not found:
+            raise UnknownRobot(f"no robot {robot!r} has been heard on this station")
+        return found[0]
+
+    def _summaries(self, now: float, only: int | None) -> list[RobotSummary]:
+        """The summaries of every robot, or of the robot with resource id ``only``."""
+        where, args = ("", ()) if only is None else (" WHERE resource_id = ?", (only,))
+        also = "" if only is None else " AND resource_id = ?"
         with self._read() as db:
             robots = db.execute(
                 "SELECT resource_id, robot_id, last_heard, online, diagnosis FROM robots"
-            ).fetchall()
+                + where, args).fetchall()
             entity_rows = db.execute(
-                "SELECT resource_id, kind, status, online, failures FROM entities").fetchall()
+                "SELECT resource_id, kind, status, online, failures FROM entities" + where,
+                args).fetchall()
             unacked = dict(db.execute(
                 "SELECT resource_id, count(*) FROM events WHERE acknowledged_by IS NULL AND "
-                "kind IN ('failure', 'exceedance') GROUP BY resource_id").fetchall())
+                "kind IN ('failure', 'exceedance')" + also + " GROUP BY resource_id",
+                args).fetchall())
         per: dict[int, list[tuple[str, str, int, int]]] = {}
         for rid, kind, status, online, failures in entity_rows:
             per.setdefault(rid, []).append((kind, status, online, failures))
@@ -766,15 +798,7 @@ class StationStore:
                 rid, robot_id, robot_id or f"#{rid}", status, reported, last_heard, stale,
                 robot_online, len(ents), failing, int(unacked.get(rid, 0)),
                 tuple(loads(diagnosis, []))))
-        out.sort(key=lambda r: (not r.robot_id, r.name))
         return out
-
-    def robot(self, robot: RobotRef, now: float | None = None) -> RobotSummary:
-        rid = self.resource_of(robot)
-        for summary in self.fleet(now):
-            if summary.resource_id == rid:
-                return summary
-        raise UnknownRobot(f"no robot {robot!r}")
 
     def entities(self, robot: RobotRef, now: float | None = None) -> list[EntityNode]:
         """The robot's entity tree as a flat list, robot first, then by kind and name;

@@ -154,7 +154,8 @@ def _member(gen: _Gen, machine: Any) -> str:
         return gen.fixed(machine.code, machine.size, machine.alignment)
     if type(machine) is m.EnumMachine:
         raw = gen.fixed("I", 4, 4)
-        members = gen.name("_E", {int(e.value): e for e in machine.enum})
+        enum: Any = machine.enum  # the IdlEnum class (cyclonedds types it as a member)
+        members = gen.name("_E", {int(e.value): e for e in enum})
         return f"{members}.get({raw}, {raw})"
     if type(machine) is m.StructMachine:
         datatype = gen.name("_T", machine.type)
@@ -240,8 +241,9 @@ def _each_element(gen: _Gen, element: Any, count: str, value: str) -> None:
     gen.indent = outer
 
 
-class _Unusual(BlackBoxError):  # noqa: N818 (internal signal, never leaves this module)
-    """The payload is not a plain little-endian sample: cyclonedds decides."""
+class _Unusual(BlackBoxError):
+    """The payload is not a plain little-endian sample: cyclonedds decides (an internal
+    signal: it never leaves this module)."""
 
 
 @lru_cache(maxsize=512)

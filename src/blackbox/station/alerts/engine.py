@@ -193,14 +193,15 @@ class AlertEngine:
         """Handle the events stored since the last poll; returns how many were read."""
         cursor = int(self.db.meta("event_cursor") or 0)
         events = self.store.events_after(cursor, batch)
+        statuses: dict[int, str] = {}  # one read per robot and poll, not per event
         for event in events:
-            self._event(event, now)
+            self._event(event, now, statuses)
         if events:
             with self.db.transaction() as tx:
                 self.db.set_meta(tx, "event_cursor", str(events[-1].id))
         return len(events)
 
-    def _event(self, event: Event, now: float) -> None:
+    def _event(self, event: Event, now: float, statuses: dict[int, str]) -> None:
         if event.origin == "log":  # history fetched from a robot's log: not news
             return
         robot = event.robot_id
@@ -215,14 +216,20 @@ class AlertEngine:
         elif event.kind == "diagnosis" and not event.details.get("components"):
             self.resolve(robot, "", ("diagnosis",), now)
         elif event.kind in ALERT_KINDS:
-            self.handle(AlertInput(event.kind, robot, event.entity, self._status(event),
-                                   event.text, event.time, event.id), now)
+            status = self._status(event, statuses)
+            self.handle(AlertInput(event.kind, robot, event.entity, status, event.text,
+                                   event.time, event.id), now)
 
-    def _status(self, event: Event) -> str:
-        try:
-            return self.store.robot(event.resource_id).status
-        except LookupError:
-            return "UNKNOWN"
+    def _status(self, event: Event, statuses: dict[int, str]) -> str:
+        """The robot's status as the poll found it (its events of one poll were all stored
+        before the poll read them, so one read serves them all)."""
+        rid = event.resource_id
+        if rid not in statuses:
+            try:
+                statuses[rid] = self.store.robot(rid).status
+            except LookupError:
+                statuses[rid] = "UNKNOWN"
+        return statuses[rid]
 
     def handle(self, item: AlertInput, now: float) -> list[int]:
         """Match one input; returns the ids of the alerts it opened or counted on."""
