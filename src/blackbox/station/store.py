@@ -774,30 +774,39 @@ class StationStore:
             robots = db.execute(
                 "SELECT resource_id, robot_id, last_heard, online, diagnosis FROM robots"
                 + where, args).fetchall()
-            entity_rows = db.execute(
-                "SELECT resource_id, kind, status, online, failures FROM entities" + where,
-                args).fetchall()
+            # the robot's rule needs the set of its entities' statuses, the page counts:
+            # grouped by the database (15,000 rows for 1,000 robots are a few thousand)
+            entity_groups = db.execute(
+                "SELECT resource_id, kind, status, min(online), count(*) FROM entities"
+                + where + " GROUP BY resource_id, kind, status", args).fetchall()
             unacked = dict(db.execute(
                 "SELECT resource_id, count(*) FROM events WHERE acknowledged_by IS NULL AND "
                 "kind IN ('failure', 'exceedance')" + also + " GROUP BY resource_id",
                 args).fetchall())
         per: dict[int, list[tuple[str, str, int, int]]] = {}
-        for rid, kind, status, online, failures in entity_rows:
-            per.setdefault(rid, []).append((kind, status, online, failures))
+        for rid, kind, status, online, count in entity_groups:
+            per.setdefault(rid, []).append((kind, status, online, count))
         out: list[RobotSummary] = []
+        rule: dict[frozenset[str], str] = {}  # most robots share a few sets of statuses
         for rid, robot_id, last_heard, online, diagnosis in robots:
-            ents = per.get(rid, [])
-            reported = next((s for k, s, _, _ in ents if k == "robot"), "UNKNOWN")
-            robot_online = bool(online) and all(o for k, _, o, _ in ents if k == "robot")
+            groups = per.get(rid, [])
+            reported = next((s for k, s, _, _ in groups if k == "robot"), "UNKNOWN")
+            robot_online = bool(online) and all(o for k, _, o, _ in groups if k == "robot")
             stale = last_heard is None or now - last_heard > self.stale_after
-            status = robot_status((s for _, s, _, _ in ents), stale=stale,
-                                  online=robot_online)
-            failing = sum(1 for k, s, _, _ in ents
+            if stale or not robot_online:
+                status = robot_status((), stale=stale, online=robot_online)
+            else:
+                statuses = frozenset(s for _, s, _, _ in groups)
+                if statuses not in rule:
+                    rule[statuses] = robot_status(statuses, stale=False, online=True)
+                status = rule[statuses]
+            failing = sum(n for k, s, _, n in groups
                           if k != "robot" and s in ("DEGRADED", "NOT_OPERATIONAL"))
             out.append(RobotSummary(
                 rid, robot_id, robot_id or f"#{rid}", status, reported, last_heard, stale,
-                robot_online, len(ents), failing, int(unacked.get(rid, 0)),
-                tuple(loads(diagnosis, []))))
+                robot_online, sum(n for _, _, _, n in groups), failing,
+                int(unacked.get(rid, 0)),
+                () if diagnosis == "[]" else tuple(loads(diagnosis, []))))
         return out
 
     def entities(self, robot: RobotRef, now: float | None = None) -> list[EntityNode]:
