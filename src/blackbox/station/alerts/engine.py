@@ -428,14 +428,15 @@ class AlertEngine:
         return int(gone) + self.outbox.prune(now - HISTORY_KEEP)
 
     def _watch_fleet(self, now: float) -> None:
-        for robot in self.store.fleet(now):
-            name = robot.robot_id or f"#{robot.resource_id}"
-            if robot.stale and name not in self._silent:
+        for rid, robot_id, last_heard in self.store.heard_times():
+            name = robot_id or f"#{rid}"
+            stale = last_heard is None or now - last_heard > self.store.stale_after
+            if stale and name not in self._silent:
                 self._silent.add(name)
                 self.handle(AlertInput("robot_silent", name, name, "UNKNOWN",
                                        f"{name} has not been heard for more than "
                                        f"{self.store.stale_after:g} s", now), now)
-            elif not robot.stale and name in self._silent:
+            elif not stale and name in self._silent:
                 self._silent.discard(name)
                 self.resolve(name, name, ("robot_silent",), now)
 
