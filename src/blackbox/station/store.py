@@ -86,7 +86,7 @@ from blackbox.station.status import robot_status
 from blackbox.station.status_batch import EntityStatusBatch, KeptStatuses
 from blackbox.station.status_history import StatusTrack
 from blackbox.station.wording import explain
-from blackbox.station.writequeue import Op, WriteQueue
+from blackbox.station.writequeue import Op, PendingWrite, WriteQueue
 
 __all__ = [
     "APPLICATION", "DEFAULT_SERIES_RETENTION", "DEFAULT_STALE_AFTER", "EVENT_KINDS",
@@ -100,6 +100,11 @@ __all__ = [
 MIGRATION_LOCK = 7_372_001
 """PostgreSQL advisory lock key held while a station creates or migrates the schema, so two
 station processes starting together on an empty database do not both create it."""
+
+
+_HEARD = ("INSERT INTO robots (resource_id, first_heard, last_heard) VALUES (?, ?, ?) "
+          "ON CONFLICT (resource_id) DO UPDATE SET "
+          "last_heard = greatest(robots.last_heard, excluded.last_heard)")
 
 
 @lru_cache(maxsize=64)
@@ -152,6 +157,9 @@ class StationStore:
         self._last_prune = 0.0
         self._closed = False
         self._kept_statuses = KeptStatuses()
+        self._latest: dict[tuple[Any, ...], PendingWrite] = {}
+        """Queued rows that later writes of the same thing update instead of adding a row:
+        a robot's last-heard time, a characteristic's current value (see _coalesce)."""
         self._status_batch: EntityStatusBatch | None = None
         if self.database.dialect == "sqlite" and not self.memory:
             parent = Path(self.database.url).parent
@@ -366,6 +374,7 @@ class StationStore:
             finally:  # what the flush's status writes learnt holds once it committed
                 if committed is not None:
                     self._kept_statuses.commit()
+                    self._latest.clear()  # written: the next writes are rows of their own
                 else:
                     self._kept_statuses.discard()
         if committed is None:
@@ -382,11 +391,21 @@ class StationStore:
     # Robots, entities, characteristics (durable state) -----------------------------------
 
     def heard(self, resource_id: int, at: float) -> None:
-        """A sample of robot ``resource_id`` arrived at wall time ``at``."""
-        self._writes.add_row("INSERT INTO robots (resource_id, first_heard, last_heard) "
-                             "VALUES (?, ?, ?) ON CONFLICT (resource_id) DO UPDATE SET "
-                             "last_heard = greatest(robots.last_heard, excluded.last_heard)",
-                             (resource_id, at, at), resource_id, "fleet")
+        """A sample of robot ``resource_id`` arrived at wall time ``at``: one row per robot
+        and flush, its first time and the latest (what one row per sample left)."""
+        with self._writes.lock:
+            queued = self._queued(("heard", resource_id))
+            if queued is not None:
+                rid, first, last = queued.args
+                queued.args = (rid, first, max(last, at))
+                return
+            self._latest[("heard", resource_id)] = self._writes.add_row(
+                _HEARD, (resource_id, at, at), resource_id, "fleet")
+
+    def _queued(self, key: tuple[Any, ...]) -> PendingWrite | None:
+        """The row queued for ``key`` in this flush, if it is still to be written."""
+        row = self._latest.get(key)
+        return None if row is None or row.gone else row
 
     def put_robot_id(self, resource_id: int, robot_id: str) -> None:
         rid = clip(robot_id, MAX_NAME)
@@ -496,7 +515,17 @@ class StationStore:
         values: dict[str, Any] = {"value": value, "time": t}
         if entity is not None:
             values["entity"] = entity
-        self._upsert_characteristic(resource_id, instance_id, values, only_newer=True)
+        sql = _characteristic_upsert(tuple(values), True)
+        args = (resource_id, instance_id, *values.values())
+        key = ("value", resource_id, instance_id, sql)
+        with self._writes.lock:  # one current value per characteristic and flush: the newest
+            queued = self._queued(key)
+            if queued is not None:
+                if t >= queued.args[3]:  # what the upserts' "only newer" left, in order
+                    queued.args = args
+            else:
+                self._latest[key] = self._writes.add_row(sql, args, resource_id,
+                                                         "characteristics")
         self._writes.add_row("INSERT INTO samples VALUES (?, ?, ?, ?)",
                              (resource_id, instance_id, t, value), resource_id, "",
                              droppable=True)

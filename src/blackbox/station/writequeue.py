@@ -44,7 +44,9 @@ class PendingWrite:
     sql: str = ""
     args: tuple[Any, ...] = ()
     more_robots: set[int] | None = None
-    """Further robots a batched change (:meth:`WriteQueue.add_batch`) touches."""
+    """Further robots a batched change (:meth:`WriteQueue.joins_batch`) touches."""
+    gone: bool = False
+    """Dropped from the queue unwritten (:meth:`WriteQueue._shed`): not to be updated."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -123,7 +125,7 @@ class WriteQueue:
         return True
 
     def add_row(self, sql: str, args: tuple[Any, ...], robot: int | None, topic: str,
-                droppable: bool = False) -> None:
+                droppable: bool = False) -> PendingWrite:
         """One row of ``sql``, sent in one ``executemany`` with every other row of the same
         statement queued since the last :meth:`add`ed change. Why: one statement per
         characteristic value was one round trip per value to a PostgreSQL server (about 580
@@ -134,9 +136,11 @@ class WriteQueue:
         other columns); rows of one statement keep their order, and a change queued with
         :meth:`add` applies after every row queued before it."""
         with self.lock:
-            self._pending.append(PendingWrite(None, robot, topic, droppable, sql, args))
+            row = PendingWrite(None, robot, topic, droppable, sql, args)
+            self._pending.append(row)
             if len(self._pending) > self.max_pending:
                 self._shed()
+            return row
 
     def _shed(self) -> None:
         """Over the bound: drop queued time-series points first (counted), then refuse the
@@ -147,10 +151,13 @@ class WriteQueue:
             if excess > 0 and item.droppable:
                 excess -= 1
                 self._dropped_points += 1
+                item.gone = True
                 continue
             kept.append(item)
         while len(kept) > self.max_pending:
-            if kept.popleft() is self._last_change:
+            dropped = kept.popleft()
+            dropped.gone = True
+            if dropped is self._last_change:
                 self._last_change = None
             self.problems.report("store", "write queue full while the database cannot be "
                                           "written: oldest queued changes dropped")

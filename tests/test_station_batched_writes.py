@@ -1,13 +1,15 @@
-"""Entity statuses written in batches (``station/status_batch.py``) on real SQLite files:
-the status history and the change feed are what one write per status gave, whatever
-lands in one flush, and a flush that rolled back makes the store believe nothing it read
-in it."""
+"""The station's writes in batches on real SQLite files: entity statuses
+(``station/status_batch.py``), and one row per flush for a robot's last-heard time and a
+characteristic's current value. The status history, the robots, the characteristics and
+the change feed are what one write per sample gave, whatever lands in one flush, and a
+flush that rolled back makes the store believe nothing it read in it."""
 
 from __future__ import annotations
 
 import random
 import sqlite3
 from pathlib import Path
+from typing import Any
 
 from blackbox.health.ids import robot_resource_id
 from blackbox.station.status_batch import KeptStatuses
@@ -33,12 +35,12 @@ def _feed(store: StationStore, seed: int, flush_every: int | None) -> None:
         rid, t = robot_resource_id(robot), T0 + step
         if rng.random() < 0.1:
             status[robot, entity] = rng.choice(STATUSES)
-        store.heard(rid, t)
+        store.heard(rid, t + rng.uniform(-3, 3))  # arrival times out of order too
         store.put_entity(rid, entity, status=status[robot, entity], online=True,
                          updated=t, kind="robot" if entity == 1 else "node")
         if entity == 1:
             store.put_robot_online(rid, rng.random() < 0.9)
-        store.put_value(rid, 10 + entity, t, rng.random())
+        store.put_value(rid, 10 + entity, t + rng.choice((-2.0, 0.0, 0.0, 1.5)), rng.random())
         if rng.random() < 0.05:
             store.put_entity(rid, entity, name=f"/e{entity}")  # a description: a row
         if flush_every is None or flushes.randrange(flush_every) == 0:
@@ -51,9 +53,26 @@ def _history(store: StationStore, robots: tuple[str, ...] = ROBOTS
     return {r: list(store.status_track(r, T0 - 1, T0 + 10_000).changes) for r in robots}
 
 
-def test_statuses_in_batches_keep_the_history_one_write_at_a_time_kept(tmp_path: Path) -> None:
-    one_by_one = StationStore.open(tmp_path / "single.db", clock=lambda: T0 + 5000)
-    batched = StationStore.open(tmp_path / "batched.db", clock=lambda: T0 + 5000)
+def _stored(store: StationStore, path: Path) -> dict[str, Any]:
+    """Every robot's row and every characteristic's current value and chart points."""
+    db = sqlite3.connect(path)
+    out: dict[str, Any] = {"robots": db.execute(
+        "SELECT resource_id, first_heard, last_heard, online FROM robots "
+        "ORDER BY resource_id").fetchall()}
+    db.close()
+    for robot in ROBOTS:
+        out[robot] = ([(c.instance_id, c.value, c.time) for c in store.characteristics(robot)],
+                      {iid: store.series(robot, iid, T0 - 10, T0 + 10_000)
+                       for iid in (11, 12, 13)})
+    return out
+
+
+def test_writes_in_batches_keep_what_one_write_at_a_time_kept(tmp_path: Path) -> None:
+    # chart points kept for longer than the stream's times (nothing pruned meanwhile)
+    one_by_one = StationStore.open(tmp_path / "single.db", clock=lambda: T0 + 5000,
+                                   series_retention=1e6)
+    batched = StationStore.open(tmp_path / "batched.db", clock=lambda: T0 + 5000,
+                                series_retention=1e6)
     try:
         _feed(one_by_one, seed=7, flush_every=None)
         _feed(batched, seed=7, flush_every=40)
@@ -61,8 +80,11 @@ def test_statuses_in_batches_keep_the_history_one_write_at_a_time_kept(tmp_path:
         assert _history(batched) == expected
         assert sum(1 for changes in expected.values() for _, iid, _ in changes
                    if iid == ROBOT) > 3, "the stream changed no robot's status"
-        assert [(r.name, r.status, r.online) for r in batched.fleet(now=T0 + 600)] == \
-            [(r.name, r.status, r.online) for r in one_by_one.fleet(now=T0 + 600)]
+        assert [(r.name, r.status, r.online, r.last_heard)
+                for r in batched.fleet(now=T0 + 600)] == \
+            [(r.name, r.status, r.online, r.last_heard) for r in one_by_one.fleet(now=T0 + 600)]
+        assert _stored(batched, tmp_path / "batched.db") == \
+            _stored(one_by_one, tmp_path / "single.db")
     finally:
         one_by_one.close()
         batched.close()
