@@ -159,3 +159,5 @@ def test_a_kept_status_is_read_again_after_a_while() -> None:
     assert kept.kept((1, 2), "DEGRADED") and not kept.kept((1, 2), "OPERATIONAL")
     now[0] = 10.0
     assert not kept.kept((1, 2), "DEGRADED")
+    kept.load({(1, 3): "OPERATIONAL"})  # what a starting store reads at once
+    assert kept.kept((1, 3), "OPERATIONAL") and not kept.kept((1, 3), "DEGRADED")

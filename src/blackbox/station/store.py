@@ -174,6 +174,8 @@ class StationStore:
         try:
             with self._writes.lock:
                 self._migrate(self._writes.connection())
+                self._kept_statuses.load(
+                    status_history.last_statuses(self._writes.connection()))
         except (StationStoreError, DatabaseError) as exc:
             self._writes.close()
             if isinstance(exc, StationStoreError):
