@@ -193,15 +193,14 @@ class AlertEngine:
         """Handle the events stored since the last poll; returns how many were read."""
         cursor = int(self.db.meta("event_cursor") or 0)
         events = self.store.events_after(cursor, batch)
-        if not events:
-            return 0
         statuses: dict[int, str] = {}  # one read per robot and poll, not per event
-        # one transaction for the poll (each event's own join it): a commit per event was
-        # most of the engine's time at fleet scale, and the cursor now moves with them
-        with self.db.transaction() as tx:
-            for event in events:
-                self._event(event, now, statuses)
-            self.db.set_meta(tx, "event_cursor", str(events[-1].id))
+        # (not one transaction for the poll: the audit log is written through another
+        # connection, which would wait for this one's lock on SQLite)
+        for event in events:
+            self._event(event, now, statuses)
+        if events:
+            with self.db.transaction() as tx:
+                self.db.set_meta(tx, "event_cursor", str(events[-1].id))
         return len(events)
 
     def _event(self, event: Event, now: float, statuses: dict[int, str]) -> None:
