@@ -235,6 +235,14 @@ def free_port() -> int:
         return int(sock.getsockname()[1])
 
 
+def station_behind(web: WebClient) -> bool:
+    """Whether the station says it has not caught up with what it was sent (``/metrics``)."""
+    for line in web.http.get("/metrics").text.splitlines():
+        if line.startswith("blackbox_station_ingest_behind "):
+            return line.split()[-1] not in ("0", "0.0")
+    return False
+
+
 def stored_counts(db: str, ids: list[str]) -> dict[str, dict[str, int]]:
     """What the station stored per robot (live events and chart values), read with the same
     SQL from SQLite or, for a ``postgresql://`` URL, with psycopg."""
@@ -548,14 +556,16 @@ def main() -> int:
             fleet_cpu += report["cpu_seconds"]
             report = report["robots"]
         published.update(report)
-    # the station may be behind: give it until what it stored stops growing (late is not
-    # lost), at most DRAIN_TIMEOUT s, and say how long that took
+    # the station may be behind: give it until what it stored stops growing and it says
+    # it is no longer behind (a station starved of CPU on a loaded machine may store
+    # nothing for seconds; late is not lost), at most DRAIN_TIMEOUT s, and say how long
+    # that took
     drain_start = time.monotonic()
     stored_total = -1
     while time.monotonic() - drain_start < DRAIN_TIMEOUT:
         time.sleep(3.0)
         now_total = sum(sum(c.values()) for c in stored_counts(db, ids).values())
-        if now_total == stored_total:
+        if now_total == stored_total and not (web is not None and station_behind(web)):
             break
         stored_total = now_total
     drained = time.monotonic() - drain_start

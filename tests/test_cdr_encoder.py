@@ -39,6 +39,11 @@ and its health samples), which cyclonedds's own serialisation writes."""
 _RANGES = {"b": 7, "h": 15, "i": 31, "q": 63, "B": 8, "H": 16, "I": 32, "Q": 64}
 
 
+def _range_of(code: str) -> tuple[int, int]:
+    bits = _RANGES[code]
+    return (0, 2 ** bits - 1) if code.isupper() else (-(2 ** bits), 2 ** bits - 1)
+
+
 def _random_value(machine: Any, rng: random.Random) -> Any:
     """A random value for what ``machine`` encodes, edge values included."""
     if isinstance(machine, m.InstanceMachine):
@@ -51,8 +56,7 @@ def _random_value(machine: Any, rng: random.Random) -> Any:
                 else rng.choice([0.0, 0.5, -2.25])
         if code == "?":
             return rng.random() < 0.5
-        bits = _RANGES[code]
-        low, high = (0, 2 ** bits - 1) if code.isupper() else (-(2 ** bits), 2 ** bits - 1)
+        low, high = _range_of(code)
         return rng.choice([low, high, 0, rng.randint(low, high)])
     if isinstance(machine, m.EnumMachine):
         return rng.choice(list(machine.enum))
@@ -60,6 +64,9 @@ def _random_value(machine: Any, rng: random.Random) -> Any:
         return rng.choice(["", "camera", "caméra ü 機器人", "x" * rng.randrange(1, 300)])
     if isinstance(machine, m.SequenceMachine):
         return [_random_value(machine.submachine, rng) for _ in range(rng.choice([0, 1, 3, 40]))]
+    if isinstance(machine, m.PlainCdrV2SequenceOfPrimitiveMachine):  # bytes in XCDR2
+        low, high = _range_of(machine.code)
+        return [rng.randint(low, high) for _ in range(rng.choice([0, 1, 3, 64]))]
     if isinstance(machine, m.StructMachine):
         return machine.type(**{name: _random_value(sub, rng)
                                for name, sub in machine.members_machines.items()})

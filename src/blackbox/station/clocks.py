@@ -58,7 +58,9 @@ class ClockWatch:
 
     def observe(self, robot: str, robot_time: float, received: float) -> None:
         """A live sample of ``robot`` stamped ``robot_time`` arrived at ``received``."""
-        o = self._robots.setdefault(robot, _Offsets())
+        o = self._robots.get(robot)
+        if o is None:  # (not setdefault: that made a new _Offsets for every sample)
+            o = self._robots[robot] = _Offsets()
         o.first = received if o.first is None else o.first
         difference = received - robot_time
         while o.samples and o.samples[-1][1] >= difference:

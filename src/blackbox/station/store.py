@@ -35,6 +35,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from functools import lru_cache
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
@@ -82,9 +83,10 @@ from blackbox.station.records import (
 )
 from blackbox.station.schema import APPLICATION, SCHEMA_VERSION
 from blackbox.station.status import robot_status
+from blackbox.station.status_batch import EntityStatusBatch, KeptStatuses
 from blackbox.station.status_history import StatusTrack
 from blackbox.station.wording import explain
-from blackbox.station.writequeue import Op, WriteQueue
+from blackbox.station.writequeue import Op, PendingWrite, WriteQueue
 
 __all__ = [
     "APPLICATION", "DEFAULT_SERIES_RETENTION", "DEFAULT_STALE_AFTER", "EVENT_KINDS",
@@ -98,6 +100,25 @@ __all__ = [
 MIGRATION_LOCK = 7_372_001
 """PostgreSQL advisory lock key held while a station creates or migrates the schema, so two
 station processes starting together on an empty database do not both create it."""
+
+
+_HEARD = ("INSERT INTO robots (resource_id, first_heard, last_heard) VALUES (?, ?, ?) "
+          "ON CONFLICT (resource_id) DO UPDATE SET "
+          "last_heard = greatest(robots.last_heard, excluded.last_heard)")
+
+
+@lru_cache(maxsize=64)
+def _characteristic_upsert(columns: tuple[str, ...], only_newer: bool) -> str:
+    """The upsert of a characteristic's ``columns`` (built once per set of columns: a fleet
+    sends ten thousand values a second, all with the same few)."""
+    names = "".join(f", {k}" for k in columns)
+    marks = "".join(", ?" for _ in columns)
+    update = ", ".join(f"{k} = excluded.{k}" for k in columns) or "name = name"
+    where = " WHERE characteristics.time IS NULL OR characteristics.time <= excluded.time" \
+        if only_newer else ""
+    return (f"INSERT INTO characteristics (resource_id, instance_id{names}) "
+            f"VALUES (?, ?{marks}) ON CONFLICT (resource_id, instance_id) DO "
+            f"UPDATE SET {update}{where}")
 
 
 class StationStore:
@@ -135,6 +156,11 @@ class StationStore:
             "notify", f"change listener failed: {exc}"))
         self._last_prune = 0.0
         self._closed = False
+        self._kept_statuses = KeptStatuses()
+        self._latest: dict[tuple[Any, ...], PendingWrite] = {}
+        """Queued rows that later writes of the same thing update instead of adding a row:
+        a robot's last-heard time, a characteristic's current value (see _coalesce)."""
+        self._status_batch: EntityStatusBatch | None = None
         if self.database.dialect == "sqlite" and not self.memory:
             parent = Path(self.database.url).parent
             if not parent.is_dir():
@@ -148,6 +174,8 @@ class StationStore:
         try:
             with self._writes.lock:
                 self._migrate(self._writes.connection())
+                self._kept_statuses.load(
+                    status_history.last_statuses(self._writes.connection()))
         except (StationStoreError, DatabaseError) as exc:
             self._writes.close()
             if isinstance(exc, StationStoreError):
@@ -342,7 +370,15 @@ class StationStore:
             if now - self._last_prune > 30.0 and not self._writes.pending:
                 self._queue(self._prune_op(now - self.series_retention), None, "")
                 self._last_prune = now
-            committed = self._writes.flush(force)
+            committed = None
+            try:
+                committed = self._writes.flush(force)
+            finally:  # what the flush's status writes learnt holds once it committed
+                if committed is not None:
+                    self._kept_statuses.commit()
+                    self._latest.clear()  # written: the next writes are rows of their own
+                else:
+                    self._kept_statuses.discard()
         if committed is None:
             return False
         if committed.topics:
@@ -357,11 +393,21 @@ class StationStore:
     # Robots, entities, characteristics (durable state) -----------------------------------
 
     def heard(self, resource_id: int, at: float) -> None:
-        """A sample of robot ``resource_id`` arrived at wall time ``at``."""
-        self._writes.add_row("INSERT INTO robots (resource_id, first_heard, last_heard) "
-                             "VALUES (?, ?, ?) ON CONFLICT (resource_id) DO UPDATE SET "
-                             "last_heard = greatest(robots.last_heard, excluded.last_heard)",
-                             (resource_id, at, at), resource_id, "fleet")
+        """A sample of robot ``resource_id`` arrived at wall time ``at``: one row per robot
+        and flush, its first time and the latest (what one row per sample left)."""
+        with self._writes.lock:
+            queued = self._queued(("heard", resource_id))
+            if queued is not None:
+                rid, first, last = queued.args
+                queued.args = (rid, first, max(last, at))
+                return
+            self._latest[("heard", resource_id)] = self._writes.add_row(
+                _HEARD, (resource_id, at, at), resource_id, "fleet")
+
+    def _queued(self, key: tuple[Any, ...]) -> PendingWrite | None:
+        """The row queued for ``key`` in this flush, if it is still to be written."""
+        row = self._latest.get(key)
+        return None if row is None or row.gone else row
 
     def put_robot_id(self, resource_id: int, robot_id: str) -> None:
         rid = clip(robot_id, MAX_NAME)
@@ -416,19 +462,22 @@ class StationStore:
         if "status" not in values:  # a description: a row among many (see add_row)
             self._writes.add_row(sql, args, resource_id, "entities")
             return
-
-        def op(db: Connection) -> None:
-            db.execute(sql, args)
-            if "status" in values:
-                status_history.note(db, resource_id, instance_id, values["status"],
-                                    self.clock() if updated is None else updated)
-        self._queue(op, resource_id, "entities")
+        with self._writes.lock:  # a status: one change for a run of them (status_batch)
+            batch = self._status_batch
+            if batch is None or not self._writes.joins_batch(batch.apply, resource_id):
+                batch = self._status_batch = EntityStatusBatch(self._kept_statuses,
+                                                               self.clock)
+                self._queue(batch.apply, resource_id, "entities")
+            batch.add(sql, args, resource_id, instance_id, values["status"], updated)
 
     def put_robot_online(self, resource_id: int, online: bool) -> None:
-        def op(db: Connection) -> None:
-            db.execute("UPDATE robots SET online = ? WHERE resource_id = ?",
-                       (int(online), resource_id))
-        self._queue(op, resource_id, "fleet")
+        """A row among many (see add_row; only this statement writes ``online``), which
+        creates the robot's row if its ``heard`` row is applied after it."""
+        now = self.clock()
+        self._writes.add_row("INSERT INTO robots (resource_id, first_heard, last_heard, "
+                             "online) VALUES (?, ?, ?, ?) ON CONFLICT (resource_id) DO "
+                             "UPDATE SET online = excluded.online",
+                             (resource_id, now, now, int(online)), resource_id, "fleet")
 
     def put_diagnosis(self, resource_id: int, components: Sequence[str],
                       since: float | None) -> None:
@@ -468,21 +517,24 @@ class StationStore:
         values: dict[str, Any] = {"value": value, "time": t}
         if entity is not None:
             values["entity"] = entity
-        self._upsert_characteristic(resource_id, instance_id, values, only_newer=True)
+        sql = _characteristic_upsert(tuple(values), True)
+        args = (resource_id, instance_id, *values.values())
+        key = ("value", resource_id, instance_id, sql)
+        with self._writes.lock:  # one current value per characteristic and flush: the newest
+            queued = self._queued(key)
+            if queued is not None:
+                if t >= queued.args[3]:  # what the upserts' "only newer" left, in order
+                    queued.args = args
+            else:
+                self._latest[key] = self._writes.add_row(sql, args, resource_id,
+                                                         "characteristics")
         self._writes.add_row("INSERT INTO samples VALUES (?, ?, ?, ?)",
                              (resource_id, instance_id, t, value), resource_id, "",
                              droppable=True)
 
     def _upsert_characteristic(self, resource_id: int, instance_id: int,
                                values: dict[str, Any], only_newer: bool = False) -> None:
-        columns = "".join(f", {k}" for k in values)
-        marks = "".join(", ?" for _ in values)
-        update = ", ".join(f"{k} = excluded.{k}" for k in values) or "name = name"
-        where = " WHERE characteristics.time IS NULL OR characteristics.time <= excluded.time" \
-            if only_newer else ""
-        sql = (f"INSERT INTO characteristics (resource_id, instance_id{columns}) "
-               f"VALUES (?, ?{marks}) ON CONFLICT (resource_id, instance_id) DO "
-               f"UPDATE SET {update}{where}")
+        sql = _characteristic_upsert(tuple(values), only_newer)
         # one row among many (see WriteQueue.add_row): upserts of one characteristic set
         # other columns (a description, its flag, its newest value), so their order does
         # not matter; two of one statement keep theirs
@@ -737,44 +789,71 @@ class StationStore:
                              (robot_resource(robot),)).fetchone()
         return None if row is None else row[0]
 
+    def heard_times(self) -> list[tuple[int, str, float | None]]:
+        """Every robot's resource id, robot id and last-heard time: all that watching for
+        silent robots needs, twice a second, without the fleet summary's entities."""
+        with self._read() as db:
+            return [(int(rid), str(robot_id), last_heard) for rid, robot_id, last_heard in
+                    db.execute("SELECT resource_id, robot_id, last_heard FROM robots")]
+
     def fleet(self, now: float | None = None) -> list[RobotSummary]:
         """Every robot ever heard, identified ones first, by name."""
-        now = self.clock() if now is None else now
-        with self._read() as db:
-            robots = db.execute(
-                "SELECT resource_id, robot_id, last_heard, online, diagnosis FROM robots"
-            ).fetchall()
-            entity_rows = db.execute(
-                "SELECT resource_id, kind, status, online, failures FROM entities").fetchall()
-            unacked = dict(db.execute(
-                "SELECT resource_id, count(*) FROM events WHERE acknowledged_by IS NULL AND "
-                "kind IN ('failure', 'exceedance') GROUP BY resource_id").fetchall())
-        per: dict[int, list[tuple[str, str, int, int]]] = {}
-        for rid, kind, status, online, failures in entity_rows:
-            per.setdefault(rid, []).append((kind, status, online, failures))
-        out: list[RobotSummary] = []
-        for rid, robot_id, last_heard, online, diagnosis in robots:
-            ents = per.get(rid, [])
-            reported = next((s for k, s, _, _ in ents if k == "robot"), "UNKNOWN")
-            robot_online = bool(online) and all(o for k, _, o, _ in ents if k == "robot")
-            stale = last_heard is None or now - last_heard > self.stale_after
-            status = robot_status((s for _, s, _, _ in ents), stale=stale,
-                                  online=robot_online)
-            failing = sum(1 for k, s, _, _ in ents
-                          if k != "robot" and s in ("DEGRADED", "NOT_OPERATIONAL"))
-            out.append(RobotSummary(
-                rid, robot_id, robot_id or f"#{rid}", status, reported, last_heard, stale,
-                robot_online, len(ents), failing, int(unacked.get(rid, 0)),
-                tuple(loads(diagnosis, []))))
+        out = self._summaries(self.clock() if now is None else now, None)
         out.sort(key=lambda r: (not r.robot_id, r.name))
         return out
 
     def robot(self, robot: RobotRef, now: float | None = None) -> RobotSummary:
-        rid = self.resource_of(robot)
-        for summary in self.fleet(now):
-            if summary.resource_id == rid:
-                return summary
-        raise UnknownRobot(f"no robot {robot!r}")
+        """One robot's summary, read for that robot alone: the alert engine asks it for
+        every alarm and a page for every view, and the whole fleet's summary costs
+        thousands of rows at fleet scale."""
+        rid = robot_resource(robot)
+        found = self._summaries(self.clock() if now is None else now, rid)
+        if not found:
+            raise UnknownRobot(f"no robot {robot!r} has been heard on this station")
+        return found[0]
+
+    def _summaries(self, now: float, only: int | None) -> list[RobotSummary]:
+        """The summaries of every robot, or of the robot with resource id ``only``."""
+        where, args = ("", ()) if only is None else (" WHERE resource_id = ?", (only,))
+        also = "" if only is None else " AND resource_id = ?"
+        with self._read() as db:
+            robots = db.execute(
+                "SELECT resource_id, robot_id, last_heard, online, diagnosis FROM robots"
+                + where, args).fetchall()
+            # the robot's rule needs the set of its entities' statuses, the page counts:
+            # grouped by the database (15,000 rows for 1,000 robots are a few thousand)
+            entity_groups = db.execute(
+                "SELECT resource_id, kind, status, min(online), count(*) FROM entities"
+                + where + " GROUP BY resource_id, kind, status", args).fetchall()
+            unacked = dict(db.execute(
+                "SELECT resource_id, count(*) FROM events WHERE acknowledged_by IS NULL AND "
+                "kind IN ('failure', 'exceedance')" + also + " GROUP BY resource_id",
+                args).fetchall())
+        per: dict[int, list[tuple[str, str, int, int]]] = {}
+        for rid, kind, status, online, count in entity_groups:
+            per.setdefault(rid, []).append((kind, status, online, count))
+        out: list[RobotSummary] = []
+        rule: dict[frozenset[str], str] = {}  # most robots share a few sets of statuses
+        for rid, robot_id, last_heard, online, diagnosis in robots:
+            groups = per.get(rid, [])
+            reported = next((s for k, s, _, _ in groups if k == "robot"), "UNKNOWN")
+            robot_online = bool(online) and all(o for k, _, o, _ in groups if k == "robot")
+            stale = last_heard is None or now - last_heard > self.stale_after
+            if stale or not robot_online:
+                status = robot_status((), stale=stale, online=robot_online)
+            else:
+                statuses = frozenset(s for _, s, _, _ in groups)
+                if statuses not in rule:
+                    rule[statuses] = robot_status(statuses, stale=False, online=True)
+                status = rule[statuses]
+            failing = sum(n for k, s, _, n in groups
+                          if k != "robot" and s in ("DEGRADED", "NOT_OPERATIONAL"))
+            out.append(RobotSummary(
+                rid, robot_id, robot_id or f"#{rid}", status, reported, last_heard, stale,
+                robot_online, sum(n for _, _, _, n in groups), failing,
+                int(unacked.get(rid, 0)),
+                () if diagnosis == "[]" else tuple(loads(diagnosis, []))))
+        return out
 
     def entities(self, robot: RobotRef, now: float | None = None) -> list[EntityNode]:
         """The robot's entity tree as a flat list, robot first, then by kind and name;

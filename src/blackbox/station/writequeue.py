@@ -43,6 +43,10 @@ class PendingWrite:
     droppable: bool = False
     sql: str = ""
     args: tuple[Any, ...] = ()
+    more_robots: set[int] | None = None
+    """Further robots a batched change (:meth:`WriteQueue.joins_batch`) touches."""
+    gone: bool = False
+    """Dropped from the queue unwritten (:meth:`WriteQueue._shed`): not to be updated."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -66,6 +70,7 @@ class WriteQueue:
         self._pending: deque[PendingWrite] = deque()
         self._dropped_points = 0
         self._last_failed = -math.inf
+        self._last_change: PendingWrite | None = None
         self._db: Connection | None = database.connect()
         self.closed = False
 
@@ -99,12 +104,28 @@ class WriteQueue:
 
     def add(self, op: Op, robot: int | None, topic: str, droppable: bool = False) -> None:
         with self.lock:
-            self._pending.append(PendingWrite(op, robot, topic, droppable))
+            self._last_change = PendingWrite(op, robot, topic, droppable)
+            self._pending.append(self._last_change)
             if len(self._pending) > self.max_pending:
                 self._shed()
 
+    def joins_batch(self, op: Op, robot: int) -> bool:
+        """Whether ``op`` is still the last change queued (rows may have been queued after
+        it) and not yet committed; then the caller may add to what it writes, and
+        ``robot`` is counted among the robots it touched. Why: a change per entity status
+        was a round trip (and a read) per sample; one change for a run of them is one
+        ``executemany``. Call with :attr:`lock` held."""
+        last = self._last_change
+        if last is None or last.op is not op:
+            return False
+        if robot != last.robot:
+            if last.more_robots is None:
+                last.more_robots = set()
+            last.more_robots.add(robot)
+        return True
+
     def add_row(self, sql: str, args: tuple[Any, ...], robot: int | None, topic: str,
-                droppable: bool = False) -> None:
+                droppable: bool = False) -> PendingWrite:
         """One row of ``sql``, sent in one ``executemany`` with every other row of the same
         statement queued since the last :meth:`add`ed change. Why: one statement per
         characteristic value was one round trip per value to a PostgreSQL server (about 580
@@ -115,9 +136,11 @@ class WriteQueue:
         other columns); rows of one statement keep their order, and a change queued with
         :meth:`add` applies after every row queued before it."""
         with self.lock:
-            self._pending.append(PendingWrite(None, robot, topic, droppable, sql, args))
+            row = PendingWrite(None, robot, topic, droppable, sql, args)
+            self._pending.append(row)
             if len(self._pending) > self.max_pending:
                 self._shed()
+            return row
 
     def _shed(self) -> None:
         """Over the bound: drop queued time-series points first (counted), then refuse the
@@ -128,10 +151,14 @@ class WriteQueue:
             if excess > 0 and item.droppable:
                 excess -= 1
                 self._dropped_points += 1
+                item.gone = True
                 continue
             kept.append(item)
         while len(kept) > self.max_pending:
-            kept.popleft()
+            dropped = kept.popleft()
+            dropped.gone = True
+            if dropped is self._last_change:
+                self._last_change = None
             self.problems.report("store", "write queue full while the database cannot be "
                                           "written: oldest queued changes dropped")
         self._pending = kept
@@ -175,8 +202,12 @@ class WriteQueue:
                                      f"{self.database.describe()} writable again")
             for _ in batch:
                 self._pending.popleft()
-        return Committed(frozenset(i.robot for i in batch if i.robot is not None),
-                         frozenset(i.topic for i in batch if i.topic))
+            self._last_change = None  # committed: nothing may be added to it any more
+        robots = {i.robot for i in batch if i.robot is not None}
+        for item in batch:
+            if item.more_robots:
+                robots |= item.more_robots
+        return Committed(frozenset(robots), frozenset(i.topic for i in batch if i.topic))
 
     def run_now(self, what: Callable[[Connection], T]) -> T:
         """Run ``what`` on the write connection now (call after a successful flush, with

@@ -37,6 +37,7 @@ import zenoh
 import zenoh.ext as zext
 
 from blackbox.errors import BlackBoxError
+from blackbox.transport.cdr_decoder import decoder_for
 from blackbox.transport.cdr_encoder import Encoder, encoder_for
 from blackbox.transport.topics import ALL_TOPICS
 from blackbox.transport.zenoh_contact import FirstContact
@@ -277,12 +278,13 @@ class ZenohReader:
         with self._lock:
             payloads = [self._payloads.popleft() for _ in range(min(N, len(self._payloads)))]
         samples = []
+        decode = decoder_for(self.type)  # compiled: cyclonedds's sample, about 10x faster
         for payload in payloads:
             if len(payload) < CDR_HEADER:  # Cyclone decodes b"" as an all-default sample
                 self.malformed += 1
                 continue
             try:
-                samples.append(self.type.deserialize(payload))
+                samples.append(decode(payload))
             except Exception:  # a foreign or truncated payload is not a crash
                 self.malformed += 1
         return samples

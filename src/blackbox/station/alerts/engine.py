@@ -193,14 +193,17 @@ class AlertEngine:
         """Handle the events stored since the last poll; returns how many were read."""
         cursor = int(self.db.meta("event_cursor") or 0)
         events = self.store.events_after(cursor, batch)
+        statuses: dict[int, str] = {}  # one read per robot and poll, not per event
+        # (not one transaction for the poll: the audit log is written through another
+        # connection, which would wait for this one's lock on SQLite)
         for event in events:
-            self._event(event, now)
+            self._event(event, now, statuses)
         if events:
             with self.db.transaction() as tx:
                 self.db.set_meta(tx, "event_cursor", str(events[-1].id))
         return len(events)
 
-    def _event(self, event: Event, now: float) -> None:
+    def _event(self, event: Event, now: float, statuses: dict[int, str]) -> None:
         if event.origin == "log":  # history fetched from a robot's log: not news
             return
         robot = event.robot_id
@@ -215,14 +218,20 @@ class AlertEngine:
         elif event.kind == "diagnosis" and not event.details.get("components"):
             self.resolve(robot, "", ("diagnosis",), now)
         elif event.kind in ALERT_KINDS:
-            self.handle(AlertInput(event.kind, robot, event.entity, self._status(event),
-                                   event.text, event.time, event.id), now)
+            status = self._status(event, statuses)
+            self.handle(AlertInput(event.kind, robot, event.entity, status, event.text,
+                                   event.time, event.id), now)
 
-    def _status(self, event: Event) -> str:
-        try:
-            return self.store.robot(event.resource_id).status
-        except LookupError:
-            return "UNKNOWN"
+    def _status(self, event: Event, statuses: dict[int, str]) -> str:
+        """The robot's status as the poll found it (its events of one poll were all stored
+        before the poll read them, so one read serves them all)."""
+        rid = event.resource_id
+        if rid not in statuses:
+            try:
+                statuses[rid] = self.store.robot(rid).status
+            except LookupError:
+                statuses[rid] = "UNKNOWN"
+        return statuses[rid]
 
     def handle(self, item: AlertInput, now: float) -> list[int]:
         """Match one input; returns the ids of the alerts it opened or counted on."""
@@ -418,14 +427,15 @@ class AlertEngine:
         return int(gone) + self.outbox.prune(now - HISTORY_KEEP)
 
     def _watch_fleet(self, now: float) -> None:
-        for robot in self.store.fleet(now):
-            name = robot.robot_id or f"#{robot.resource_id}"
-            if robot.stale and name not in self._silent:
+        for rid, robot_id, last_heard in self.store.heard_times():
+            name = robot_id or f"#{rid}"
+            stale = last_heard is None or now - last_heard > self.store.stale_after
+            if stale and name not in self._silent:
                 self._silent.add(name)
                 self.handle(AlertInput("robot_silent", name, name, "UNKNOWN",
                                        f"{name} has not been heard for more than "
                                        f"{self.store.stale_after:g} s", now), now)
-            elif not robot.stale and name in self._silent:
+            elif not stale and name in self._silent:
                 self._silent.discard(name)
                 self.resolve(name, name, ("robot_silent",), now)
 

@@ -19,6 +19,11 @@ from fastapi.responses import Response, StreamingResponse
 from blackbox.station.web.context import SESSION_COOKIE, Id, WebContext
 from blackbox.station.web.live import ChangeSignal, StreamQuery, UnknownLiveView
 
+LOOK_INTERVAL = 0.25
+"""Least seconds between two snapshots of one stream. Why: a station ingesting a fleet
+commits some twenty times a second, and the fleet page's snapshot of 1,000 robots costs
+tens of milliseconds; a look after the pause sees every commit made meanwhile."""
+
 
 def router(web: WebContext, changes: ChangeSignal) -> APIRouter:
     routes = APIRouter()
@@ -60,6 +65,10 @@ def router(web: WebContext, changes: ChangeSignal) -> APIRouter:
                     break
                 current = store.sequence
                 if current != seq or time.monotonic() - last_look > 2.0:  # staleness ages
+                    pause = last_look + LOOK_INTERVAL - time.monotonic()
+                    if seq != -1 and pause > 0:
+                        await asyncio.sleep(pause)
+                        current = store.sequence
                     seq = current
                     last_look = time.monotonic()
                     try:
