@@ -22,7 +22,7 @@ from blackbox.health.types import (
     T_IdentifierType,
 )
 from blackbox.transport.cdr_decoder import compile_decoder, decoder_for
-from blackbox.transport.cdr_encoder import UnsupportedMachine
+from blackbox.transport.cdr_layout import UnsupportedMachine
 from blackbox.transport.zenoh_bus import ZenohBus, ZenohSettings
 from blackbox.transport.zenoh_router import RouterSettings, open_router
 from conftest import wait_until

@@ -31,39 +31,21 @@ from typing import Any
 from cyclonedds.idl import _machinery as m
 
 from blackbox.errors import BlackBoxError
-from blackbox.transport.cdr_encoder import UnsupportedMachine
+from blackbox.transport.cdr_layout import CodeGen, UnsupportedMachine, resolve, struct_machine
 
 Decoder = Callable[[bytes], Any]
 
 
 @dataclass
-class _Gen:
-    """Code generation state: the lines, the names the code refers to, the current fixed
-    run (format, the variables it fills) and what is known about the offset (relative to
-    the payload after the 4-byte header): it is ``k`` modulo ``mod``."""
+class _Gen(CodeGen):
+    """Decoder state: a fixed run becomes one ``unpack_from`` into the variables in
+    ``targets``."""
 
-    align_max: int
-    lines: list[str] = field(default_factory=list)
-    names: dict[str, Any] = field(default_factory=dict)
-    fmt: str = ""
     targets: list[str] = field(default_factory=list)
-    k: int = 0
-    mod: int = 8
-    indent: str = "    "
-    counter: int = 0
-
-    def name(self, prefix: str, value: Any) -> str:
-        self.counter += 1
-        key = f"{prefix}{self.counter}"
-        self.names[key] = value
-        return key
 
     def variable(self) -> str:
         self.counter += 1
         return f"_x{self.counter}"
-
-    def emit(self, line: str) -> None:
-        self.lines.append(self.indent + line)
 
     def flush(self) -> None:
         """Close the current fixed run: one ``unpack_from`` for all its fields and pads."""
@@ -77,18 +59,8 @@ class _Gen:
         self.emit(f"pos += {unpacker}.size")
         self.fmt, self.targets = "", []
 
-    def align(self, alignment: int) -> None:
-        a = min(alignment, self.align_max)
-        if a <= 1:
-            return
-        if a <= self.mod:
-            pad = (-self.k) % a
-            self.fmt += "x" * pad
-            self.k = (self.k + pad) % self.mod
-            return
-        self.flush()  # the offset is not known well enough: align at run time
-        self.emit(f"pos += (4 - pos) % {a}")
-        self.k, self.mod = 0, a
+    def pad_at_run_time(self, alignment: int) -> str:
+        return f"pos += (4 - pos) % {alignment}"
 
     def fixed(self, code: str, size: int, alignment: int) -> str:
         self.align(alignment)
@@ -97,17 +69,6 @@ class _Gen:
         self.targets.append(target)
         self.k = (self.k + size) % self.mod
         return target
-
-    def unknown(self, mod: int = 1) -> None:
-        """After something of run-time length: the offset is known modulo ``mod`` only."""
-        self.k, self.mod = 0, mod
-
-
-def _resolve(machine: Any) -> Any:
-    idl = machine.type.__idl__
-    if idl.v1_machine is None:
-        idl.populate()
-    return idl.v2_machine if machine.use_version_2 else idl.v1_machine
 
 
 @dataclass(frozen=True, slots=True)
@@ -126,7 +87,7 @@ def _element_layout(machine: Any, align_max: int) -> tuple[str, Any, int] | None
     gap): its struct format, its type (``None`` for a scalar) and its alignment; else
     ``None``."""
     if isinstance(machine, m.InstanceMachine):
-        machine = _resolve(machine)
+        machine = resolve(machine)
     if type(machine) in (m.PrimitiveMachine, _Scalar):
         return str(machine.code), None, min(int(machine.alignment), align_max)
     if type(machine) is not m.StructMachine:
@@ -149,7 +110,7 @@ def _element_layout(machine: Any, align_max: int) -> tuple[str, Any, int] | None
 def _member(gen: _Gen, machine: Any) -> str:
     """Code reading one member; returns the expression of its value."""
     if isinstance(machine, m.InstanceMachine):
-        machine = _resolve(machine)
+        machine = resolve(machine)
     if type(machine) is m.PrimitiveMachine:
         return gen.fixed(machine.code, machine.size, machine.alignment)
     if type(machine) is m.EnumMachine:
@@ -261,12 +222,7 @@ def compile_decoder(datatype: type, use_version_2: bool) -> Decoder:
     """A function decoding the little-endian ``payload`` (with its 4-byte header) of a
     ``datatype`` sample in the given XCDR version, raising on anything else; or
     :class:`UnsupportedMachine`."""
-    idl = datatype.__idl__  # type: ignore[attr-defined]
-    if idl.v1_machine is None:
-        idl.populate()
-    machine = idl.v2_machine if use_version_2 else idl.v1_machine
-    if type(machine) is not m.StructMachine:
-        raise UnsupportedMachine(type(machine).__name__)
+    machine = struct_machine(datatype, use_version_2)
     gen = _Gen(align_max=4 if use_version_2 else 8)
     gen.emit("pos = 4")
     result = _member(gen, machine)

@@ -23,13 +23,9 @@ from typing import Any, cast
 
 from cyclonedds.idl import _machinery as m
 
-from blackbox.errors import BlackBoxError
+from blackbox.transport.cdr_layout import CodeGen, UnsupportedMachine, resolve, struct_machine
 
 Encoder = Callable[[Any], bytes]
-
-
-class UnsupportedMachine(BlackBoxError):
-    """A machine this compiler does not translate (the type keeps cyclonedds's encoder)."""
 
 
 def _enum_value(value: Any) -> int:
@@ -37,29 +33,10 @@ def _enum_value(value: Any) -> int:
 
 
 @dataclass
-class _Gen:
-    """Code generation state: the lines, the precompiled structs, and what is known about
-    the current offset (relative to the payload, after the 4-byte encapsulation header):
-    it is ``k`` modulo ``mod``."""
+class _Gen(CodeGen):
+    """Encoder state: a fixed run becomes one ``pack`` of the expressions in ``args``."""
 
-    align_max: int
-    lines: list[str] = field(default_factory=list)
-    names: dict[str, Any] = field(default_factory=dict)
-    fmt: str = ""
     args: list[str] = field(default_factory=list)
-    k: int = 0
-    mod: int = 8
-    indent: str = "    "
-    counter: int = 0
-
-    def name(self, prefix: str, value: Any) -> str:
-        self.counter += 1
-        key = f"{prefix}{self.counter}"
-        self.names[key] = value
-        return key
-
-    def emit(self, line: str) -> None:
-        self.lines.append(self.indent + line)
 
     def flush(self) -> None:
         """Close the current fixed run: one ``pack`` for all its fields and pads."""
@@ -69,28 +46,14 @@ class _Gen:
         self.emit(f"out += {packer}.pack({', '.join(self.args)})")
         self.fmt, self.args = "", []
 
-    def align(self, alignment: int) -> None:
-        a = min(alignment, self.align_max)
-        if a <= 1:
-            return
-        if a <= self.mod:
-            pad = (-self.k) % a
-            self.fmt += "x" * pad
-            self.k = (self.k + pad) % self.mod
-            return
-        self.flush()  # the offset is not known well enough: pad at run time
-        self.emit(f"out += _ZERO[:(4 - len(out)) % {a}]")
-        self.k, self.mod = 0, a
+    def pad_at_run_time(self, alignment: int) -> str:
+        return f"out += _ZERO[:(4 - len(out)) % {alignment}]"
 
     def fixed(self, code: str, size: int, alignment: int, expr: str) -> None:
         self.align(alignment)
         self.fmt += code
         self.args.append(expr)
         self.k = (self.k + size) % self.mod
-
-    def unknown(self, mod: int = 1) -> None:
-        """After something of run-time length: the offset is known modulo ``mod`` only."""
-        self.k, self.mod = 0, mod
 
 
 def _fixed_size(machine: Any, align_max: int) -> int | None:
@@ -101,7 +64,7 @@ def _fixed_size(machine: Any, align_max: int) -> int | None:
     if isinstance(machine, m.EnumMachine):
         return 4
     if isinstance(machine, m.InstanceMachine):
-        machine = _resolve(machine)
+        machine = resolve(machine)
     if isinstance(machine, m.StructMachine):
         total = 0
         for sub in machine.members_machines.values():
@@ -118,22 +81,15 @@ def _fixed_size(machine: Any, align_max: int) -> int | None:
 
 def _alignment(machine: Any) -> int:
     if isinstance(machine, m.InstanceMachine):
-        machine = _resolve(machine)
+        machine = resolve(machine)
     if isinstance(machine, m.StructMachine):
         return max((_alignment(s) for s in machine.members_machines.values()), default=1)
     return int(getattr(machine, "alignment", 1))
 
 
-def _resolve(machine: Any) -> Any:
-    idl = machine.type.__idl__
-    if idl.v1_machine is None:
-        idl.populate()
-    return idl.v2_machine if machine.use_version_2 else idl.v1_machine
-
-
 def _member(gen: _Gen, machine: Any, expr: str, depth: int) -> None:
     if isinstance(machine, m.InstanceMachine):
-        machine = _resolve(machine)
+        machine = resolve(machine)
     if isinstance(machine, m.PrimitiveMachine):
         gen.fixed(machine.code, machine.size, machine.alignment, expr)
     elif isinstance(machine, m.EnumMachine):
@@ -190,12 +146,8 @@ def _sequence(gen: _Gen, machine: Any, expr: str, depth: int) -> None:
 def compile_encoder(datatype: type, use_version_2: bool) -> Encoder:
     """An encoder producing exactly ``sample.serialize(use_version_2=...)`` for samples of
     ``datatype`` (little-endian), or :class:`UnsupportedMachine`."""
+    machine = struct_machine(datatype, use_version_2)
     idl = datatype.__idl__  # type: ignore[attr-defined]
-    if idl.v1_machine is None:
-        idl.populate()
-    machine = idl.v2_machine if use_version_2 else idl.v1_machine
-    if type(machine) is not m.StructMachine:
-        raise UnsupportedMachine(type(machine).__name__)
     head = idl.xcdrv2_head if use_version_2 else idl.xcdrv1_head
     gen = _Gen(align_max=4 if use_version_2 else 8)
     gen.emit(f"out = bytearray({bytes([0, 1 | head, 0, 0])!r})")
