@@ -698,13 +698,7 @@ def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Rela
     # one that sees its target but not a fault of its inputs (a clean command beside a
     # noisy sensor) still accuses when it fails; held, it clears nobody
     clears = min(seen) >= SENSITIVITY
-    # the CUSUM is tuned (relation_drift) for the smallest fault it is meant to see: of the
-    # signals whose four-noise-std faults move the residual by SENSITIVITY or more (the
-    # target always is one). A fault the relation cannot see must not set it: an input
-    # related on its changes (an odometer) has gains summing to zero, so an offset moves
-    # the residual by nothing, and a CUSUM tuned for "nothing" sums up every mode's wander
-    # (the GPS ~ odometer relation of sim:skidsteer: 8 of 9 false alarms in 5 x 300 s)
-    sensitivity = min(x for x in (seen_target, *seen) if x >= SENSITIVITY)
+    sensitivity = min(seen_target, *seen)
     p = fitted.predicted[np.isfinite(fitted.predicted)]
     lo, hi = float(p.min()), float(p.max())
     margin = 0.25 * (hi - lo) + 3 * noise_all
