@@ -17,7 +17,9 @@ From the time-stamped samples of a healthy run (``blackbox.learn.timed``):
    over the whole run; the target is then fitted from that signal through ``TAPS`` lagged
    taps (a short FIR filter, so a delay or a smoothing on the way is modelled), or from up
    to four signals of that topic together when none alone suffices (two wheel speeds and a
-   forward speed). Ridge regularisation is chosen by the R² on the last 30 % of the run
+   forward speed) or when together they leave at most half of what the best one alone
+   leaves unexplained (``prefer_joint``: a wheel speed from the forward and yaw commands).
+   Ridge regularisation is chosen by the R² on the last 30 % of the run
    (held out, forward in time), and a relation is kept when its five-fold out-of-fold R²
    over the whole run is at least ``R2_MIN``
    and a fault of four noise std on any of its signals moves the residual by at least
