@@ -105,6 +105,9 @@ Going back only after the CUSUM reached ``h``, not whenever it was undecided: a 
 residual's CUSUM is undecided now and then, and each time the followed bias went back a
 few blocks, so it lagged a discharging battery more and more (three false alarms in the
 last minute of a healthy hour of sim:diffdrive)."""
+SETTLE_SECONDS = 1.0
+"""After an alarm a relation clears again only once it has held this long (:class:`_Judge`)."""
+
 _NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
 
 
@@ -155,9 +158,9 @@ class RelationSpec:
 class _Judge:
     """The running test of one relation."""
 
-    __slots__ = ("alpha", "anchor", "count", "cusum", "excite", "followed", "in_alarm",
-                 "last_z", "pred_sum", "reason", "res_sum", "seeded", "spec", "step_limit",
-                 "unjudged_blocks", "verdict")
+    __slots__ = ("alpha", "anchor", "count", "cusum", "doubt", "excite", "followed",
+                 "in_alarm", "last_z", "pred_sum", "reason", "res_sum", "seeded", "settle",
+                 "spec", "step_limit", "unjudged_blocks", "verdict")
 
     def __init__(self, spec: RelationSpec, window_blocks: int, block_seconds: float) -> None:
         self.spec = spec
@@ -168,6 +171,9 @@ class _Judge:
         """The followed bias from before the current alarm (see :meth:`_follow`)."""
         self.in_alarm = False
         """The CUSUM reached ``h`` and has not been back under ``h / 2`` since."""
+        self.settle = max(1, math.ceil(SETTLE_SECONDS / block_seconds - 1e-9))
+        self.doubt = 0
+        """Held blocks still to come before a relation that failed clears again."""
         self.seeded = 0
         self.cusum = Cusum(spec.cusum)
         self.excite: deque[float] = deque(maxlen=window_blocks)
@@ -182,6 +188,7 @@ class _Judge:
     def reset(self, reason: str) -> None:
         self.cusum.reset()
         self.in_alarm = False
+        self.doubt = 0
         self.excite.clear()
         self.res_sum = self.pred_sum = 0.0
         self.count = 0
@@ -243,6 +250,17 @@ class _Judge:
             self.anchor = self.followed
         h = spec.cusum.h
         self.verdict = "failed" if stat >= h else "undecided" if stat >= h / 2 else "held"
+        # An alarm ends in doubt: a relation that failed clears its signals again only
+        # once it has held for SETTLE_SECONDS (a verdict's interval). Its recovery takes
+        # the CUSUM to h/2 with one healthy-looking block, and the next can be under h/2:
+        # held and clearing one verdict after failing, while a slower relation of the
+        # same target (a GPS speed against a 1 Hz odometer) still sees the fault's last
+        # second and so names its other signal (sim:skidsteer, round rel22b).
+        if self.verdict == "failed":
+            self.doubt = self.settle
+        elif self.verdict == "held" and self.doubt > 0:
+            self.doubt -= 1
+            self.verdict = "undecided"
         self.reason = ""
 
     def _follow(self, residual: float, noise: float) -> float:
@@ -452,6 +470,10 @@ class RelationObserver(ObserverBase):
                             f"its inputs' faults, clears {spec.target.label()} alone)")
             elif judge.verdict == "held":
                 held.append(f"{what} (CUSUM {stat:.1f} < {spec.cusum.h / 2:.1f})")
+            elif judge.verdict == "undecided" and stat < spec.cusum.h / 2:
+                open_.append(f"{what}: undecided, settling after an alarm (CUSUM {stat:.1f} "
+                             f"< {spec.cusum.h / 2:.1f} for less than {SETTLE_SECONDS:g} s)")
+                open_all[-1] = open_[-1]
             elif judge.verdict == "undecided":
                 open_.append(f"{what}: undecided (CUSUM {stat:.1f} between "
                              f"{spec.cusum.h / 2:.1f} and {spec.cusum.h:.1f})")
