@@ -292,6 +292,14 @@ class _Judge:
     def _unjudged(self, reason: str, window_blocks: int) -> None:
         self.verdict = "unjudged"
         self.reason = reason
+        # An alarm does not outlive a blind spell: unjudged (no excitation, a stale or
+        # unextrapolated signal), a relation in alarm is undecided when it is judged
+        # again, and a fault still on needs another h/2 of evidence. Kept at h, a
+        # relation that was unjudged for the last seconds of a fault failed again on its
+        # first block after them, whatever that block said (an IMU scale that ended while
+        # the robot stood still: a false alarm naming the IMU 3 s after; sim:diffdrive)
+        if self.cusum.alarm:
+            self.cusum.doubt()
         self.unjudged_blocks += 1
         if self.unjudged_blocks >= window_blocks:
             self.cusum.reset()  # old evidence does not carry over a long blind spell
