@@ -17,7 +17,9 @@ From the time-stamped samples of a healthy run (``blackbox.learn.timed``):
    over the whole run; the target is then fitted from that signal through ``TAPS`` lagged
    taps (a short FIR filter, so a delay or a smoothing on the way is modelled), or from up
    to four signals of that topic together when none alone suffices (two wheel speeds and a
-   forward speed). Ridge regularisation is chosen by the R² on the last 30 % of the run
+   forward speed) or when together they leave at most half of what the best one alone
+   leaves unexplained (``prefer_joint``: a wheel speed from the forward and yaw commands).
+   Ridge regularisation is chosen by the R² on the last 30 % of the run
    (held out, forward in time), and a relation is kept when its five-fold out-of-fold R²
    over the whole run is at least ``R2_MIN``
    and a fault of four noise std on any of its signals moves the residual by at least
@@ -807,6 +809,22 @@ def _climbing_choice(rates_r2: float, level_r2: float) -> str | None:
     return None
 
 
+JOINT_SHARE = 0.5
+"""A joint relation replaces the best single input's when its held-out unexplained variance
+is at most this share of the single one's (:func:`prefer_joint`)."""
+
+
+def prefer_joint(single_r2: float, joint_r2: float) -> bool:
+    """Whether a relation from several signals of one topic explains materially more than
+    the one from its best single signal: its held-out (five contiguous folds, so time-
+    blocked) unexplained variance ``1 - R2`` is at most ``JOINT_SHARE`` of the single one's.
+    Both pass ``R2_MIN``; what one signal leaves unexplained is not noise when a peer
+    explains half of it (a wheel speed from the forward command alone leaves the yaw rate's
+    share, which wanders with every turn and reads as a bias for seconds), and a peer that
+    explains less is chance or noise, not worth more inputs that faults can move."""
+    return (1.0 - joint_r2) <= JOINT_SHARE * (1.0 - single_r2)
+
+
 def _trending(s: Signal) -> bool:
     return s.trend is not None or s.drift is not None
 
@@ -897,16 +915,18 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
         peers = [(xi, *lag_corr(ti, xi)) for xi, s in enumerate(signals)
                  if s.ref.topic == topic and xi != ti]
         peers.sort(key=lambda p: -abs(p[2]))
+        single: Relation | None = None
         if peers and abs(peers[0][2]) >= SCREEN:
             xi, lag, _ = peers[0]
             fitted = fitted_for(target, [signals[xi]], [_taps(lag)])
             if fitted is not None and fitted.r2 >= R2_MIN:
-                relation = relation_from_fit(target, [signals[xi]], fitted)
-                if relation is not None:
-                    return relation
+                single = relation_from_fit(target, [signals[xi]], fitted)
         # together, signals may explain what none does alone (a yaw rate from the left and
         # right wheel speeds, each mostly the forward speed): the best few of the same kind
-        # (trending or not) as the target, whatever their single correlation
+        # (trending or not) as the target, whatever their single correlation; or explain
+        # materially more than the best one alone (a wheel speed turns with the forward
+        # speed and the yaw rate: from the forward command alone its residual wanders with
+        # every turn), which the held-out residuals decide (:func:`prefer_joint`)
         joint = [p for p in peers
                  if _trending(signals[p[0]]) == _trending(target)][:MAX_JOINT]
         if len(joint) >= 2:
@@ -922,9 +942,12 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
                 fitted = fitted_for(target, inputs, lags)
                 if fitted is not None and (best is None or fitted.r2 > best.r2 + 1e-4):
                     best = fitted
-            if best is not None and best.r2 >= R2_MIN:
-                return relation_from_fit(target, inputs, best)
-        return None
+            if best is not None and best.r2 >= R2_MIN and (
+                    single is None or prefer_joint(single.r2, best.r2)):
+                together = relation_from_fit(target, inputs, best)
+                if together is not None:
+                    return together
+        return single
 
     by_target: dict[int, list[Relation]] = {}
     topics = sorted({s.ref.topic for s in signals})

@@ -291,6 +291,13 @@ class Cusum:
     def alarm(self) -> bool:
         return self.statistic >= self.spec.h
 
+    def doubt(self) -> None:
+        """Both sides down to at most ``h / 2``: undecided (what recovery does), for an
+        alarm its observer can no longer judge."""
+        self.up = min(self.up, self.spec.h / 2)
+        self.down = min(self.down, self.spec.h / 2)
+        self.alarmed = False
+
     def reset(self) -> None:
         self.up = 0.0
         self.down = 0.0

@@ -105,6 +105,9 @@ Going back only after the CUSUM reached ``h``, not whenever it was undecided: a 
 residual's CUSUM is undecided now and then, and each time the followed bias went back a
 few blocks, so it lagged a discharging battery more and more (three false alarms in the
 last minute of a healthy hour of sim:diffdrive)."""
+SETTLE_SECONDS = 1.0
+"""After an alarm a relation clears again only once it has held this long (:class:`_Judge`)."""
+
 _NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_")
 
 
@@ -155,9 +158,9 @@ class RelationSpec:
 class _Judge:
     """The running test of one relation."""
 
-    __slots__ = ("alpha", "anchor", "count", "cusum", "excite", "followed", "in_alarm",
-                 "last_z", "pred_sum", "reason", "res_sum", "seeded", "spec", "step_limit",
-                 "unjudged_blocks", "verdict")
+    __slots__ = ("alpha", "anchor", "count", "cusum", "doubt", "excite", "followed",
+                 "in_alarm", "last_z", "pred_sum", "reason", "res_sum", "seeded", "settle",
+                 "spec", "step_limit", "unjudged_blocks", "verdict")
 
     def __init__(self, spec: RelationSpec, window_blocks: int, block_seconds: float) -> None:
         self.spec = spec
@@ -168,6 +171,9 @@ class _Judge:
         """The followed bias from before the current alarm (see :meth:`_follow`)."""
         self.in_alarm = False
         """The CUSUM reached ``h`` and has not been back under ``h / 2`` since."""
+        self.settle = max(1, math.ceil(SETTLE_SECONDS / block_seconds - 1e-9))
+        self.doubt = 0
+        """Held blocks still to come before a relation that failed clears again."""
         self.seeded = 0
         self.cusum = Cusum(spec.cusum)
         self.excite: deque[float] = deque(maxlen=window_blocks)
@@ -182,6 +188,7 @@ class _Judge:
     def reset(self, reason: str) -> None:
         self.cusum.reset()
         self.in_alarm = False
+        self.doubt = 0
         self.excite.clear()
         self.res_sum = self.pred_sum = 0.0
         self.count = 0
@@ -243,6 +250,17 @@ class _Judge:
             self.anchor = self.followed
         h = spec.cusum.h
         self.verdict = "failed" if stat >= h else "undecided" if stat >= h / 2 else "held"
+        # An alarm ends in doubt: a relation that failed clears its signals again only
+        # once it has held for SETTLE_SECONDS (a verdict's interval). Its recovery takes
+        # the CUSUM to h/2 with one healthy-looking block, and the next can be under h/2:
+        # held and clearing one verdict after failing, while a slower relation of the
+        # same target (a GPS speed against a 1 Hz odometer) still sees the fault's last
+        # second and so names its other signal (sim:skidsteer, round rel22b).
+        if self.verdict == "failed":
+            self.doubt = self.settle
+        elif self.verdict == "held" and self.doubt > 0:
+            self.doubt -= 1
+            self.verdict = "undecided"
         self.reason = ""
 
     def _follow(self, residual: float, noise: float) -> float:
@@ -274,6 +292,14 @@ class _Judge:
     def _unjudged(self, reason: str, window_blocks: int) -> None:
         self.verdict = "unjudged"
         self.reason = reason
+        # An alarm does not outlive a blind spell: unjudged (no excitation, a stale or
+        # unextrapolated signal), a relation in alarm is undecided when it is judged
+        # again, and a fault still on needs another h/2 of evidence. Kept at h, a
+        # relation that was unjudged for the last seconds of a fault failed again on its
+        # first block after them, whatever that block said (an IMU scale that ended while
+        # the robot stood still: a false alarm naming the IMU 3 s after; sim:diffdrive)
+        if self.cusum.alarm:
+            self.cusum.doubt()
         self.unjudged_blocks += 1
         if self.unjudged_blocks >= window_blocks:
             self.cusum.reset()  # old evidence does not carry over a long blind spell
@@ -322,6 +348,8 @@ class RelationObserver(ObserverBase):
         self._judges = [_Judge(r, self.window_blocks, step * block) for r in relations]
         self._next: float | None = None
         self._ticks = 0
+        self._phased = False
+        """Whether the blocks are phased to end at verdicts (:meth:`_phase`)."""
         self._undecodable: dict[str, int] = {}
         """Messages per topic since the last evaluation that gave no value to read."""
 
@@ -356,6 +384,7 @@ class RelationObserver(ObserverBase):
         for judge in self._judges:
             judge.reset(why)
         self._ticks = 0
+        self._phased = False
         self._next = math.ceil(t / self.step) * self.step
 
     def _tick(self, g: float) -> None:
@@ -407,8 +436,25 @@ class RelationObserver(ObserverBase):
             if x is not None:
                 cell.add(t, x)
 
+    def _phase(self) -> None:
+        """Blocks end at verdicts: at the first verdict after the grid started (and the
+        first after a restart) the block begun so far is dropped, so every block from then
+        on ends at the last grid point before a verdict when its length divides the
+        verdict interval (0.5 s and 1 s blocks, verdicts each second). Phased from the
+        first message instead, a block ended anywhere up to a block before the verdict
+        that reported it: a 1 s block of a 1 Hz odometer's relation judged data up to a
+        second staler than it had, and its alarm outlived a GPS fault's end by 2-3 s,
+        beyond the 2 s grace, naming the odometer (sim:skidsteer, round rel22b)."""
+        for judge in self._judges:
+            judge.res_sum = judge.pred_sum = 0.0
+            judge.count = 0
+        self._ticks = 0
+        self._phased = True
+
     def evaluate(self, now: float) -> list[Observation]:
         self._advance(now)
+        if not self._phased and self._next is not None:
+            self._phase()
         values: dict[str, float] = {}
         failed: list[str] = []
         held: list[str] = []
@@ -432,6 +478,10 @@ class RelationObserver(ObserverBase):
                             f"its inputs' faults, clears {spec.target.label()} alone)")
             elif judge.verdict == "held":
                 held.append(f"{what} (CUSUM {stat:.1f} < {spec.cusum.h / 2:.1f})")
+            elif judge.verdict == "undecided" and stat < spec.cusum.h / 2:
+                open_.append(f"{what}: undecided, settling after an alarm (CUSUM {stat:.1f} "
+                             f"< {spec.cusum.h / 2:.1f} for less than {SETTLE_SECONDS:g} s)")
+                open_all[-1] = open_[-1]
             elif judge.verdict == "undecided":
                 open_.append(f"{what}: undecided (CUSUM {stat:.1f} between "
                              f"{spec.cusum.h / 2:.1f} and {spec.cusum.h:.1f})")
