@@ -1,0 +1,174 @@
+"""How long a process waited for a CPU: the kernel's run-queue delay, per thread.
+
+A process that is runnable but not running is neither slow by its own fault nor stopped:
+the host has more runnable work than cores. Linux counts that wait for every thread in
+``/proc/<pid>/task/<tid>/schedstat`` (the second field, nanoseconds spent on a run queue
+waiting to run). It tells apart the three things a late message can mean:
+
+* the black box's own threads waited (the black box starved): what it measured in that
+  stretch is its own lateness, a measurement gap;
+* a robot process on this host waited (the host starved it): its topics came slower
+  because the host was saturated, not because the node misbehaved;
+* neither waited: the robot really was slow, stalled (a stopped process is not runnable,
+  so it waits for nothing) or dead (no process): a fault to judge.
+
+``proc`` is the source boundary: tests give a directory of their own ``schedstat`` files
+instead of ``/proc``.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+PROC = Path("/proc")
+
+
+@dataclass(frozen=True, slots=True)
+class CpuWait:
+    """One process's run-queue delay between two readings: ``worst`` the longest any one
+    of its threads waited (seconds), ``total`` the sum over its threads, over ``span``
+    seconds of wall time."""
+
+    worst: float
+    total: float
+    span: float
+
+
+def thread_delays(pid: int | str, proc: Path = PROC) -> dict[str, float] | None:
+    """Thread id -> seconds it has waited on a run queue so far; ``None`` when the process
+    is gone or its counters cannot be read (a kernel without schedstats, another host)."""
+    tasks = proc / str(pid) / "task"
+    try:
+        tids = os.listdir(tasks)
+    except OSError:
+        return None
+    delays: dict[str, float] = {}
+    for tid in tids:
+        try:
+            fields = (tasks / tid / "schedstat").read_text(encoding="ascii").split()
+            delays[tid] = int(fields[1]) / 1e9
+        except (OSError, IndexError, ValueError):
+            continue  # a thread that ended between the listing and the read
+    return delays or None
+
+
+class WaitMeter:
+    """The run-queue delay of processes since the previous reading of each.
+
+    The first reading of a pid gives no wait (nothing to compare with); a thread new since
+    the previous reading counts from zero. A pid reused by another process is caught by
+    the caller (the graph knows when a node's pid changes) through :meth:`forget`.
+    """
+
+    def __init__(self, proc: Path = PROC) -> None:
+        self.proc = proc
+        self._last: dict[str, tuple[float, dict[str, float]]] = {}
+
+    def since_last(self, pid: int | str, now: float) -> CpuWait | None:
+        """The wait of ``pid``'s threads since its previous reading (at wall time ``now``)."""
+        key = str(pid)
+        delays = thread_delays(key, self.proc)
+        if delays is None:
+            self._last.pop(key, None)
+            return None
+        last = self._last.get(key)
+        self._last[key] = (now, delays)
+        if last is None:
+            return None
+        then, before = last
+        waits = [max(0.0, d - before.get(tid, 0.0)) for tid, d in delays.items()]
+        return CpuWait(max(waits, default=0.0), sum(waits), max(0.0, now - then))
+
+    def forget(self, pid: int | str) -> None:
+        self._last.pop(str(pid), None)
+
+
+OWN_WAIT_LIMIT = 0.5
+"""Seconds one of the black box's own threads may wait for a CPU within :data:`WINDOW`
+before what it measured in that stretch counts as its own lateness (a gap of everything).
+Half the wake-up lateness that already counts as a pause (``clockwatch.PAUSE_LIMIT``): a
+thread that waits on the run queue is late by as much when it finally runs."""
+
+NODE_WAIT_LIMIT = 0.2
+"""Seconds a robot process on this host may wait for a CPU within :data:`WINDOW` before
+its topics' timing in that stretch counts as the host's load, not the node's behaviour.
+Measured beside two CPU-bound processes on two cores (docs/evaluation-realtime.md): the
+thesis robot's rospy nodes waited 0.2 s or more in 3-4 % of seconds, and the one false
+alarm of a 600 s healthy run came 3 s after its publisher waited 0.46 s."""
+
+WINDOW = 1.0
+"""Seconds over which waits are added up (a few short waits make one long delay)."""
+
+
+@dataclass(slots=True)
+class _Window:
+    """Waits of one process over the last :data:`WINDOW` s (monotonic times)."""
+
+    waits: list[tuple[float, float]]
+
+    def add(self, now: float, wait: float, window: float) -> float:
+        self.waits.append((now, wait))
+        self.waits = [(t, w) for t, w in self.waits if t > now - window]
+        return sum(w for _, w in self.waits)
+
+
+class StarvationWatch:
+    """Whether the black box itself, or a robot process on this host, was starved of CPU
+    since the previous check, from their threads' run-queue waits (:class:`WaitMeter`).
+
+    A live source asks at every ``poll``: :meth:`own` for the black box (``pid`` ``self``),
+    :meth:`nodes` for the local processes of the robot it watches. A process that waits
+    longer than its limit within ``window`` s is starved; a stopped process (``SIGSTOP``)
+    is not runnable and waits for nothing, and a dead one has no counters, so neither is
+    ever excused as starved: a stall or a kill is still the robot's fault.
+    """
+
+    def __init__(self, proc: Path = PROC, own_limit: float = OWN_WAIT_LIMIT,
+                 node_limit: float = NODE_WAIT_LIMIT, window: float = WINDOW,
+                 self_pid: int | str = "self") -> None:
+        self.meter = WaitMeter(proc)
+        self.own_limit = own_limit
+        self.node_limit = node_limit
+        self.window = window
+        self.self_pid = self_pid
+        self._windows: dict[str, _Window] = {}
+
+    def _waited(self, pid: int | str, now: float) -> float | None:
+        wait = self.meter.since_last(pid, now)
+        if wait is None:
+            self._windows.pop(str(pid), None)
+            return None
+        return self._windows.setdefault(str(pid), _Window([])).add(
+            now, wait.worst, self.window)
+
+    def own(self, now: float) -> float | None:
+        """Seconds the black box's most delayed thread waited within the window, if that
+        is over ``own_limit`` (``now``: a monotonic time)."""
+        waited = self._waited(self.self_pid, now)
+        return waited if waited is not None and waited > self.own_limit else None
+
+    def nodes(self, pids: dict[str, int], now: float) -> dict[str, float]:
+        """Node -> seconds its most delayed thread waited within the window, for the nodes
+        of ``pids`` (node -> pid, processes on this host) over ``node_limit``."""
+        starved: dict[str, float] = {}
+        for node, pid in pids.items():
+            waited = self._waited(pid, now)
+            if waited is not None and waited > self.node_limit:
+                starved[node] = waited
+        for gone in self._windows.keys() - {str(p) for p in pids.values()} - {
+                str(self.self_pid)}:
+            del self._windows[gone]
+            self.meter.forget(gone)
+        return starved
+
+
+def cpu_pressure(proc: Path = PROC) -> float | None:
+    """The host's CPU pressure (``/proc/pressure/cpu``, "some" avg10: the share of the
+    last 10 s in which some runnable task waited for a CPU, percent); ``None`` without PSI."""
+    try:
+        line = (proc / "pressure" / "cpu").read_text(encoding="ascii").splitlines()[0]
+        return float(dict(f.split("=") for f in line.split()[1:])["avg10"])
+    except (OSError, IndexError, KeyError, ValueError):
+        return None
