@@ -48,7 +48,6 @@ from blackbox.events import (
 from blackbox.model import BlackBoxEvent
 from blackbox.sources.base import SOURCES, Capabilities, SourceKind, SourceOptions
 from blackbox.sources.clockwatch import ClockWatch
-from blackbox.sources.cpu_wait import StarvationWatch, cpu_pressure
 from blackbox.sources.handout import overflow_event, split_due, wait_until
 from blackbox.sources.ros1.busstats import BusStatsRates, TopicCounts
 from blackbox.sources.ros1.callerid import DEFAULT_PREFIX, unique_caller_id, valid_caller_id
@@ -58,6 +57,7 @@ from blackbox.sources.ros1.readers import ReaderProcesses
 from blackbox.sources.ros1.resources import ResourceSampler, is_local_host
 from blackbox.sources.ros1.stream_reader import Arrivals, StreamKey
 from blackbox.sources.ros1.subscriber import DEFAULT_MAX_MESSAGE_BYTES, TcprosSubscriber
+from blackbox.sources.starvation import StarvationGaps
 
 log = logging.getLogger("blackbox.sources.ros1")
 
@@ -145,9 +145,6 @@ ROS1_CAPABILITIES = Capabilities(snapshot_format="ros1", diagnostics_bridge="ros
 READ_LIMIT = 1.0
 """Seconds ``poll`` waits for the TCPROS reader thread to hand on what arrived before its
 horizon; past that the black box is starved and the stretch is a gap of everything."""
-
-SATURATED_REPORT_AGAIN = 10.0
-"""Seconds a node must go unstarved before its next starvation is reported again."""
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -269,14 +266,9 @@ class Ros1Source:
         """Counted (topic, publisher) -> the time (with ``clock_offset``) up to which the
         publisher's counters have been read and queued; ``poll`` waits for it to reach its
         horizon (:meth:`_await_counts`). Under ``_counts_done``."""
-        self.starvation = StarvationWatch()
-        """Run-queue waits of the black box's threads and of the robot's local publishers
-        (:meth:`_starved`); tests give it ``schedstat`` files of their own."""
-        self.local_publishers: tuple[dict[str, int], dict[str, tuple[str, ...]]] = ({}, {})
-        """(node -> pid, node -> watched topics it publishes) of the live publishers that
-        run on this host; replaced whole by the graph thread each round."""
-        self._saturated: dict[str, float] = {}
-        """Node -> monotonic time it was last found starved by the host."""
+        self.starvation = StarvationGaps()
+        """CPU starvation of the black box and of the robot's local publishers, from their
+        threads' run-queue waits; tests give its ``watch`` ``schedstat`` files of their own."""
 
     @classmethod
     def from_uri(cls, spec: str, settings: Ros1Settings | None = None) -> Ros1Source:
@@ -328,13 +320,17 @@ class Ros1Source:
                 gap = MeasurementGap(now, self._floor or until, now, "the black box's "
                                      f"TCPROS reader did not run for {READ_LIMIT:g} s "
                                      "(starved of CPU)")
-        starved, own_gap = self._starved(until)
+        # Starvation (docs/ros1.md): the black box's own threads waited for a CPU (a gap
+        # of everything), or a local publisher did (a gap of its topics: the host's load).
+        starved = self.starvation.check(self._floor, until, self._wall())
         if gap is None:
-            gap = own_gap
+            gap = starved.own
+        for message in starved.saturated:
+            self._report("host_saturated", socket.gethostname(), message)
         queue = self._queue
         events = self._held
         self._held = []
-        events.extend(starved)
+        events.extend(starved.gaps)
         with self._lock:  # every event stamped before this instant is in the queue
             self._floor = until if back else max(self._floor, until)
             while queue:
@@ -350,45 +346,6 @@ class Ros1Source:
             log.warning("%s", gap.reason)
             due.insert(0, gap)
         return due
-
-    def _starved(self, until: float) -> tuple[list[Event], MeasurementGap | None]:
-        """Gaps for CPU starvation since the last ``poll`` (its horizon ``until``), read
-        from the run-queue waits of threads (:class:`~blackbox.sources.cpu_wait.
-        StarvationWatch`): the black box's own (a gap of everything: what it stamped
-        meanwhile is its own lateness) and each local publisher's (a gap of its watched
-        topics, and ``ros1_host_saturated`` on the host: the node was runnable but the host
-        gave it no CPU, so its topics came late by the host's load, not by its fault).
-
-        A stopped node (a stall) waits for nothing and a dead one has no counters: neither
-        is excused. The gaps run from the start of the wait window (not before the last
-        horizon handed out) to now, so the late messages are not judged as periods."""
-        watch = self.starvation
-        mono = time.monotonic()
-        now = self._wall()
-        start = max(self._floor or until, now - watch.window)
-        own = watch.own(mono)
-        own_gap = None if own is None else MeasurementGap(
-            now, start, now, f"the black box's threads waited {own:.3g} s for a CPU "
-            f"within {watch.window:g} s (starved of CPU)")
-        pids, topics = self.local_publishers
-        gaps: list[Event] = []
-        for node, waited in sorted(watch.nodes(pids, mono).items()):
-            last = self._saturated.get(node)
-            self._saturated[node] = mono
-            reason = (f"the host starved {node} of CPU: it waited {waited:.3g} s for a core "
-                      f"within {watch.window:g} s; its messages came late by the host's "
-                      "load, not by its own fault")
-            if last is None or mono - last > SATURATED_REPORT_AGAIN:
-                pressure = cpu_pressure()
-                self._report("host_saturated", socket.gethostname(),
-                             f"host saturated: {reason}"
-                             + ("" if pressure is None else
-                                f" (CPU pressure: some task waited {pressure:g} % of the "
-                                "last 10 s)") + "; its topics' timing is not judged while it "
-                             "lasts")
-            gaps.extend(MeasurementGap(min(start, until), start, now, reason, topic=t)
-                        for t in topics.get(node, ()))
-        return gaps, own_gap
 
     def _await_counts(self, until: float) -> None:
         """Wait until every counted topic has been counted up to ``until`` (a round of the
@@ -615,7 +572,7 @@ class Ros1Source:
                     continue
                 pids[node] = st.pid
                 topics[node] = (*topics.get(node, ()), topic)
-        self.local_publishers = (pids, topics)
+        self.starvation.local_publishers = (pids, topics)
 
     def _switch_to_subscription(self, key: tuple[str, str], round_start: float) -> None:
         """The gap of a counted topic whose on-robot subscriber is gone (the black box
