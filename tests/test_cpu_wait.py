@@ -49,7 +49,7 @@ def test_the_worst_thread_counts_and_a_first_reading_gives_no_wait(proc: FakePro
 
 def test_the_black_box_waiting_over_its_limit_within_the_window_is_starved(
         proc: FakeProc) -> None:
-    watch = StarvationWatch(proc.root, own_limit=0.5, window=1.0)
+    watch = StarvationWatch(proc.root, own_limit=0.5, own_window=1.0)
     proc.wait("self", 1, 0.0)
     assert watch.own(100.0) is None
     proc.wait("self", 1, 0.3)
@@ -90,3 +90,17 @@ def test_the_real_proc_of_this_process_can_be_read() -> None:
     assert meter.since_last("self", 0.0) is None
     wait = meter.since_last("self", 1.0)
     assert wait is not None and wait.worst >= 0.0
+
+
+def test_waits_of_different_threads_are_not_added_into_one(proc: FakeProc) -> None:
+    """Two threads each waiting 0.6 s within the window is no thread waiting 1.2 s."""
+    watch = StarvationWatch(proc.root, own_limit=1.0, own_window=2.0)
+    proc.wait("self", 1, 0.0)
+    proc.wait("self", 2, 0.0)
+    assert watch.own(10.0) is None
+    proc.wait("self", 1, 0.6)
+    assert watch.own(10.5) is None
+    proc.wait("self", 2, 0.6)
+    assert watch.own(11.0) is None
+    proc.wait("self", 2, 1.1)
+    assert watch.own(11.5) == pytest.approx(1.1)

@@ -119,7 +119,7 @@ def test_a_real_runs_measurement_gaps_and_source_reports_are_kept_for_its_json()
     events = [MeasurementGap(100.5, 100.5, None, "switching", topic="/audio"),
               MeasurementGap(101.0, 100.5, 101.0, "switching", topic="/audio"),
               MeasurementGap(102.0, 101.5, 102.25, starved, topic="/audio"),
-              MeasurementGap(103.0, 102.0, 103.0, "the black box's threads waited 0.6 s"),
+              MeasurementGap(103.0, 102.0, 103.0, "a thread of the black box waited 1.2 s"),
               BlackBoxEvent(102.0, "ros1_host_saturated", "host saturated", "robot"),
               BlackBoxEvent(102.5, "ros1_host_saturated", "host saturated", "robot")]
     run = RealRun(100.0, 200.0, [], [], [], list(events), RunStats(),
@@ -128,5 +128,5 @@ def test_a_real_runs_measurement_gaps_and_source_reports_are_kept_for_its_json()
         {"start": 0.5, "end": 1.0, "of": "/audio", "reason": "switching"},
         {"start": 1.5, "end": 2.25, "of": "/audio", "reason": starved},
         {"start": 2.0, "end": 3.0, "of": "everything",
-         "reason": "the black box's threads waited 0.6 s"}]
+         "reason": "a thread of the black box waited 1.2 s"}]
     assert run.reports() == {"ros1_host_saturated": 2}

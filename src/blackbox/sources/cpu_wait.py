@@ -67,7 +67,18 @@ class WaitMeter:
         self._last: dict[str, tuple[float, dict[str, float]]] = {}
 
     def since_last(self, pid: int | str, now: float) -> CpuWait | None:
-        """The wait of ``pid``'s threads since its previous reading (at wall time ``now``)."""
+        """The wait of ``pid``'s threads since its previous reading (at time ``now``)."""
+        key = str(pid)
+        then = self._last[key][0] if key in self._last else None
+        waits = self.threads_since_last(pid, now)
+        if waits is None or then is None:
+            return None
+        return CpuWait(max(waits.values(), default=0.0), sum(waits.values()),
+                       max(0.0, now - then))
+
+    def threads_since_last(self, pid: int | str, now: float) -> dict[str, float] | None:
+        """Thread id -> seconds it waited since ``pid``'s previous reading (at time
+        ``now``); ``None`` at the first reading or when the process is gone."""
         key = str(pid)
         delays = thread_delays(key, self.proc)
         if delays is None:
@@ -77,41 +88,55 @@ class WaitMeter:
         self._last[key] = (now, delays)
         if last is None:
             return None
-        then, before = last
-        waits = [max(0.0, d - before.get(tid, 0.0)) for tid, d in delays.items()]
-        return CpuWait(max(waits, default=0.0), sum(waits), max(0.0, now - then))
+        before = last[1]
+        return {tid: max(0.0, d - before.get(tid, 0.0)) for tid, d in delays.items()}
 
     def forget(self, pid: int | str) -> None:
         self._last.pop(str(pid), None)
 
 
-OWN_WAIT_LIMIT = 0.5
-"""Seconds one of the black box's own threads may wait for a CPU within :data:`WINDOW`
-before what it measured in that stretch counts as its own lateness (a gap of everything).
-Half the wake-up lateness that already counts as a pause (``clockwatch.PAUSE_LIMIT``): a
-thread that waits on the run queue is late by as much when it finally runs."""
+OWN_WAIT_LIMIT = 1.0
+"""Seconds one of the black box's own threads may wait for a CPU within :data:`OWN_WINDOW`
+before what it measured in that stretch counts as its own lateness (a gap of everything):
+the same second the source already allows its reader (``READ_LIMIT``), its DDS thread
+(``TAKE_LIMIT``) and its own wake-up (``clockwatch.PAUSE_LIMIT``). Shorter waits do not
+move what it measures: ROS 1 arrivals carry the kernel's receive time, ROS 2 samples their
+writers' clocks, and ``poll`` waits for late counts and reads. Measured beside two
+CPU-bound processes (docs/evaluation-realtime.md): a limit of 0.5 s within 1 s made 123
+gaps of everything in 150 s at load 12-15, while none of the false alarms there came
+from the black box's own lateness."""
+
+OWN_WINDOW = 2.0
+"""Seconds over which the black box's own waits are added up."""
 
 NODE_WAIT_LIMIT = 0.2
-"""Seconds a robot process on this host may wait for a CPU within :data:`WINDOW` before
-its topics' timing in that stretch counts as the host's load, not the node's behaviour.
-Measured beside two CPU-bound processes on two cores (docs/evaluation-realtime.md): the
-thesis robot's rospy nodes waited 0.2 s or more in 3-4 % of seconds, and the one false
-alarm of a 600 s healthy run came 3 s after its publisher waited 0.46 s."""
+"""Seconds a thread of a robot process on this host may wait for a CPU within
+:data:`WINDOW` before its topics' timing in that stretch counts as the host's load, not
+the node's behaviour. Measured beside two CPU-bound processes on two cores
+(docs/evaluation-realtime.md): the thesis robot's rospy nodes waited 0.2 s or more in 3-4 %
+of seconds, and the one false alarm of a 600 s healthy run came 3 s after its publisher
+waited 0.46 s."""
 
 WINDOW = 1.0
-"""Seconds over which waits are added up (a few short waits make one long delay)."""
+"""Seconds over which a robot process's waits are added up (a few short waits make one
+long delay)."""
 
 
 @dataclass(slots=True)
 class _Window:
-    """Waits of one process over the last :data:`WINDOW` s (monotonic times)."""
+    """Per-thread waits of one process over a sliding window (monotonic times)."""
 
-    waits: list[tuple[float, float]]
+    waits: list[tuple[float, dict[str, float]]]
 
-    def add(self, now: float, wait: float, window: float) -> float:
-        self.waits.append((now, wait))
+    def add(self, now: float, waits: dict[str, float], window: float) -> float:
+        """Add one reading's waits; the longest one thread waited within the window."""
+        self.waits.append((now, waits))
         self.waits = [(t, w) for t, w in self.waits if t > now - window]
-        return sum(w for _, w in self.waits)
+        total: dict[str, float] = {}
+        for _, reading in self.waits:
+            for tid, w in reading.items():
+                total[tid] = total.get(tid, 0.0) + w
+        return max(total.values(), default=0.0)
 
 
 class StarvationWatch:
@@ -119,34 +144,34 @@ class StarvationWatch:
     since the previous check, from their threads' run-queue waits (:class:`WaitMeter`).
 
     A live source asks at every ``poll``: :meth:`own` for the black box (``pid`` ``self``),
-    :meth:`nodes` for the local processes of the robot it watches. A process that waits
-    longer than its limit within ``window`` s is starved; a stopped process (``SIGSTOP``)
-    is not runnable and waits for nothing, and a dead one has no counters, so neither is
-    ever excused as starved: a stall or a kill is still the robot's fault.
+    :meth:`nodes` for the local processes of the robot it watches. A process one of whose
+    threads waited longer than its limit within its window is starved; a stopped process
+    (``SIGSTOP``) is not runnable and waits for nothing, and a dead one has no counters, so
+    neither is ever excused as starved: a stall or a kill is still the robot's fault.
     """
 
     def __init__(self, proc: Path = PROC, own_limit: float = OWN_WAIT_LIMIT,
                  node_limit: float = NODE_WAIT_LIMIT, window: float = WINDOW,
-                 self_pid: int | str = "self") -> None:
+                 own_window: float = OWN_WINDOW, self_pid: int | str = "self") -> None:
         self.meter = WaitMeter(proc)
         self.own_limit = own_limit
         self.node_limit = node_limit
         self.window = window
+        self.own_window = own_window
         self.self_pid = self_pid
         self._windows: dict[str, _Window] = {}
 
-    def _waited(self, pid: int | str, now: float) -> float | None:
-        wait = self.meter.since_last(pid, now)
-        if wait is None:
+    def _waited(self, pid: int | str, now: float, window: float) -> float | None:
+        waits = self.meter.threads_since_last(pid, now)
+        if waits is None:
             self._windows.pop(str(pid), None)
             return None
-        return self._windows.setdefault(str(pid), _Window([])).add(
-            now, wait.worst, self.window)
+        return self._windows.setdefault(str(pid), _Window([])).add(now, waits, window)
 
     def own(self, now: float) -> float | None:
-        """Seconds the black box's most delayed thread waited within the window, if that
-        is over ``own_limit`` (``now``: a monotonic time)."""
-        waited = self._waited(self.self_pid, now)
+        """Seconds the black box's most delayed thread waited within ``own_window``, if
+        that is over ``own_limit`` (``now``: a monotonic time)."""
+        waited = self._waited(self.self_pid, now, self.own_window)
         return waited if waited is not None and waited > self.own_limit else None
 
     def nodes(self, pids: dict[str, int], now: float) -> dict[str, float]:
@@ -154,7 +179,7 @@ class StarvationWatch:
         of ``pids`` (node -> pid, processes on this host) over ``node_limit``."""
         starved: dict[str, float] = {}
         for node, pid in pids.items():
-            waited = self._waited(pid, now)
+            waited = self._waited(pid, now, self.window)
             if waited is not None and waited > self.node_limit:
                 starved[node] = waited
         for gone in self._windows.keys() - {str(p) for p in pids.values()} - {

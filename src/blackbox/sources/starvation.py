@@ -54,8 +54,9 @@ class StarvationGaps:
         start = max(floor or until, now - watch.window)
         waited = watch.own(mono)
         own = None if waited is None else MeasurementGap(
-            now, start, now, f"the black box's threads waited {waited:.3g} s for a CPU "
-            f"within {watch.window:g} s (starved of CPU)")
+            now, max(floor or until, now - watch.own_window), now, f"a thread of the black "
+            f"box waited {waited:.3g} s for a CPU within {watch.own_window:g} s (starved of "
+            "CPU)")
         pids, topics = self.local_publishers
         gaps: list[MeasurementGap] = []
         saturated: list[str] = []
