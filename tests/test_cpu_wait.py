@@ -55,7 +55,9 @@ def test_the_black_box_waiting_over_its_limit_within_the_window_is_starved(
     proc.wait("self", 1, 0.3)
     assert watch.own(100.4) is None  # 0.3 s: under the limit
     proc.wait("self", 1, 0.6)
-    assert watch.own(100.8) == pytest.approx(0.6)  # 0.3 + 0.3 within one second
+    starved = watch.own(100.8)  # 0.3 + 0.3 within one second
+    assert starved is not None and starved.waited == pytest.approx(0.6)
+    assert starved.span == pytest.approx(1.0)
     proc.wait("self", 1, 0.9)
     assert watch.own(102.5) is None  # 0.3 s in the last second: under it again
 
@@ -70,7 +72,9 @@ def test_a_node_the_host_starves_is_told_apart_from_a_stopped_or_dead_one(
     proc.wait(41, 41, 5.25)  # runnable, no core for a quarter second: the host's load
     proc.wait(42, 42, 5.0)  # SIGSTOP: not runnable, so it waits for nothing
     proc.gone(43)  # killed: no counters
-    assert watch.nodes(pids, 0.5) == {"/audio_capture": pytest.approx(0.25)}
+    starved = watch.nodes(pids, 0.5)
+    assert list(starved) == ["/audio_capture"]
+    assert starved["/audio_capture"].waited == pytest.approx(0.25)
     proc.wait(41, 41, 5.25)
     assert watch.nodes(pids, 2.0) == {}  # no more waiting: its timing is judged again
 
@@ -103,4 +107,18 @@ def test_waits_of_different_threads_are_not_added_into_one(proc: FakeProc) -> No
     proc.wait("self", 2, 0.6)
     assert watch.own(11.0) is None
     proc.wait("self", 2, 1.1)
-    assert watch.own(11.5) == pytest.approx(1.1)
+    starved = watch.own(11.5)
+    assert starved is not None and starved.waited == pytest.approx(1.1)
+
+
+def test_a_wait_read_after_a_long_pause_spans_the_pause_not_the_window(
+        proc: FakeProc) -> None:
+    """Read 3 s after the previous reading (the reader itself paused), a 2.5 s wait is 2.5 s
+    within 3 s: the gap must reach back over the whole stretch, not the last second."""
+    watch = StarvationWatch(proc.root, node_limit=0.2, window=1.0)
+    proc.wait(41, 41, 0.0)
+    assert watch.nodes({"/audio_capture": 41}, 10.0) == {}
+    proc.wait(41, 41, 2.5)
+    starved = watch.nodes({"/audio_capture": 41}, 13.0)["/audio_capture"]
+    assert starved.waited == pytest.approx(2.5)
+    assert starved.span == pytest.approx(3.0)

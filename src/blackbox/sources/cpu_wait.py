@@ -91,6 +91,11 @@ class WaitMeter:
         before = last[1]
         return {tid: max(0.0, d - before.get(tid, 0.0)) for tid, d in delays.items()}
 
+    def last_reading(self, pid: int | str) -> float | None:
+        """The time of ``pid``'s previous reading, if any."""
+        last = self._last.get(str(pid))
+        return None if last is None else last[0]
+
     def forget(self, pid: int | str) -> None:
         self._last.pop(str(pid), None)
 
@@ -122,21 +127,34 @@ WINDOW = 1.0
 long delay)."""
 
 
+@dataclass(frozen=True, slots=True)
+class Starved:
+    """A process found starved: its most delayed thread waited ``waited`` seconds over the
+    last ``span`` seconds (the window, or longer when the readings before it were further
+    apart: a reading after a long pause of the reader covers the whole pause)."""
+
+    waited: float
+    span: float
+
+
 @dataclass(slots=True)
 class _Window:
-    """Per-thread waits of one process over a sliding window (monotonic times)."""
+    """Per-thread waits of one process over a sliding window (monotonic times); each entry
+    is (previous reading's time, this reading's time, thread -> wait in between)."""
 
-    waits: list[tuple[float, dict[str, float]]]
+    waits: list[tuple[float, float, dict[str, float]]]
 
-    def add(self, now: float, waits: dict[str, float], window: float) -> float:
-        """Add one reading's waits; the longest one thread waited within the window."""
-        self.waits.append((now, waits))
-        self.waits = [(t, w) for t, w in self.waits if t > now - window]
+    def add(self, then: float, now: float, waits: dict[str, float], window: float) -> Starved:
+        """Add one reading's waits; the longest one thread waited within the window, and
+        the span those waits cover."""
+        self.waits.append((then, now, waits))
+        self.waits = [e for e in self.waits if e[1] > now - window]
         total: dict[str, float] = {}
-        for _, reading in self.waits:
+        for _, _, reading in self.waits:
             for tid, w in reading.items():
                 total[tid] = total.get(tid, 0.0) + w
-        return max(total.values(), default=0.0)
+        span = max(window, now - min(e[0] for e in self.waits))
+        return Starved(max(total.values(), default=0.0), span)
 
 
 class StarvationWatch:
@@ -161,27 +179,28 @@ class StarvationWatch:
         self.self_pid = self_pid
         self._windows: dict[str, _Window] = {}
 
-    def _waited(self, pid: int | str, now: float, window: float) -> float | None:
+    def _waited(self, pid: int | str, now: float, window: float) -> Starved | None:
+        then = self.meter.last_reading(pid)
         waits = self.meter.threads_since_last(pid, now)
-        if waits is None:
+        if waits is None or then is None:
             self._windows.pop(str(pid), None)
             return None
-        return self._windows.setdefault(str(pid), _Window([])).add(now, waits, window)
+        return self._windows.setdefault(str(pid), _Window([])).add(then, now, waits, window)
 
-    def own(self, now: float) -> float | None:
-        """Seconds the black box's most delayed thread waited within ``own_window``, if
-        that is over ``own_limit`` (``now``: a monotonic time)."""
-        waited = self._waited(self.self_pid, now, self.own_window)
-        return waited if waited is not None and waited > self.own_limit else None
+    def own(self, now: float) -> Starved | None:
+        """The black box's most delayed thread's wait within ``own_window``, if that is over
+        ``own_limit`` (``now``: a monotonic time)."""
+        found = self._waited(self.self_pid, now, self.own_window)
+        return found if found is not None and found.waited > self.own_limit else None
 
-    def nodes(self, pids: dict[str, int], now: float) -> dict[str, float]:
-        """Node -> seconds its most delayed thread waited within the window, for the nodes
-        of ``pids`` (node -> pid, processes on this host) over ``node_limit``."""
-        starved: dict[str, float] = {}
+    def nodes(self, pids: dict[str, int], now: float) -> dict[str, Starved]:
+        """Node -> its most delayed thread's wait within the window, for the nodes of
+        ``pids`` (node -> pid, processes on this host) over ``node_limit``."""
+        starved: dict[str, Starved] = {}
         for node, pid in pids.items():
-            waited = self._waited(pid, now, self.window)
-            if waited is not None and waited > self.node_limit:
-                starved[node] = waited
+            found = self._waited(pid, now, self.window)
+            if found is not None and found.waited > self.node_limit:
+                starved[node] = found
         for gone in self._windows.keys() - {str(p) for p in pids.values()} - {
                 str(self.self_pid)}:
             del self._windows[gone]

@@ -51,19 +51,19 @@ class StarvationGaps:
         window to ``now``, so the late messages of the starved stretch are not judged."""
         watch = self.watch
         mono = time.monotonic()
-        start = max(floor or until, now - watch.window)
-        waited = watch.own(mono)
-        own = None if waited is None else MeasurementGap(
-            now, max(floor or until, now - watch.own_window), now, f"a thread of the black "
-            f"box waited {waited:.3g} s for a CPU within {watch.own_window:g} s (starved of "
-            "CPU)")
+        base = floor or until
+        found = watch.own(mono)
+        own = None if found is None else MeasurementGap(
+            now, max(base, now - found.span), now, f"a thread of the black box waited "
+            f"{found.waited:.3g} s for a CPU within {found.span:.3g} s (starved of CPU)")
         pids, topics = self.local_publishers
         gaps: list[MeasurementGap] = []
         saturated: list[str] = []
-        for node, wait in sorted(watch.nodes(pids, mono).items()):
-            reason = (f"the host starved {node} of CPU: it waited {wait:.3g} s for a core "
-                      f"within {watch.window:g} s; its messages came late by the host's "
-                      "load, not by its own fault")
+        for node, starved in sorted(watch.nodes(pids, mono).items()):
+            start = max(base, now - starved.span)
+            reason = (f"the host starved {node} of CPU: it waited {starved.waited:.3g} s for "
+                      f"a core within {starved.span:.3g} s; its messages came late by the "
+                      "host's load, not by its own fault")
             last = self._reported.get(node)
             self._reported[node] = mono
             if last is None or mono - last > REPORT_AGAIN:
