@@ -123,9 +123,9 @@ def test_a_stopped_publisher_waits_for_nothing_and_its_silence_is_still_judged(
 def test_the_black_box_starved_is_a_gap_of_everything(
         tmp_path: Path, make: Callable[[], tuple[Source, Callable[[list[MessageArrival]], None]]]
 ) -> None:
-    """A thread of the black box waited 1.2 s on the run queue within 2 s: what it stamped
+    """A thread of the black box waited 1.6 s on the run queue within 2 s: what it stamped
     in that stretch is its own lateness, a gap of everything and no verdict."""
-    verdicts, handed = replay(tmp_path, {2.5: (0.0, 0.6), 3.0: (0.0, 1.2)}, make)
+    verdicts, handed = replay(tmp_path, {2.5: (0.0, 0.8), 3.0: (0.0, 1.6)}, make)
     gaps = [e for e in handed if isinstance(e, MeasurementGap)]
     assert gaps and all(g.everything and "a thread of the black box waited" in g.reason
                         for g in gaps)
