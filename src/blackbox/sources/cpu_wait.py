@@ -109,7 +109,7 @@ clocks, and ``poll`` already waits for late counts and reads (``READ_LIMIT``,
 ``TAKE_LIMIT``) and notices its own late wake-up (``clockwatch.PAUSE_LIMIT``), each
 turning more than 1 s of lateness into a gap. Measured beside two CPU-bound processes at
 load 12-25 (docs/evaluation-realtime.md): a bound of 0.5 s within 1 s made 123 gaps of
-everything in 150 s, 1 s within 2 s 321 in 600 s (29 % of the time unjudged, one rate
+everything in 150 s, 1 s within 2 s 321 in 600 s (16-24 % of the time unjudged, one rate
 fault missed), while none of the false alarms there came from the black box's lateness
 alone."""
 
