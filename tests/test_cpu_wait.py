@@ -18,10 +18,11 @@ class FakeProc:
     def __init__(self, root: Path) -> None:
         self.root = root
 
-    def wait(self, pid: int | str, tid: int, seconds: float) -> None:
+    def wait(self, pid: int | str, tid: int, seconds: float, runs: int = 42) -> None:
+        """``seconds`` waited so far over ``runs`` times the thread was run."""
         path = self.root / str(pid) / "task" / str(tid) / "schedstat"
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(f"123456789 {round(seconds * 1e9)} 42\n", encoding="ascii")
+        path.write_text(f"123456789 {round(seconds * 1e9)} {runs}\n", encoding="ascii")
 
     def gone(self, pid: int | str) -> None:
         shutil.rmtree(self.root / str(pid))
@@ -49,7 +50,7 @@ def test_the_worst_thread_counts_and_a_first_reading_gives_no_wait(proc: FakePro
 
 def test_the_black_box_waiting_over_its_limit_within_the_window_is_starved(
         proc: FakeProc) -> None:
-    watch = StarvationWatch(proc.root, own_limit=0.5, own_window=1.0)
+    watch = StarvationWatch(proc.root, own_limit=0.5, own_window=1.0, own_stretch=0.0)
     proc.wait("self", 1, 0.0)
     assert watch.own(100.0) is None
     proc.wait("self", 1, 0.3)
@@ -98,7 +99,7 @@ def test_the_real_proc_of_this_process_can_be_read() -> None:
 
 def test_waits_of_different_threads_are_not_added_into_one(proc: FakeProc) -> None:
     """Two threads each waiting 0.6 s within the window is no thread waiting 1.2 s."""
-    watch = StarvationWatch(proc.root, own_limit=1.0, own_window=2.0)
+    watch = StarvationWatch(proc.root, own_limit=1.0, own_window=2.0, own_stretch=0.0)
     proc.wait("self", 1, 0.0)
     proc.wait("self", 2, 0.0)
     assert watch.own(10.0) is None
@@ -122,3 +123,20 @@ def test_a_wait_read_after_a_long_pause_spans_the_pause_not_the_window(
     starved = watch.nodes({"/audio_capture": 41}, 13.0)["/audio_capture"]
     assert starved.waited == pytest.approx(2.5)
     assert starved.span == pytest.approx(3.0)
+
+
+def test_many_short_waits_of_the_black_box_are_no_starvation_one_long_one_is(
+        proc: FakeProc) -> None:
+    """1.6 s of waiting within 2 s spread over 40 runs (a thread woken often on a busy
+    host: each run a little late) delays nothing the black box measures; 0.8 s before one
+    run is a thread that did not run for most of a second at a time."""
+    watch = StarvationWatch(proc.root)  # the defaults: 1.5 s within 2 s, 0.5 s at once
+    proc.wait("self", 1, 0.0, runs=100)
+    assert watch.own(0.0) is None
+    proc.wait("self", 1, 0.8, runs=120)
+    assert watch.own(1.0) is None
+    proc.wait("self", 1, 1.6, runs=140)
+    assert watch.own(2.0) is None  # 1.6 s within 2 s, but 0.04 s per run
+    proc.wait("self", 1, 2.4, runs=141)
+    starved = watch.own(3.0)  # 0.8 s at once, 1.6 s within the last 2 s
+    assert starved is not None and starved.waited == pytest.approx(1.6)
