@@ -19,10 +19,15 @@ from blackbox.evaluate import CampaignSettings
 from blackbox.evaluate.metrics import score_run
 from blackbox.evaluate.real_campaign import (
     ROBOT_HARNESSES,
+    RealRun,
+    ResourceUse,
     read_truth_log,
     run_real,
     schedule_for,
 )
+from blackbox.events import MeasurementGap
+from blackbox.model import BlackBoxEvent
+from blackbox.pipeline import RunStats
 from blackbox.sources.sim import FAULT_KINDS, Topology
 
 EXTENDED = DEFAULT_CONFIG.with_name("thesis-extended.yaml")
@@ -105,3 +110,23 @@ def test_a_short_real_campaign_injects_on_the_processes_and_scores_them(tmp_path
         assert outcome.detected, f"{kind} on {component} was not detected"
     assert run.resources.cpu_percent > 0 and run.resources.rss_max > 10e6
     assert run.events, "the run's events are kept for replaying the filter experiments"
+
+
+def test_a_real_runs_measurement_gaps_and_source_reports_are_kept_for_its_json() -> None:
+    """A false alarm or a miss is read against what the black box left unjudged and why:
+    the closed gaps as offsets from the scored start, and the source's own reports."""
+    starved = "the host starved /audio_capture of CPU"
+    events = [MeasurementGap(100.5, 100.5, None, "switching", topic="/audio"),
+              MeasurementGap(101.0, 100.5, 101.0, "switching", topic="/audio"),
+              MeasurementGap(102.0, 101.5, 102.25, starved, topic="/audio"),
+              MeasurementGap(103.0, 102.0, 103.0, "a thread of the black box waited 1.2 s"),
+              BlackBoxEvent(102.0, "ros1_host_saturated", "host saturated", "robot"),
+              BlackBoxEvent(102.5, "ros1_host_saturated", "host saturated", "robot")]
+    run = RealRun(100.0, 200.0, [], [], [], list(events), RunStats(),
+                  ResourceUse(1.0, 1.0, 1.0, 100.0))
+    assert run.gaps() == [
+        {"start": 0.5, "end": 1.0, "of": "/audio", "reason": "switching"},
+        {"start": 1.5, "end": 2.25, "of": "/audio", "reason": starved},
+        {"start": 2.0, "end": 3.0, "of": "everything",
+         "reason": "a thread of the black box waited 1.2 s"}]
+    assert run.reports() == {"ros1_host_saturated": 2}

@@ -147,9 +147,11 @@ def test_a_wall_clock_step_either_way_is_a_gap_of_everything_and_no_alarm(
         for step in (30.0, -60.0):
             before = len(seen.gaps())
             source.clock_offset += step  # type: ignore[attr-defined]
-            assert wait_for(lambda b=before: len(seen.gaps()) > b, 10), f"no gap for {step}"
-            gap = seen.gaps()[-1]
-            assert gap.component == "blackbox" and "stepped" in gap.message
+            # other gaps may come meanwhile (a publisher starved by a busy machine)
+            assert wait_for(lambda b=before: any(
+                "stepped" in g.message for g in seen.gaps()[b:]), 10), f"no gap for {step}"
+            [gap] = [g for g in seen.gaps()[before:] if "stepped" in g.message]
+            assert gap.component == "blackbox"
             now = source.now()
             assert wait_for(lambda n=now: seen.ok(n + 2.0), 20), f"not healthy after {step}"
         assert seen.alarms(start) == []

@@ -90,9 +90,11 @@ def test_a_restarted_participant_is_named_or_a_gap_never_a_stranger(
                 "the restarted camera never delivered"
         publishers = {a.publisher for a in watched.arrivals(CAMERA)}
         assert publishers == {"/usb_cam"}, publishers
-        # Beside the start gap (until the topic's first message, tests/test_ros2_source.py).
+        # Beside the start gap (until the topic's first message, tests/test_ros2_source.py)
+        # and CPU starvation on a busy machine (restarted rclpy nodes wait for a core).
         gaps = [e for e in watched.events if isinstance(e, MeasurementGap)
-                and not e.reason.startswith("waiting for the first message")]
+                and not e.reason.startswith("waiting for the first message")
+                and "starved" not in e.reason]
         opened = {g.start for g in gaps if g.end is None}
         closed = [g for g in gaps if g.end is not None]
         assert opened == {g.start for g in closed}, "a held-back gap was never closed"

@@ -174,6 +174,9 @@ class RunResult:
                 else self.engine_score.diagnosis.to_dict()}
         if self.resources is not None:
             out["blackbox_resources"] = self.resources.to_dict()
+        if self.real is not None:
+            out["gaps"] = self.real.gaps()
+            out["source_reports"] = self.real.reports()
         return out
 
 

@@ -35,8 +35,8 @@ from typing import Any, Protocol
 import psutil
 
 from blackbox.app import RunOptions, build
-from blackbox.events import Event, Interest, MessageArrival, TopicSchema
-from blackbox.model import Diagnosis, Observation
+from blackbox.events import Event, Interest, MeasurementGap, MessageArrival, TopicSchema
+from blackbox.model import BlackBoxEvent, Diagnosis, Observation
 from blackbox.pipeline import RunStats
 from blackbox.registry import Registry
 from blackbox.sinks import Collector
@@ -149,6 +149,25 @@ class RealRun:
     stats: RunStats
     resources: ResourceUse
     publishers: dict[str, str] = field(default_factory=dict)
+
+    def gaps(self) -> list[dict[str, Any]]:
+        """The measurement gaps the source reported (closed ones, as offsets from the scored
+        start): what the black box left unjudged, and why (its own starvation, the host's,
+        a switch, ...). Kept in the campaign's JSON so a run's false alarms and misses can
+        be read against them."""
+        return [{"start": round(e.start - self.start, 3), "end": round(e.end - self.start, 3),
+                 "of": e.topic or e.node or ("graph" if e.graph else "everything"),
+                 "reason": e.reason}
+                for e in self.events if type(e) is MeasurementGap and e.end is not None]
+
+    def reports(self) -> dict[str, int]:
+        """How often the source reported each kind of its own findings (``ros1_behind``,
+        ``ros1_host_saturated``, ``ros1_node_dead``, ...) during the run."""
+        counts: dict[str, int] = {}
+        for e in self.events:
+            if isinstance(e, BlackBoxEvent):
+                counts[e.kind] = counts.get(e.kind, 0) + 1
+        return dict(sorted(counts.items()))
 
 
 class RobotHarness(Protocol):

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
+import socket
 import threading
 import time
 from collections import deque
@@ -51,10 +52,12 @@ from blackbox.sources.handout import overflow_event, split_due, wait_until
 from blackbox.sources.ros1.busstats import BusStatsRates, TopicCounts
 from blackbox.sources.ros1.callerid import DEFAULT_PREFIX, unique_caller_id, valid_caller_id
 from blackbox.sources.ros1.graph import GraphPoller
+from blackbox.sources.ros1.master import host_of
 from blackbox.sources.ros1.readers import ReaderProcesses
-from blackbox.sources.ros1.resources import ResourceSampler
+from blackbox.sources.ros1.resources import ResourceSampler, is_local_host
 from blackbox.sources.ros1.stream_reader import Arrivals, StreamKey
 from blackbox.sources.ros1.subscriber import DEFAULT_MAX_MESSAGE_BYTES, TcprosSubscriber
+from blackbox.sources.starvation import StarvationGaps
 
 log = logging.getLogger("blackbox.sources.ros1")
 
@@ -263,6 +266,9 @@ class Ros1Source:
         """Counted (topic, publisher) -> the time (with ``clock_offset``) up to which the
         publisher's counters have been read and queued; ``poll`` waits for it to reach its
         horizon (:meth:`_await_counts`). Under ``_counts_done``."""
+        self.starvation = StarvationGaps()
+        """CPU starvation of the black box and of the robot's local publishers, from their
+        threads' run-queue waits; tests give its ``watch`` ``schedstat`` files of their own."""
 
     @classmethod
     def from_uri(cls, spec: str, settings: Ros1Settings | None = None) -> Ros1Source:
@@ -314,9 +320,17 @@ class Ros1Source:
                 gap = MeasurementGap(now, self._floor or until, now, "the black box's "
                                      f"TCPROS reader did not run for {READ_LIMIT:g} s "
                                      "(starved of CPU)")
+        # Starvation (docs/ros1.md): the black box's own threads waited for a CPU (a gap
+        # of everything), or a local publisher did (a gap of its topics: the host's load).
+        starved = self.starvation.check(self._floor, until, self._wall())
+        if gap is None:
+            gap = starved.own
+        for message in starved.saturated:
+            self._report("host_saturated", socket.gethostname(), message)
         queue = self._queue
         events = self._held
         self._held = []
+        events.extend(starved.gaps)
         with self._lock:  # every event stamped before this instant is in the queue
             self._floor = until if back else max(self._floor, until)
             while queue:
@@ -471,6 +485,7 @@ class Ros1Source:
                 publishers = self._poller.state.publishers
                 self._count_rates(started, publishers, dead)
                 self._follow_connections(publishers, dead)
+                self._note_local_publishers(publishers, dead)
                 if self.counted:
                     publishers = {t: tuple(n for n in nodes if (t, n) not in self.counted)
                                   for t, nodes in publishers.items()}
@@ -541,6 +556,23 @@ class Ros1Source:
                          + "; subscribing to measure its rate")
         self.counted = counted
         self._mark_counted(counted)
+
+    def _note_local_publishers(self, publishers: dict[str, tuple[str, ...]],
+                               dead: set[str]) -> None:
+        """Record the live publishers of watched topics that run on this host, with their
+        pids (their run-queue waits tell ``poll`` when the host starved them)."""
+        watched = self._interest.topics | self._interest.decoded
+        pids: dict[str, int] = {}
+        topics: dict[str, tuple[str, ...]] = {}
+        for topic in sorted(watched):
+            for node in publishers.get(topic, ()):
+                st = self._poller.nodes.get(node)
+                if (st is None or node in dead or st.pid is None or not st.uri
+                        or not is_local_host(host_of(st.uri))):
+                    continue
+                pids[node] = st.pid
+                topics[node] = (*topics.get(node, ()), topic)
+        self.starvation.local_publishers = (pids, topics)
 
     def _switch_to_subscription(self, key: tuple[str, str], round_start: float) -> None:
         """The gap of a counted topic whose on-robot subscriber is gone (the black box

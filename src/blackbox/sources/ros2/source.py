@@ -84,6 +84,7 @@ from blackbox.sources.ros2.graph import Endpoint, Ros2Graph
 from blackbox.sources.ros2.idl import IdlTypes, UnknownRos2Type, ros_type_name
 from blackbox.sources.ros2.qos import EndpointQos
 from blackbox.sources.ros2.writer_time import WriterDelay
+from blackbox.sources.starvation import StarvationGaps
 from blackbox.transport.participant import LOOPBACK_CONFIG
 
 __all__ = ["ROS2_CAPABILITIES", "Ros2Settings", "Ros2Source", "cyclone_config_for_ros2",
@@ -231,6 +232,9 @@ class Ros2Source:
         self._writer_delay = WriterDelay()
         """Arrival times from the writers' source timestamps (``writer_time``)."""
         self._procs: dict[str, _Process] = {}
+        self.starvation = StarvationGaps()
+        """CPU starvation of the black box and of the robot's local publishers, from their
+        threads' run-queue waits; tests give its ``watch`` ``schedstat`` files of their own."""
         self._resources = ResourceSampler()
         self._reported: set[tuple[str, ...]] = set()
         self._alive_nodes: dict[str, bool] = {}
@@ -299,8 +303,16 @@ class Ros2Source:
             pause = MeasurementGap(time.time(), self._handed_out or until, time.time(),
                                    f"the black box's DDS thread did not take its samples "
                                    f"within {TAKE_LIMIT:g} s (starved of CPU)")
+        # Starvation (docs/ros2.md): the black box's own threads waited for a CPU (a gap of
+        # everything), or a local publisher did (a gap of its topics: the host's load).
+        starved = self.starvation.check(self._handed_out, until, time.time())
+        if pause is None:
+            pause = starved.own
+        for message in starved.saturated:
+            self._report("host_saturated", self._hostname, message)
         events = self._held
         self._held = []
+        events.extend(starved.gaps)
         with self._lock:
             self._handed_out = max(self._handed_out, until)
             events.extend(self._queue)
@@ -632,6 +644,7 @@ class Ros2Source:
                  [str(uuid.UUID(bytes=bytes(g.data))) for g in n.writer_gid_seq])
                 for n in info.node_entities_info_seq])
         self._check_processes()
+        self._note_local_publishers()
         self._close_unnamed_gaps(now)
         self._show_endpoints(now)
         self._ensure_readers()
@@ -711,6 +724,23 @@ class Ros2Source:
                 tracked.running = running
                 p.alive = running
                 p.why_dead = "" if running else f"its process {p.pid} is stopped"
+
+    def _note_local_publishers(self) -> None:
+        """Record the live publishers of watched topics whose process runs on this host,
+        with their pids (their run-queue waits tell ``poll`` when the host starved them)."""
+        graph = self.graph
+        pids: dict[str, int] = {}
+        topics: dict[str, tuple[str, ...]] = {}
+        for topic in sorted(self._interest.topics | self._interest.decoded):
+            for w in graph.writers_of(topic):
+                p = graph.participants.get(w.participant)
+                node = graph.node_of_endpoint.get(w.guid)
+                if p is None or not p.alive or not p.local or p.pid is None or node is None:
+                    continue
+                pids[node] = p.pid
+                if topic not in topics.get(node, ()):
+                    topics[node] = (*topics.get(node, ()), topic)
+        self.starvation.local_publishers = (pids, topics)
 
     def _node_transitions(self, snapshot: GraphSnapshot) -> None:
         for name, info in snapshot.nodes.items():
