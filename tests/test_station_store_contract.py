@@ -20,7 +20,7 @@ from blackbox.station.auth import Auth, Role
 from blackbox.station.changes import Change
 from blackbox.station.database import open_database
 from blackbox.station.enrolment import RobotKeys
-from blackbox.station.records import StationStoreError, UnknownRobot
+from blackbox.station.records import Point, StationStoreError, UnknownRobot
 from blackbox.station.store import StationStore
 from blackbox.station.tokens import ApiTokens
 from postgres_support import postgres, postgres_url  # noqa: F401  (fixtures)
@@ -382,13 +382,16 @@ def test_writes_wait_in_a_bounded_queue_until_a_flush(location: str, clock: Cloc
     try:
         robot_with_a_failing_camera(store)
         assert store.pending == 0
-        for i in range(30):  # chart points beyond the bound go first, counted
+        for i in range(30):  # chart points beyond the bound go first: coalesced, counted
             store.put_value(RID, 10, T0 + i, float(i))
         store.add_event(RID, T0, "failure", dedup="id:b-1")
-        assert 0 < store.pending <= 20 and store.dropped_points > 0
-        assert any("chart points dropped" in p.message for p in store.problems())
+        assert 0 < store.pending <= 20 and store.coalesced_points > 0
+        assert any("coalesced" in p.message for p in store.problems())
         assert store.count_events() == 0  # queued, not yet written
         assert store.flush() and store.pending == 0
         assert store.count_events() == 1
+        points = store.series(RID, 10, since=T0 - 1)
+        assert points[-1] == Point(T0 + 29, 29.0)  # the newest point wins
+        assert len(points) + store.coalesced_points + store.dropped_points == 30
     finally:
         store.close()

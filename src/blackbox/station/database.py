@@ -259,6 +259,27 @@ class _PostgresConnection:
         self.raw.close()
 
 
+@contextlib.contextmanager
+def write_batch(db: Connection) -> Iterator[None]:
+    """Statements sent inside are pipelined where the engine allows it (PostgreSQL: psycopg's
+    pipeline mode), so a flush of many statements costs round trips only where a result is
+    read, not one per statement. Why: a flush is dozens of statements (a statement per kind
+    of row, each event its own), and on a loaded machine each round trip to the server
+    waited milliseconds. Errors come out as :class:`DatabaseError` as they do elsewhere;
+    SQLite runs the statements as they come."""
+    if not isinstance(db, _PostgresConnection):
+        yield
+        return
+    unique, error = db._errors()
+    try:
+        with db.raw.pipeline():
+            yield
+    except unique as exc:
+        raise DuplicateRow(_first_line(exc)) from None
+    except error as exc:
+        raise DatabaseError(_first_line(exc)) from None
+
+
 def _first_line(exc: BaseException) -> str:
     return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
 

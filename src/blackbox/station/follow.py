@@ -399,8 +399,11 @@ class StationFollower:
         return self.bus.reader(name, qos)
 
     def start(self) -> None:
-        """Open, then follow on a background thread until :meth:`stop`."""
+        """Open, then follow on a background thread until :meth:`stop`; the store writes on
+        a thread of its own meanwhile (:meth:`StationStore.start_writer`), so taking
+        samples never waits on the database."""
         self.open()
+        self.store.start_writer()
         self._stop.clear()
         self._threads = [threading.Thread(target=self._follow, name="station-follow",
                                           daemon=True),
@@ -418,6 +421,7 @@ class StationFollower:
         for t in self._threads:
             t.join(timeout=timeout)
         self._threads = []
+        self.store.stop_writer()
         self.store.flush(force=True)
         with self._bus_lock:
             if self.bus is not None:
@@ -489,7 +493,7 @@ class StationFollower:
         taken.extend(self.gate.released(now))
         self.ingest(taken, now, behind=behind)
         self._drop_foreign_replies()
-        self.store.flush()
+        self.store.flush_soon()  # on the store's writer thread once start() started it
         self._start_backfills()
         self.delivery.check(self._readers, now)
         self.delivery.took(bool(behind), now, time.monotonic() - started)

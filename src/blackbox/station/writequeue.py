@@ -2,11 +2,20 @@
 
 The follower must never wait on the database (a robot's samples keep coming), and a write
 that fails must lose nothing: each change is a small function of a connection, queued in
-memory; :meth:`WriteQueue.flush` applies everything queued in one transaction. When the
-transaction fails (disk full, the PostgreSQL server gone, a deadlock with another station
-process) it is rolled back, the queue is kept (bounded: the oldest chart points go first,
-counted) and retried, and the failure is a problem on the operator's page. Nothing already
-committed is touched. A connection to a server that went away is replaced at the next try.
+memory; :meth:`WriteQueue.flush` takes everything queued (a short hold of :attr:`lock`) and
+applies it in one transaction while the follower queues the next batch: only
+:attr:`flushing` is held while the database works, so a slow server (a PostgreSQL round
+trip per statement) never stops ingest. When the transaction fails (disk full, the
+PostgreSQL server gone, a deadlock with another station process) it is rolled back, the
+batch goes back to the front of the queue and is retried, and the failure is a problem on
+the operator's page. Nothing already committed is touched. A connection to a server that
+went away is replaced at the next try.
+
+The queue is bounded (``max_pending``). Over the bound the station degrades in steps, each
+counted and reported, never silently: chart points of one characteristic are coalesced
+(the newest wins), then the oldest chart points are dropped, and only then the oldest of
+anything else. Events, statuses and current values are chart points of nothing: they go
+last.
 """
 
 from __future__ import annotations
@@ -20,7 +29,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from blackbox.station.database import Connection, Database, DatabaseError
+from blackbox.station.database import Connection, Database, DatabaseError, write_batch
 from blackbox.station.problems import ProblemLog
 
 Op = Callable[[Connection], None]
@@ -43,6 +52,9 @@ class PendingWrite:
     droppable: bool = False
     sql: str = ""
     args: tuple[Any, ...] = ()
+    series: tuple[int, int] | None = None
+    """For a chart point: its characteristic (robot, instance), whose points may be
+    coalesced when the queue is full (:meth:`WriteQueue._shed`)."""
     more_robots: set[int] | None = None
     """Further robots a batched change (:meth:`WriteQueue.joins_batch`) touches."""
     gone: bool = False
@@ -58,7 +70,11 @@ class Committed:
 
 
 class WriteQueue:
-    """Queued changes and the one write connection of a store (thread-safe)."""
+    """Queued changes and the one write connection of a store (thread-safe).
+
+    Two locks, always taken in this order: :attr:`flushing` (one flush or direct write at
+    a time, held while the database works) and :attr:`lock` (the queue itself, held for
+    moments). Whoever queues takes only :attr:`lock`."""
 
     def __init__(self, database: Database, problems: ProblemLog, *, max_pending: int,
                  clock: Callable[[], float] = time.time) -> None:
@@ -67,8 +83,11 @@ class WriteQueue:
         self.max_pending = max_pending
         self.clock = clock
         self.lock = threading.RLock()
+        self.flushing = threading.RLock()
         self._pending: deque[PendingWrite] = deque()
         self._dropped_points = 0
+        self._coalesced_points = 0
+        self._dropped_changes = 0
         self._last_failed = -math.inf
         self._last_change: PendingWrite | None = None
         self._db: Connection | None = database.connect()
@@ -80,7 +99,19 @@ class WriteQueue:
 
     @property
     def dropped_points(self) -> int:
+        """Chart points dropped because the queue was full (the oldest first)."""
         return self._dropped_points
+
+    @property
+    def coalesced_points(self) -> int:
+        """Chart points replaced by a newer point of the same characteristic because the
+        queue was full (the chart lost resolution, the current value is kept)."""
+        return self._coalesced_points
+
+    @property
+    def dropped_changes(self) -> int:
+        """Changes other than chart points dropped because the queue stayed full."""
+        return self._dropped_changes
 
     @property
     def failing(self) -> bool:
@@ -88,7 +119,8 @@ class WriteQueue:
         return self._last_failed > -math.inf
 
     def connection(self) -> Connection:
-        """The write connection (call with :attr:`lock` held), reconnected if it was lost."""
+        """The write connection (call with :attr:`flushing` held), reconnected if it was
+        lost."""
         if self._db is None:
             self._db = self.database.connect()
         return self._db
@@ -125,7 +157,8 @@ class WriteQueue:
         return True
 
     def add_row(self, sql: str, args: tuple[Any, ...], robot: int | None, topic: str,
-                droppable: bool = False) -> PendingWrite:
+                droppable: bool = False,
+                series: tuple[int, int] | None = None) -> PendingWrite:
         """One row of ``sql``, sent in one ``executemany`` with every other row of the same
         statement queued since the last :meth:`add`ed change. Why: one statement per
         characteristic value was one round trip per value to a PostgreSQL server (about 580
@@ -136,59 +169,98 @@ class WriteQueue:
         other columns); rows of one statement keep their order, and a change queued with
         :meth:`add` applies after every row queued before it."""
         with self.lock:
-            row = PendingWrite(None, robot, topic, droppable, sql, args)
+            row = PendingWrite(None, robot, topic, droppable, sql, args, series)
             self._pending.append(row)
             if len(self._pending) > self.max_pending:
                 self._shed()
             return row
 
     def _shed(self) -> None:
-        """Over the bound: drop queued time-series points first (counted), then refuse the
-        oldest of anything else (counted as a problem)."""
-        kept: deque[PendingWrite] = deque()
-        excess = len(self._pending) - self.max_pending // 2
-        for item in self._pending:
-            if excess > 0 and item.droppable:
-                excess -= 1
-                self._dropped_points += 1
-                item.gone = True
+        """Over the bound: coalesce queued chart points per characteristic (the newest
+        wins), then drop the oldest chart points down to half the bound, then the oldest
+        of anything else; every step counted and reported as a problem."""
+        coalesced = dropped = refused = 0
+        newest: set[tuple[int, int]] = set()
+        for item in reversed(self._pending):
+            if item.series is None:
                 continue
-            kept.append(item)
+            if item.series in newest:
+                item.gone = True
+                coalesced += 1
+            else:
+                newest.add(item.series)
+        kept: deque[PendingWrite] = deque(i for i in self._pending if not i.gone)
+        excess = len(kept) - self.max_pending // 2
+        if len(kept) > self.max_pending and excess > 0:
+            rest: deque[PendingWrite] = deque()
+            for item in kept:
+                if excess > 0 and item.droppable:
+                    excess -= 1
+                    dropped += 1
+                    item.gone = True
+                    continue
+                rest.append(item)
+            kept = rest
         while len(kept) > self.max_pending:
-            dropped = kept.popleft()
-            dropped.gone = True
-            if dropped is self._last_change:
+            gone = kept.popleft()
+            gone.gone = True
+            refused += 1
+            if gone is self._last_change:
                 self._last_change = None
-            self.problems.report("store", "write queue full while the database cannot be "
-                                          "written: oldest queued changes dropped")
         self._pending = kept
-        self.problems.report("store", f"database not writable: {self._dropped_points} chart "
-                                      "points dropped so far (state and events are kept)")
+        self._coalesced_points += coalesced
+        self._dropped_points += dropped
+        self._dropped_changes += refused
+        if refused:
+            self.problems.report("store", f"write queue full ({self.max_pending} changes): "
+                                          f"{self._dropped_changes} oldest queued changes "
+                                          "dropped so far")
+        self.problems.report("store-queue", f"write queue full ({self.max_pending} "
+                                            "changes), the database cannot keep up: "
+                                            f"{self._coalesced_points} chart points "
+                                            "coalesced (the newest value of each "
+                                            f"characteristic kept), {self._dropped_points} "
+                                            "dropped so far; events and statuses are kept")
 
-    def flush(self, force: bool = False) -> Committed | None:
+    def flush(self, force: bool = False,
+              taken: Callable[[], None] | None = None) -> Committed | None:
         """Commit everything queued in one transaction. ``None`` when something stays queued
         (the database failed, or a failed flush is less than a second ago and not
-        ``force``); otherwise what was committed (empty when nothing was queued)."""
-        with self.lock:
-            if self.closed:
-                return None
-            now = self.clock()
-            if not self._pending:
-                return Committed(frozenset(), frozenset())
-            if not force and now - self._last_failed < RETRY_AFTER:
-                return None
-            batch = list(self._pending)
+        ``force``); otherwise what was committed (empty when nothing was queued).
+        ``taken`` is called (with :attr:`lock` held) once the batch left the queue: from
+        then on the caller's changes are queued for the next flush."""
+        with self.flushing:
+            with self.lock:
+                if self.closed:
+                    return None
+                now = self.clock()
+                if not self._pending:
+                    return Committed(frozenset(), frozenset())
+                if not force and now - self._last_failed < RETRY_AFTER:
+                    return None
+                batch = list(self._pending)
+                self._pending.clear()
+                self._last_change = None  # taken: nothing may be added to it any more
+                if taken is not None:
+                    taken()
             try:
                 db = self.connection()
-                db.begin()
                 try:
-                    _apply(db, batch)
-                    db.commit()
+                    with write_batch(db):  # BEGIN, the batch and COMMIT in one pipeline
+                        db.begin()
+                        _apply(db, batch)
+                        db.commit()
                 except BaseException:
                     with contextlib.suppress(DatabaseError):
                         db.rollback()
                     raise
-            except DatabaseError as exc:
+            except BaseException as exc:
+                with self.lock:  # back to the front of the queue, before anything newer
+                    self._pending.extendleft(reversed(batch))
+                    if len(self._pending) > self.max_pending:
+                        self._shed()
+                if not isinstance(exc, DatabaseError):
+                    raise
                 self._drop_connection()
                 self._last_failed = now
                 self.problems.report("store", f"cannot write {self.database.describe()}: "
@@ -200,9 +272,6 @@ class WriteQueue:
                 self.problems.clear("store")
                 self.problems.report("store-recovered",
                                      f"{self.database.describe()} writable again")
-            for _ in batch:
-                self._pending.popleft()
-            self._last_change = None  # committed: nothing may be added to it any more
         robots = {i.robot for i in batch if i.robot is not None}
         for item in batch:
             if item.more_robots:
@@ -211,7 +280,7 @@ class WriteQueue:
 
     def run_now(self, what: Callable[[Connection], T]) -> T:
         """Run ``what`` on the write connection now (call after a successful flush, with
-        :attr:`lock` held, so it lands after everything queued). Raises
+        :attr:`flushing` held, so it lands after everything queued). Raises
         :class:`DatabaseError` after dropping a lost connection."""
         try:
             return what(self.connection())
@@ -220,7 +289,7 @@ class WriteQueue:
             raise
 
     def close(self) -> None:
-        with self.lock:
+        with self.flushing, self.lock:
             self.closed = True
             if self._db is not None:
                 with contextlib.suppress(Exception):

@@ -47,6 +47,12 @@ def station_metrics(store: StationStore, alerts: AlertService | None,
     out.add("blackbox_station_store_dropped_points_total", "counter",
             "Chart points dropped while the database could not be written",
             store.dropped_points)
+    out.add("blackbox_station_store_coalesced_points_total", "counter",
+            "Chart points replaced by a newer one of their characteristic while the write "
+            "queue was full", store.coalesced_points)
+    out.add("blackbox_station_store_dropped_changes_total", "counter",
+            "Changes other than chart points dropped while the write queue stayed full",
+            store.dropped_changes)
     out.add("blackbox_station_problems", "gauge", "Problems shown on the page",
             len(store.problems(200)))
     if delivery is not None:
