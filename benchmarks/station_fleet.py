@@ -353,8 +353,60 @@ class FleetWatcher:
         self._pw.stop()
 
 
-def colour_changes(published: dict[str, Any], seen: list[tuple[str, str, float]]) -> str:
-    """Fault (or its end) published by a watched robot -> its row's colour in Chromium."""
+class CommitWatcher:
+    """Looks every ``every`` s at the watched robots' derived status changes in the
+    station's database (``status_changes``, the robot's own row): when each became
+    visible, committed. Why: it splits a fault -> colour change into the station's
+    ingest and write (robot -> committed) and the page's part (committed -> browser)."""
+
+    def __init__(self, db: str, robots: list[str], every: float = 0.05) -> None:
+        from blackbox.health.ids import robot_resource_id
+
+        self.db = db
+        self.every = every
+        self.names = {robot_resource_id(r): r for r in robots}
+        self.seen: list[tuple[str, str, float]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        postgres = self.db.startswith(("postgresql://", "postgres://"))
+        mark = "%s" if postgres else "?"
+        ids = ", ".join(str(i) for i in self.names)
+        sql = (f"SELECT id, resource_id, status FROM status_changes WHERE instance_id = -1 "
+               f"AND resource_id IN ({ids}) AND id > {mark} ORDER BY id")
+        last = 0
+        con: Any = None
+        while not self._stop.wait(self.every):
+            try:
+                if con is None:
+                    if postgres:
+                        import psycopg
+
+                        con = psycopg.connect(self.db, autocommit=True)
+                    else:
+                        con = sqlite3.connect(self.db, timeout=5.0)
+                rows = con.execute(sql, (last,)).fetchall()
+            except Exception:  # the station has not made its tables yet
+                continue
+            now = time.time()
+            for row_id, rid, status in rows:
+                last = max(last, int(row_id))
+                self.seen.append((self.names[int(rid)], str(status), now))
+        if con is not None:
+            con.close()
+
+    def close(self) -> list[tuple[str, str, float]]:
+        self._stop.set()
+        self._thread.join(timeout=10)
+        return self.seen
+
+
+def delays_after(published: dict[str, Any], seen: list[tuple[str, str, float]]
+                 ) -> tuple[list[float], int]:
+    """Seconds from each fault start or end of a watched robot to the first status of
+    its row in ``seen`` that shows it (before its next change); and how many never did."""
     delays: list[float] = []
     missed = 0
     for robot, p in published.items():
@@ -367,14 +419,32 @@ def colour_changes(published: dict[str, Any], seen: list[tuple[str, str, float]]
                 delays.append(shown[0] - t)
             else:
                 missed += 1
+    return sorted(delays), missed
+
+
+def _p99(delays: list[float]) -> float:
+    return delays[min(len(delays) - 1, math.ceil(0.99 * len(delays)) - 1)]
+
+
+def colour_changes(published: dict[str, Any], seen: list[tuple[str, str, float]],
+                   committed: list[tuple[str, str, float]] | None = None) -> str:
+    """Fault (or its end) published by a watched robot -> its row's colour in Chromium,
+    and (``committed``) -> its derived status committed in the station's database."""
+    delays, missed = delays_after(published, seen)
     if not delays:
         return f"fault -> colour change in Chromium: nothing seen ({missed} changes missed)"
-    delays.sort()
-    p99 = delays[min(len(delays) - 1, math.ceil(0.99 * len(delays)) - 1)]
-    return (f"fault -> colour change in Chromium ({len(delays)} changes of "
+    text = (f"fault -> colour change in Chromium ({len(delays)} changes of "
             f"{len({r for r, *_ in seen})} watched robots): median "
-            f"{statistics.median(delays):.2f} s, p99 {p99:.2f} s, max {delays[-1]:.2f} s; "
-            f"not shown before the next change: {missed}")
+            f"{statistics.median(delays):.2f} s, p99 {_p99(delays):.2f} s, max "
+            f"{delays[-1]:.2f} s; not shown before the next change: {missed}")
+    if committed is not None:
+        stored, unseen = delays_after(published, committed)
+        if stored:
+            text += (f"\nfault -> status committed in the database (seen every 50 ms): "
+                     f"{len(stored)} changes, median {statistics.median(stored):.2f} s, "
+                     f"p99 {_p99(stored):.2f} s, max {stored[-1]:.2f} s; not committed "
+                     f"before the next change: {unseen}")
+    return text
 
 
 def main() -> int:
@@ -475,6 +545,7 @@ def main() -> int:
     ids = [f"fleet-{i:04d}" for i in range(args.robots)]
     watched = ids[:min(args.watch, 10)] if web is not None else []
     browser = FleetWatcher(url, "bench", password, "fleet-000") if watched else None
+    commits = CommitWatcher(str(db), watched) if watched else None
     size = math.ceil(len(ids) / args.processes)
     groups = [ids[i:i + size] for i in range(0, len(ids), size)]
     robots = []
@@ -570,6 +641,7 @@ def main() -> int:
         stored_total = now_total
     drained = time.monotonic() - drain_start
     seen = browser.seen() if browser is not None else []
+    committed = commits.close() if commits is not None else None
     loads = browser.load_times() if browser is not None else []
     if browser is not None:
         browser.close()
@@ -579,7 +651,9 @@ def main() -> int:
         robot_count = int(total.group(1)) if total else 0
         told = [line for line in web.http.get("/metrics").text.splitlines()
                 if line.startswith(("blackbox_station_samples_dropped_total",
-                                    "blackbox_station_ingest_behind"))]
+                                    "blackbox_station_ingest_behind",
+                                    "blackbox_station_store_dropped",
+                                    "blackbox_station_store_coalesced"))]
     station.send_signal(signal.SIGINT)
     try:
         station.wait(timeout=60)
@@ -644,7 +718,7 @@ def main() -> int:
         print(f"fleet page in Chromium after the run ({args.robots} robots), navigation to "
               f"load: {', '.join(f'{t * 1000:.0f}' for t in loads)} ms")
     if watched:
-        print(colour_changes(published, seen))
+        print(colour_changes(published, seen, committed))
     if args.keep:
         print("station database:", db)
     return 0
