@@ -403,15 +403,18 @@ class CommitWatcher:
         return self.seen
 
 
-def delays_after(published: dict[str, Any], seen: list[tuple[str, str, float]]
-                 ) -> tuple[list[float], int]:
-    """Seconds from each fault start or end of a watched robot to the first status of
-    its row in ``seen`` that shows it (before its next change); and how many never did."""
+def delays_after(published: dict[str, Any], seen: list[tuple[str, str, float]],
+                 faulty: bool) -> tuple[list[float], int]:
+    """Seconds from each fault start (``faulty``) or end of a watched robot to the first
+    status of its row in ``seen`` that shows it (before its next change), and how many
+    never did."""
     delays: list[float] = []
     missed = 0
     for robot, p in published.items():
         changes = p.get("transitions") or []
-        for k, (t, faulty) in enumerate(changes):
+        for k, (t, now_faulty) in enumerate(changes):
+            if now_faulty != faulty:
+                continue
             end = changes[k + 1][0] if k + 1 < len(changes) else float("inf")
             shown = [at for r, status, at in seen if r == robot and t <= at < end
                      and (status != "OPERATIONAL") == faulty]
@@ -426,25 +429,29 @@ def _p99(delays: list[float]) -> float:
     return delays[min(len(delays) - 1, math.ceil(0.99 * len(delays)) - 1)]
 
 
+def _figures(delays: list[float], missed: int) -> str:
+    if not delays:
+        return f"nothing seen ({missed} missed)"
+    return (f"{len(delays)} changes, median {statistics.median(delays):.2f} s, p99 "
+            f"{_p99(delays):.2f} s, max {delays[-1]:.2f} s; not shown before the next "
+            f"change: {missed}")
+
+
 def colour_changes(published: dict[str, Any], seen: list[tuple[str, str, float]],
                    committed: list[tuple[str, str, float]] | None = None) -> str:
-    """Fault (or its end) published by a watched robot -> its row's colour in Chromium,
-    and (``committed``) -> its derived status committed in the station's database."""
-    delays, missed = delays_after(published, seen)
-    if not delays:
-        return f"fault -> colour change in Chromium: nothing seen ({missed} changes missed)"
-    text = (f"fault -> colour change in Chromium ({len(delays)} changes of "
-            f"{len({r for r, *_ in seen})} watched robots): median "
-            f"{statistics.median(delays):.2f} s, p99 {_p99(delays):.2f} s, max "
-            f"{delays[-1]:.2f} s; not shown before the next change: {missed}")
+    """Fault published by a watched robot -> its row's colour in Chromium (and, with
+    ``committed``, -> its status committed in the station's database); fault end -> the
+    row green again, separately: the robot itself reports OPERATIONAL only after
+    ``clear_after`` (3) good observations in a row, 2 s after the fault ends at 1 Hz
+    (``blackbox.health.status``), so that is a floor the station cannot cut."""
+    lines = [f"fault -> colour change in Chromium ({len({r for r, *_ in seen})} watched "
+             f"robots): {_figures(*delays_after(published, seen, True))}"]
     if committed is not None:
-        stored, unseen = delays_after(published, committed)
-        if stored:
-            text += (f"\nfault -> status committed in the database (seen every 50 ms): "
-                     f"{len(stored)} changes, median {statistics.median(stored):.2f} s, "
-                     f"p99 {_p99(stored):.2f} s, max {stored[-1]:.2f} s; not committed "
-                     f"before the next change: {unseen}")
-    return text
+        lines.append("fault -> status committed in the database (looked at every 50 ms): "
+                     + _figures(*delays_after(published, committed, True)))
+    lines.append("fault end -> green again in Chromium (the robot reports it 2 s after, "
+                 "by its hysteresis): " + _figures(*delays_after(published, seen, False)))
+    return "\n".join(lines)
 
 
 def main() -> int:
