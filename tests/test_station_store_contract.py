@@ -9,8 +9,11 @@ from __future__ import annotations
 
 import io
 import json
+import sqlite3
+import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -23,6 +26,7 @@ from blackbox.station.enrolment import RobotKeys
 from blackbox.station.records import Point, StationStoreError, UnknownRobot
 from blackbox.station.store import StationStore
 from blackbox.station.tokens import ApiTokens
+from conftest import wait_until
 from postgres_support import postgres, postgres_url  # noqa: F401  (fixtures)
 
 T0 = 1_800_000_000.0
@@ -394,4 +398,55 @@ def test_writes_wait_in_a_bounded_queue_until_a_flush(location: str, clock: Cloc
         assert points[-1] == Point(T0 + 29, 29.0)  # the newest point wins
         assert len(points) + store.coalesced_points + store.dropped_points == 30
     finally:
+        store.close()
+
+
+class TableLock:
+    """Another client holding the samples table, so that the store's next flush waits on
+    the database (as it does on a slow or loaded server) until :meth:`release`."""
+
+    def __init__(self, location: str) -> None:
+        self.postgres = location.startswith("postgresql")
+        if self.postgres:
+            import psycopg
+
+            self.db: Any = psycopg.connect(location, autocommit=True)
+            self.db.execute("BEGIN")
+            self.db.execute("LOCK TABLE samples IN EXCLUSIVE MODE")
+        else:
+            self.db = sqlite3.connect(location, isolation_level=None)
+            self.db.execute("BEGIN IMMEDIATE")
+
+    def release(self) -> None:
+        self.db.execute("ROLLBACK")
+        self.db.close()
+
+
+def test_queueing_never_waits_on_a_flush_that_waits_on_the_database(location: str,
+                                                                    clock: Clock) -> None:
+    store = StationStore(location, clock=clock)
+    lock: TableLock | None = None
+    try:
+        robot_with_a_failing_camera(store)
+        store.start_writer()
+        lock = TableLock(location)
+        store.put_value(RID, 10, T0 + 1, 1.0)
+        store.flush_soon()  # the writer takes the queue and waits on the lock
+        wait_until(lambda: store.pending == 0, "the writer took the queue")
+        started = time.monotonic()
+        for i in range(2, 1002):  # meanwhile the follower keeps queueing
+            store.put_value(RID, 10, T0 + i, float(i))
+        queued_in = time.monotonic() - started
+        assert store.pending > 0 and queued_in < 1.0, queued_in
+        assert len(store.series(RID, 10, since=T0)) == 0  # nothing committed yet
+        lock.release()
+        lock = None
+        store.flush_soon()
+        wait_until(lambda: len(store.series(RID, 10, since=T0, max_points=5000)) == 1001,
+                   "all 1,001 values committed once the database let go",
+                   timeout=30.0, state=lambda: (store.pending, store.problems()))
+        assert store.coalesced_points == store.dropped_points == 0
+    finally:
+        if lock is not None:
+            lock.release()
         store.close()
