@@ -660,7 +660,8 @@ def main() -> int:
                 if line.startswith(("blackbox_station_samples_dropped_total",
                                     "blackbox_station_ingest_behind",
                                     "blackbox_station_store_dropped",
-                                    "blackbox_station_store_coalesced"))]
+                                    "blackbox_station_store_coalesced",
+                                    "blackbox_station_values_coalesced"))]
     station.send_signal(signal.SIGINT)
     try:
         station.wait(timeout=60)

@@ -69,6 +69,7 @@ from blackbox.health.types import (
 from blackbox.record.store import KINDS, LogEntry
 from blackbox.station.claims import BootWatch
 from blackbox.station.clocks import ClockWatch
+from blackbox.station.coalesce import newest_per_characteristic
 from blackbox.station.delivery import DeliveryWatch
 from blackbox.station.enrolment import RobotKeys
 from blackbox.station.sequence import EventSequences, Gap
@@ -129,6 +130,10 @@ TAKE = 2048
 """Samples taken from one reader per poll; a full take means more were waiting. 512 held
 a station that polls every :data:`POLL_EVERY` s under 10,240 values a second, less than
 1,000 robots send."""
+VALUES_TOPIC = "C_Monitored_Characteristic"
+COALESCE_TAKE = 200_000
+"""Values taken at most at once from a backlog to be coalesced (the bus's queue holds
+100,000 per topic)."""
 POLL_EVERY = 0.05
 """Seconds between the starts of two polls at least. Samples arriving one by one made a
 poll, a commit and a walk over every robot's event numbers per sample (a hundred a
@@ -482,14 +487,22 @@ class StationFollower:
             except Exception as exc:
                 self._reject(name, f"cannot read: {exc}")
                 continue
+            coalesce = False
             if len(samples) >= TAKE:
                 behind.add(name)
+                if name == VALUES_TOPIC and self.delivery.behind:
+                    samples = self._backlog(reader, samples)
+                    coalesce = True
+            admitted = []
             for sample in samples:
                 info = getattr(sample, "sample_info", None)
                 if info is not None and not info.valid_data:
                     continue
                 if self._admit(name, reader, sample, now):
-                    taken.append((name, sample))
+                    admitted.append(sample)
+            if coalesce:
+                admitted = self._coalesce(admitted)
+            taken.extend((name, sample) for sample in admitted)
         taken.extend(self.gate.released(now))
         self.ingest(taken, now, behind=behind)
         self._drop_foreign_replies()
@@ -498,6 +511,28 @@ class StationFollower:
         self.delivery.check(self._readers, now)
         self.delivery.took(bool(behind), now, time.monotonic() - started)
         return len(taken)
+
+    def _backlog(self, reader: Any, samples: list[Any]) -> list[Any]:
+        """``samples`` and the rest of the values reader's backlog (to be coalesced)."""
+        try:
+            return [*samples, *reader.take(N=COALESCE_TAKE)]
+        except Exception as exc:
+            self._reject(VALUES_TOPIC, f"cannot read: {exc}")
+            return samples
+
+    def _coalesce(self, values: list[Any]) -> list[Any]:
+        """The newest of each characteristic of admitted ``values`` (the station has been
+        behind for a while: see :mod:`blackbox.station.coalesce`); the older ones are
+        counted and reported."""
+        kept, left_out = newest_per_characteristic(values)
+        if left_out:
+            self.delivery.coalesced += left_out
+            self.store.report_problem(
+                "coalesced", f"the station is behind: {self.delivery.coalesced} "
+                             "characteristic values left out so far for a newer value of "
+                             "the same characteristic (charts thinned; events and statuses "
+                             "are all kept)")
+        return kept
 
     def ingest(self, taken: Sequence[tuple[str, Any]], now: float, *,
                behind: Collection[str] = ()) -> None:

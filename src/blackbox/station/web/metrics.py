@@ -63,6 +63,9 @@ def station_metrics(store: StationStore, alerts: AlertService | None,
                 "1 while the station cannot keep up with the fleet", int(delivery.behind))
         out.add("blackbox_station_ingest_behind_seconds_total", "counter",
                 "Seconds the station spent with samples waiting", delivery.behind_total)
+        out.add("blackbox_station_values_coalesced_total", "counter",
+                "Characteristic values left out while the station was behind, each for a "
+                "newer value of its characteristic", delivery.coalesced)
     if alerts is not None:
         engine = alerts.engine
         out.family("blackbox_station_alerts", "gauge", "Alerts by state")
