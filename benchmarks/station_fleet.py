@@ -235,6 +235,16 @@ def free_port() -> int:
         return int(sock.getsockname()[1])
 
 
+def flush_figures(web: WebClient) -> dict[str, float]:
+    """The store's last flush as ``/metrics`` says: commit lag, seconds, rows."""
+    out: dict[str, float] = {}
+    for line in web.http.get("/metrics").text.splitlines():
+        for name in ("commit_lag_seconds", "flush_seconds", "flush_rows"):
+            if line.startswith(f"blackbox_station_store_{name} "):
+                out[name] = float(line.split()[-1])
+    return out
+
+
 def station_behind(web: WebClient) -> bool:
     """Whether the station says it has not caught up with what it was sent (``/metrics``)."""
     for line in web.http.get("/metrics").text.splitlines():
@@ -606,6 +616,7 @@ def main() -> int:
     page_sizes: list[int] = []
     page_errors = 0
     next_page = t0 + 10.0
+    flushes: list[dict[str, float]] = []
     # Zenoh robots close 250 sinks each after their run (50 ms each): not part of the run
     run_end = t0 + args.duration + 2.0 if robot_routers else math.inf
     while any(c.poll() is None for c in robots) and time.monotonic() < run_end:
@@ -614,6 +625,8 @@ def main() -> int:
         else:
             time.sleep(1.0)
         rss.append(proc.memory_info().rss)
+        if web is not None:
+            flushes.append(flush_figures(web))
         if web is not None and time.monotonic() >= next_page:
             next_page += 10.0
             seconds, status, size = web.time_get("/")
@@ -720,6 +733,15 @@ def main() -> int:
         print(f"fleet page after the run: {fleet_page[0] * 1000:.1f} ms, status "
               f"{fleet_page[1]}, robots on the station: {robot_count}")
         print("what the station told (/metrics):", "; ".join(told))
+        lags = sorted(f.get("commit_lag_seconds", 0.0) for f in flushes)
+        secs = sorted(f.get("flush_seconds", 0.0) for f in flushes)
+        rows_ = sorted(f.get("flush_rows", 0.0) for f in flushes)
+        if lags:
+            print(f"store's last flush, looked at every second (n={len(lags)}): commit lag "
+                  f"median {statistics.median(lags):.2f} s, max {lags[-1]:.2f} s; flush "
+                  f"median {statistics.median(secs) * 1000:.0f} ms, max "
+                  f"{secs[-1] * 1000:.0f} ms; rows median {statistics.median(rows_):.0f}, "
+                  f"max {rows_[-1]:.0f}")
     print(f"stored counted {drained:.0f} s after the robots stopped (until it stopped "
           "growing)")
     if loads:

@@ -30,6 +30,7 @@ from blackbox.station.records import (
     RobotSummary,
 )
 from blackbox.station.status_history import StatusTrack
+from blackbox.station.writequeue import FlushTimes
 
 
 class FleetWrites(Protocol):
@@ -94,6 +95,9 @@ class FleetWrites(Protocol):
 
     @property
     def coalesced_points(self) -> int: ...
+
+    @property
+    def flush_times(self) -> FlushTimes: ...
 
     @property
     def dropped_changes(self) -> int: ...

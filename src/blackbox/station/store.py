@@ -86,7 +86,7 @@ from blackbox.station.status import robot_status
 from blackbox.station.status_batch import EntityStatusBatch, KeptStatuses
 from blackbox.station.status_history import StatusTrack
 from blackbox.station.wording import explain
-from blackbox.station.writequeue import Op, PendingWrite, WriteQueue
+from blackbox.station.writequeue import FlushTimes, Op, PendingWrite, WriteQueue
 
 __all__ = [
     "APPLICATION", "DEFAULT_SERIES_RETENTION", "DEFAULT_STALE_AFTER", "EVENT_KINDS",
@@ -366,6 +366,11 @@ class StationStore:
     @property
     def dropped_points(self) -> int:
         return self._writes.dropped_points
+
+    @property
+    def flush_times(self) -> FlushTimes:
+        """How long the last committed flush took and how long its changes waited."""
+        return self._writes.times
 
     @property
     def coalesced_points(self) -> int:

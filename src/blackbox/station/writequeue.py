@@ -69,6 +69,22 @@ class Committed:
     topics: frozenset[str]
 
 
+@dataclass(slots=True)
+class FlushTimes:
+    """How long changes waited to be committed, as of the last flush that wrote any: the
+    station's own share of a fault -> colour change (``/metrics``)."""
+
+    lag: float = 0.0
+    """Seconds from the oldest change of the last committed batch being queued to its
+    commit."""
+    lag_max: float = 0.0
+    """The largest :attr:`lag` since the station started."""
+    seconds: float = 0.0
+    """Seconds the last committed flush spent writing (its transaction)."""
+    rows: int = 0
+    """Changes the last committed flush wrote."""
+
+
 class WriteQueue:
     """Queued changes and the one write connection of a store (thread-safe).
 
@@ -90,6 +106,9 @@ class WriteQueue:
         self._dropped_changes = 0
         self._last_failed = -math.inf
         self._last_change: PendingWrite | None = None
+        self._oldest = 0.0
+        """When the oldest change still queued was queued (``monotonic``)."""
+        self.times = FlushTimes()
         self._db: Connection | None = database.connect()
         self.closed = False
 
@@ -136,6 +155,8 @@ class WriteQueue:
 
     def add(self, op: Op, robot: int | None, topic: str, droppable: bool = False) -> None:
         with self.lock:
+            if not self._pending:
+                self._oldest = time.monotonic()
             self._last_change = PendingWrite(op, robot, topic, droppable)
             self._pending.append(self._last_change)
             if len(self._pending) > self.max_pending:
@@ -169,6 +190,8 @@ class WriteQueue:
         other columns); rows of one statement keep their order, and a change queued with
         :meth:`add` applies after every row queued before it."""
         with self.lock:
+            if not self._pending:
+                self._oldest = time.monotonic()
             row = PendingWrite(None, robot, topic, droppable, sql, args, series)
             self._pending.append(row)
             if len(self._pending) > self.max_pending:
@@ -239,10 +262,12 @@ class WriteQueue:
                 if not force and now - self._last_failed < RETRY_AFTER:
                     return None
                 batch = list(self._pending)
+                oldest = self._oldest
                 self._pending.clear()
                 self._last_change = None  # taken: nothing may be added to it any more
                 if taken is not None:
                     taken()
+            started = time.monotonic()
             try:
                 db = self.connection()
                 try:
@@ -257,6 +282,7 @@ class WriteQueue:
             except BaseException as exc:
                 with self.lock:  # back to the front of the queue, before anything newer
                     self._pending.extendleft(reversed(batch))
+                    self._oldest = oldest
                     if len(self._pending) > self.max_pending:
                         self._shed()
                 if not isinstance(exc, DatabaseError):
@@ -267,6 +293,10 @@ class WriteQueue:
                                               f"{exc} ({len(batch)} changes kept in memory, "
                                               "retried)")
                 return None
+            done = time.monotonic()
+            self.times.seconds, self.times.rows = done - started, len(batch)
+            self.times.lag = done - oldest
+            self.times.lag_max = max(self.times.lag_max, self.times.lag)
             if self._last_failed > -math.inf:
                 self._last_failed = -math.inf
                 self.problems.clear("store")

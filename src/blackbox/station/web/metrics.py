@@ -47,6 +47,16 @@ def station_metrics(store: StationStore, alerts: AlertService | None,
     out.add("blackbox_station_store_dropped_points_total", "counter",
             "Chart points dropped while the database could not be written",
             store.dropped_points)
+    times = store.flush_times
+    out.add("blackbox_station_store_commit_lag_seconds", "gauge",
+            "Seconds the oldest change of the last committed batch waited to be committed",
+            times.lag)
+    out.add("blackbox_station_store_commit_lag_max_seconds", "gauge",
+            "The largest commit lag since the station started", times.lag_max)
+    out.add("blackbox_station_store_flush_seconds", "gauge",
+            "Seconds the last committed flush spent writing", times.seconds)
+    out.add("blackbox_station_store_flush_rows", "gauge",
+            "Changes the last committed flush wrote", times.rows)
     out.add("blackbox_station_store_coalesced_points_total", "counter",
             "Chart points replaced by a newer one of their characteristic while the write "
             "queue was full", store.coalesced_points)
