@@ -450,3 +450,19 @@ def test_queueing_never_waits_on_a_flush_that_waits_on_the_database(location: st
         if lock is not None:
             lock.release()
         store.close()
+
+
+def test_a_flush_says_how_long_its_changes_waited_to_be_committed(location: str,
+                                                                   clock: Clock) -> None:
+    store = StationStore(location, clock=clock)
+    try:
+        store.put_value(RID, 10, T0, 1.0)
+        time.sleep(0.2)  # the change waits in the queue: part of its commit lag
+        store.put_value(RID, 10, T0 + 1, 2.0)
+        assert store.flush()
+        times = store.flush_times
+        assert times.rows == 3  # two chart points and the newest current value
+        assert times.lag >= 0.2 + times.seconds - 0.01 and times.seconds > 0
+        assert times.lag_max == times.lag
+    finally:
+        store.close()
