@@ -259,6 +259,29 @@ class _PostgresConnection:
         self.raw.close()
 
 
+def append_rows(db: Connection, table: str, rows: Sequence[Sequence[Any]]) -> None:
+    """Append ``rows`` (every column, in the table's order) to ``table`` (a name from the
+    code, never from input): PostgreSQL's ``COPY``, else one ``executemany``. Why: chart
+    points are most of what a fleet writes (five of six rows at 1,000 robots), and an
+    ``INSERT`` per row through a pipeline cost the server and the driver several times
+    what ``COPY`` does. Not inside :func:`write_batch` (COPY leaves no pipeline open)."""
+    if not rows:
+        return
+    if not isinstance(db, _PostgresConnection):
+        marks = ", ".join("?" for _ in rows[0])
+        db.executemany(f"INSERT INTO {table} VALUES ({marks})", rows)
+        return
+    unique, error = db._errors()
+    try:
+        with db.raw.cursor() as cur, cur.copy(f"COPY {table} FROM STDIN") as copy:
+            for row in rows:
+                copy.write_row(row)
+    except unique as exc:
+        raise DuplicateRow(_first_line(exc)) from None
+    except error as exc:
+        raise DatabaseError(_first_line(exc)) from None
+
+
 @contextlib.contextmanager
 def write_batch(db: Connection) -> Iterator[None]:
     """Statements sent inside are pipelined where the engine allows it (PostgreSQL: psycopg's

@@ -595,9 +595,9 @@ class StationStore:
             else:
                 self._latest[key] = self._writes.add_row(sql, args, resource_id,
                                                          "characteristics")
-        self._writes.add_row("INSERT INTO samples VALUES (?, ?, ?, ?)",
-                             (resource_id, instance_id, t, value), resource_id, "",
-                             droppable=True, series=(resource_id, instance_id))
+        self._writes.add_row("", (resource_id, instance_id, t, value), resource_id, "",
+                             droppable=True, series=(resource_id, instance_id),
+                             append_to="samples")
 
     def _upsert_characteristic(self, resource_id: int, instance_id: int,
                                values: dict[str, Any], only_newer: bool = False) -> None:

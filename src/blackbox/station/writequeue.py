@@ -29,7 +29,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from blackbox.station.database import Connection, Database, DatabaseError, write_batch
+from blackbox.station.database import (
+    Connection,
+    Database,
+    DatabaseError,
+    append_rows,
+    write_batch,
+)
 from blackbox.station.problems import ProblemLog
 
 Op = Callable[[Connection], None]
@@ -52,6 +58,10 @@ class PendingWrite:
     droppable: bool = False
     sql: str = ""
     args: tuple[Any, ...] = ()
+    append_to: str = ""
+    """A row of every column of this table (``args``), appended whatever else the batch
+    does, so it may be written before the rest (:func:`~blackbox.station.database.
+    append_rows`: PostgreSQL's COPY); ``sql`` is then unused."""
     series: tuple[int, int] | None = None
     """For a chart point: its characteristic (robot, instance), whose points may be
     coalesced when the queue is full (:meth:`WriteQueue._shed`)."""
@@ -178,8 +188,8 @@ class WriteQueue:
         return True
 
     def add_row(self, sql: str, args: tuple[Any, ...], robot: int | None, topic: str,
-                droppable: bool = False,
-                series: tuple[int, int] | None = None) -> PendingWrite:
+                droppable: bool = False, series: tuple[int, int] | None = None,
+                append_to: str = "") -> PendingWrite:
         """One row of ``sql``, sent in one ``executemany`` with every other row of the same
         statement queued since the last :meth:`add`ed change. Why: one statement per
         characteristic value was one round trip per value to a PostgreSQL server (about 580
@@ -192,7 +202,7 @@ class WriteQueue:
         with self.lock:
             if not self._pending:
                 self._oldest = time.monotonic()
-            row = PendingWrite(None, robot, topic, droppable, sql, args, series)
+            row = PendingWrite(None, robot, topic, droppable, sql, args, append_to, series)
             self._pending.append(row)
             if len(self._pending) > self.max_pending:
                 self._shed()
@@ -271,9 +281,11 @@ class WriteQueue:
             try:
                 db = self.connection()
                 try:
-                    with write_batch(db):  # BEGIN, the batch and COMMIT in one pipeline
-                        db.begin()
-                        _apply(db, batch)
+                    db.begin()
+                    appended = _append(db, batch)  # by COPY, before the rest
+                    with write_batch(db):  # the rest and COMMIT in one pipeline
+                        _apply(db, batch if not appended else
+                               [i for i in batch if not i.append_to])
                         db.commit()
                 except BaseException:
                     with contextlib.suppress(DatabaseError):
@@ -325,6 +337,18 @@ class WriteQueue:
                 with contextlib.suppress(Exception):
                     self._db.close()
                 self._db = None
+
+
+def _append(db: Connection, batch: list[PendingWrite]) -> bool:
+    """Write the rows of ``batch`` that are appends (:attr:`PendingWrite.append_to`), a
+    table at a time; whether there were any."""
+    tables: dict[str, list[tuple[Any, ...]]] = {}
+    for item in batch:
+        if item.append_to:
+            tables.setdefault(item.append_to, []).append(item.args)
+    for table, rows in tables.items():
+        append_rows(db, table, rows)
+    return bool(tables)
 
 
 def _apply(db: Connection, batch: list[PendingWrite]) -> None:
