@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import sqlite3
 import time
 from collections.abc import Iterator
@@ -466,3 +467,24 @@ def test_a_flush_says_how_long_its_changes_waited_to_be_committed(location: str,
         assert times.lag_max == times.lag
     finally:
         store.close()
+
+
+def test_many_rows_of_one_upsert_end_as_they_would_one_by_one(location: str) -> None:
+    """A flush sends rows of one statement together (on PostgreSQL as statements of many
+    rows); rows repeating a key, older ones after newer, end as applied one by one."""
+    db = open_database(location).connect()
+    try:
+        db.execute("CREATE TABLE latest (k INTEGER PRIMARY KEY, v REAL, tm REAL)")
+        rows = [(i % 700, float(i), float(i)) for i in range(2500)]  # keys repeat
+        rows += [(k, -1.0, 0.0) for k in range(0, 700, 7)]  # older: changes nothing
+        db.executemany("INSERT INTO latest (k, v, tm) VALUES (?, ?, ?) ON CONFLICT (k) DO "
+                       "UPDATE SET v = excluded.v, tm = excluded.tm "
+                       "WHERE latest.tm <= excluded.tm", rows)
+        expected: dict[int, float] = {}
+        for k, v, _ in rows:
+            if v >= expected.get(k, -math.inf):
+                expected[k] = v
+        stored = dict(db.execute("SELECT k, v FROM latest").fetchall())
+        assert stored == expected and len(stored) == 700
+    finally:
+        db.close()
