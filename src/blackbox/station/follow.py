@@ -1130,11 +1130,17 @@ class StationFollower:
                 robot.backfill_since = since
                 robot.backfill_due = [now, now + BACKFILL_REPEAT]
             while robot.backfill_due and robot.backfill_due[0] <= now:
+                if self._backfills.jobs.full():
+                    # try again on a later poll; and no other robot either: a fleet new to
+                    # the station (1,000 robots, two jobs each) filled the lane for
+                    # minutes, and trying each robot at every poll was a tenth of the
+                    # follower's work at 500 robots
+                    return
                 try:
                     self._backfills.jobs.put_nowait(
                         self._backfill_job(robot, robot.backfill_since))
                 except queue.Full:
-                    break  # try again on a later poll
+                    return
                 robot.backfill_due.pop(0)
 
     def _backfill_job(self, robot: _Robot, since: float) -> Callable[[], None]:
