@@ -235,6 +235,16 @@ def free_port() -> int:
         return int(sock.getsockname()[1])
 
 
+def flush_figures(web: WebClient) -> dict[str, float]:
+    """The store's last flush as ``/metrics`` says: commit lag, seconds, rows."""
+    out: dict[str, float] = {}
+    for line in web.http.get("/metrics").text.splitlines():
+        for name in ("commit_lag_seconds", "flush_seconds", "flush_rows"):
+            if line.startswith(f"blackbox_station_store_{name} "):
+                out[name] = float(line.split()[-1])
+    return out
+
+
 def station_behind(web: WebClient) -> bool:
     """Whether the station says it has not caught up with what it was sent (``/metrics``)."""
     for line in web.http.get("/metrics").text.splitlines():
@@ -353,13 +363,68 @@ class FleetWatcher:
         self._pw.stop()
 
 
-def colour_changes(published: dict[str, Any], seen: list[tuple[str, str, float]]) -> str:
-    """Fault (or its end) published by a watched robot -> its row's colour in Chromium."""
+class CommitWatcher:
+    """Looks every ``every`` s at the watched robots' derived status changes in the
+    station's database (``status_changes``, the robot's own row): when each became
+    visible, committed. Why: it splits a fault -> colour change into the station's
+    ingest and write (robot -> committed) and the page's part (committed -> browser)."""
+
+    def __init__(self, db: str, robots: list[str], every: float = 0.05) -> None:
+        from blackbox.health.ids import robot_resource_id
+
+        self.db = db
+        self.every = every
+        self.names = {robot_resource_id(r): r for r in robots}
+        self.seen: list[tuple[str, str, float]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        postgres = self.db.startswith(("postgresql://", "postgres://"))
+        mark = "%s" if postgres else "?"
+        ids = ", ".join(str(i) for i in self.names)
+        sql = (f"SELECT id, resource_id, status FROM status_changes WHERE instance_id = -1 "
+               f"AND resource_id IN ({ids}) AND id > {mark} ORDER BY id")
+        last = 0
+        con: Any = None
+        while not self._stop.wait(self.every):
+            try:
+                if con is None:
+                    if postgres:
+                        import psycopg
+
+                        con = psycopg.connect(self.db, autocommit=True)
+                    else:
+                        con = sqlite3.connect(self.db, timeout=5.0)
+                rows = con.execute(sql, (last,)).fetchall()
+            except Exception:  # the station has not made its tables yet
+                continue
+            now = time.time()
+            for row_id, rid, status in rows:
+                last = max(last, int(row_id))
+                self.seen.append((self.names[int(rid)], str(status), now))
+        if con is not None:
+            con.close()
+
+    def close(self) -> list[tuple[str, str, float]]:
+        self._stop.set()
+        self._thread.join(timeout=10)
+        return self.seen
+
+
+def delays_after(published: dict[str, Any], seen: list[tuple[str, str, float]],
+                 faulty: bool) -> tuple[list[float], int]:
+    """Seconds from each fault start (``faulty``) or end of a watched robot to the first
+    status of its row in ``seen`` that shows it (before its next change), and how many
+    never did."""
     delays: list[float] = []
     missed = 0
     for robot, p in published.items():
         changes = p.get("transitions") or []
-        for k, (t, faulty) in enumerate(changes):
+        for k, (t, now_faulty) in enumerate(changes):
+            if now_faulty != faulty:
+                continue
             end = changes[k + 1][0] if k + 1 < len(changes) else float("inf")
             shown = [at for r, status, at in seen if r == robot and t <= at < end
                      and (status != "OPERATIONAL") == faulty]
@@ -367,14 +432,36 @@ def colour_changes(published: dict[str, Any], seen: list[tuple[str, str, float]]
                 delays.append(shown[0] - t)
             else:
                 missed += 1
+    return sorted(delays), missed
+
+
+def _p99(delays: list[float]) -> float:
+    return delays[min(len(delays) - 1, math.ceil(0.99 * len(delays)) - 1)]
+
+
+def _figures(delays: list[float], missed: int) -> str:
     if not delays:
-        return f"fault -> colour change in Chromium: nothing seen ({missed} changes missed)"
-    delays.sort()
-    p99 = delays[min(len(delays) - 1, math.ceil(0.99 * len(delays)) - 1)]
-    return (f"fault -> colour change in Chromium ({len(delays)} changes of "
-            f"{len({r for r, *_ in seen})} watched robots): median "
-            f"{statistics.median(delays):.2f} s, p99 {p99:.2f} s, max {delays[-1]:.2f} s; "
-            f"not shown before the next change: {missed}")
+        return f"nothing seen ({missed} missed)"
+    return (f"{len(delays)} changes, median {statistics.median(delays):.2f} s, p99 "
+            f"{_p99(delays):.2f} s, max {delays[-1]:.2f} s; not shown before the next "
+            f"change: {missed}")
+
+
+def colour_changes(published: dict[str, Any], seen: list[tuple[str, str, float]],
+                   committed: list[tuple[str, str, float]] | None = None) -> str:
+    """Fault published by a watched robot -> its row's colour in Chromium (and, with
+    ``committed``, -> its status committed in the station's database); fault end -> the
+    row green again, separately: the robot itself reports OPERATIONAL only after
+    ``clear_after`` (3) good observations in a row, 2 s after the fault ends at 1 Hz
+    (``blackbox.health.status``), so that is a floor the station cannot cut."""
+    lines = [f"fault -> colour change in Chromium ({len({r for r, *_ in seen})} watched "
+             f"robots): {_figures(*delays_after(published, seen, True))}"]
+    if committed is not None:
+        lines.append("fault -> status committed in the database (looked at every 50 ms): "
+                     + _figures(*delays_after(published, committed, True)))
+    lines.append("fault end -> green again in Chromium (the robot reports it 2 s after, "
+                 "by its hysteresis): " + _figures(*delays_after(published, seen, False)))
+    return "\n".join(lines)
 
 
 def main() -> int:
@@ -475,6 +562,7 @@ def main() -> int:
     ids = [f"fleet-{i:04d}" for i in range(args.robots)]
     watched = ids[:min(args.watch, 10)] if web is not None else []
     browser = FleetWatcher(url, "bench", password, "fleet-000") if watched else None
+    commits = CommitWatcher(str(db), watched) if watched else None
     size = math.ceil(len(ids) / args.processes)
     groups = [ids[i:i + size] for i in range(0, len(ids), size)]
     robots = []
@@ -528,6 +616,7 @@ def main() -> int:
     page_sizes: list[int] = []
     page_errors = 0
     next_page = t0 + 10.0
+    flushes: list[dict[str, float]] = []
     # Zenoh robots close 250 sinks each after their run (50 ms each): not part of the run
     run_end = t0 + args.duration + 2.0 if robot_routers else math.inf
     while any(c.poll() is None for c in robots) and time.monotonic() < run_end:
@@ -536,6 +625,8 @@ def main() -> int:
         else:
             time.sleep(1.0)
         rss.append(proc.memory_info().rss)
+        if web is not None:
+            flushes.append(flush_figures(web))
         if web is not None and time.monotonic() >= next_page:
             next_page += 10.0
             seconds, status, size = web.time_get("/")
@@ -570,6 +661,7 @@ def main() -> int:
         stored_total = now_total
     drained = time.monotonic() - drain_start
     seen = browser.seen() if browser is not None else []
+    committed = commits.close() if commits is not None else None
     loads = browser.load_times() if browser is not None else []
     if browser is not None:
         browser.close()
@@ -579,7 +671,10 @@ def main() -> int:
         robot_count = int(total.group(1)) if total else 0
         told = [line for line in web.http.get("/metrics").text.splitlines()
                 if line.startswith(("blackbox_station_samples_dropped_total",
-                                    "blackbox_station_ingest_behind"))]
+                                    "blackbox_station_ingest_behind",
+                                    "blackbox_station_store_dropped",
+                                    "blackbox_station_store_coalesced",
+                                    "blackbox_station_values_coalesced"))]
     station.send_signal(signal.SIGINT)
     try:
         station.wait(timeout=60)
@@ -638,13 +733,22 @@ def main() -> int:
         print(f"fleet page after the run: {fleet_page[0] * 1000:.1f} ms, status "
               f"{fleet_page[1]}, robots on the station: {robot_count}")
         print("what the station told (/metrics):", "; ".join(told))
+        lags = sorted(f.get("commit_lag_seconds", 0.0) for f in flushes)
+        secs = sorted(f.get("flush_seconds", 0.0) for f in flushes)
+        rows_ = sorted(f.get("flush_rows", 0.0) for f in flushes)
+        if lags:
+            print(f"store's last flush, looked at every second (n={len(lags)}): commit lag "
+                  f"median {statistics.median(lags):.2f} s, max {lags[-1]:.2f} s; flush "
+                  f"median {statistics.median(secs) * 1000:.0f} ms, max "
+                  f"{secs[-1] * 1000:.0f} ms; rows median {statistics.median(rows_):.0f}, "
+                  f"max {rows_[-1]:.0f}")
     print(f"stored counted {drained:.0f} s after the robots stopped (until it stopped "
           "growing)")
     if loads:
         print(f"fleet page in Chromium after the run ({args.robots} robots), navigation to "
               f"load: {', '.join(f'{t * 1000:.0f}' for t in loads)} ms")
     if watched:
-        print(colour_changes(published, seen))
+        print(colour_changes(published, seen, committed))
     if args.keep:
         print("station database:", db)
     return 0

@@ -80,3 +80,25 @@ def test_an_older_database_gains_the_history_when_opened(tmp_path: Path) -> None
     assert db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0] \
         == str(SCHEMA_VERSION) == "3"
     db.close()
+
+
+def test_the_robots_status_derived_in_sql_is_the_badges_rule() -> None:
+    """The store keeps a robot's status history with ROBOT_STATUS_SQL (no read back);
+    it must give what robot_status gives the badge, for every mix of entity statuses."""
+    import itertools
+    import sqlite3
+
+    from blackbox.station.status import ROBOT_STATUS_SQL, robot_status
+
+    db = sqlite3.connect(":memory:")
+    db.execute("CREATE TABLE entities (resource_id INTEGER, instance_id INTEGER, status TEXT)")
+    names = ("OPERATIONAL", "DEGRADED", "NOT_OPERATIONAL", "UNKNOWN")
+    checked = 0
+    for size in range(4):
+        for statuses in itertools.combinations_with_replacement(names, size):
+            db.execute("DELETE FROM entities")
+            db.executemany("INSERT INTO entities VALUES (1, ?, ?)", enumerate(statuses))
+            derived = db.execute(ROBOT_STATUS_SQL, (1,)).fetchone()[0]
+            assert derived == robot_status(statuses, stale=False, online=True), statuses
+            checked += 1
+    assert checked == 35

@@ -370,16 +370,43 @@ def test_while_the_disk_stays_full_chart_points_go_first_and_events_are_kept(
     try:
         rid = robot(store, "alpha", {})
         FullDisk("page_limit", tmp_path).fill(store)
+        for i in range(600):  # one point each of 600 characteristics: nothing to coalesce
+            store.put_value(rid, 1000 + i, T0 + i, float(i))
+        for i in range(300):
+            store.add_event(rid, T0 + i, "exceedance", dedup=str(i), text="y" * 500)
+        assert not store.flush(force=True)
+        assert store.pending <= 1000
+        assert store.dropped_points > 0
+        assert store.coalesced_points == 0
+        assert any("dropped so far" in p.message for p in store.problems())
+        FullDisk("page_limit", tmp_path).free(store)
+        assert store.flush(force=True)
+        assert store.count_events(rid) == 300
+        assert len(store.characteristics(rid)) == 600  # every current value kept
+    finally:
+        store.close()
+
+
+def test_a_full_write_queue_coalesces_a_characteristics_points_the_newest_wins(
+        tmp_path: Path, clock: Clock) -> None:
+    store = StationStore.open(tmp_path / "s.db", clock=clock, max_pending=1000)
+    try:
+        rid = robot(store, "alpha", {})
+        FullDisk("page_limit", tmp_path).fill(store)
         for i in range(900):
             store.put_value(rid, 50, T0 + i, float(i))
         for i in range(300):
             store.add_event(rid, T0 + i, "exceedance", dedup=str(i), text="y" * 500)
         assert not store.flush(force=True)
         assert store.pending <= 1000
-        assert store.dropped_points > 0
-        assert any("chart points dropped" in p.message for p in store.problems())
+        assert store.coalesced_points > 0
+        assert store.dropped_points == 0
+        assert any("coalesced" in p.message for p in store.problems())
         FullDisk("page_limit", tmp_path).free(store)
         assert store.flush(force=True)
         assert store.count_events(rid) == 300
+        points = store.series(rid, 50, since=T0 - 1)
+        assert points[-1].value == 899.0  # the newest point of the characteristic
+        assert len(points) + store.coalesced_points == 900  # each point stored or counted
     finally:
         store.close()

@@ -9,8 +9,12 @@ from __future__ import annotations
 
 import io
 import json
+import math
+import sqlite3
+import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -20,9 +24,10 @@ from blackbox.station.auth import Auth, Role
 from blackbox.station.changes import Change
 from blackbox.station.database import open_database
 from blackbox.station.enrolment import RobotKeys
-from blackbox.station.records import StationStoreError, UnknownRobot
+from blackbox.station.records import Point, StationStoreError, UnknownRobot
 from blackbox.station.store import StationStore
 from blackbox.station.tokens import ApiTokens
+from conftest import wait_until
 from postgres_support import postgres, postgres_url  # noqa: F401  (fixtures)
 
 T0 = 1_800_000_000.0
@@ -382,13 +387,104 @@ def test_writes_wait_in_a_bounded_queue_until_a_flush(location: str, clock: Cloc
     try:
         robot_with_a_failing_camera(store)
         assert store.pending == 0
-        for i in range(30):  # chart points beyond the bound go first, counted
+        for i in range(30):  # chart points beyond the bound go first: coalesced, counted
             store.put_value(RID, 10, T0 + i, float(i))
         store.add_event(RID, T0, "failure", dedup="id:b-1")
-        assert 0 < store.pending <= 20 and store.dropped_points > 0
-        assert any("chart points dropped" in p.message for p in store.problems())
+        assert 0 < store.pending <= 20 and store.coalesced_points > 0
+        assert any("coalesced" in p.message for p in store.problems())
         assert store.count_events() == 0  # queued, not yet written
         assert store.flush() and store.pending == 0
         assert store.count_events() == 1
+        points = store.series(RID, 10, since=T0 - 1)
+        assert points[-1] == Point(T0 + 29, 29.0)  # the newest point wins
+        assert len(points) + store.coalesced_points + store.dropped_points == 30
     finally:
         store.close()
+
+
+class TableLock:
+    """Another client holding the samples table, so that the store's next flush waits on
+    the database (as it does on a slow or loaded server) until :meth:`release`."""
+
+    def __init__(self, location: str) -> None:
+        self.postgres = location.startswith("postgresql")
+        if self.postgres:
+            import psycopg
+
+            self.db: Any = psycopg.connect(location, autocommit=True)
+            self.db.execute("BEGIN")
+            self.db.execute("LOCK TABLE samples IN EXCLUSIVE MODE")
+        else:
+            self.db = sqlite3.connect(location, isolation_level=None)
+            self.db.execute("BEGIN IMMEDIATE")
+
+    def release(self) -> None:
+        self.db.execute("ROLLBACK")
+        self.db.close()
+
+
+def test_queueing_never_waits_on_a_flush_that_waits_on_the_database(location: str,
+                                                                    clock: Clock) -> None:
+    store = StationStore(location, clock=clock)
+    lock: TableLock | None = None
+    try:
+        robot_with_a_failing_camera(store)
+        store.start_writer()
+        lock = TableLock(location)
+        store.put_value(RID, 10, T0 + 1, 1.0)
+        store.flush_soon()  # the writer takes the queue and waits on the lock
+        wait_until(lambda: store.pending == 0, "the writer took the queue")
+        started = time.monotonic()
+        for i in range(2, 1002):  # meanwhile the follower keeps queueing
+            store.put_value(RID, 10, T0 + i, float(i))
+        queued_in = time.monotonic() - started
+        assert store.pending > 0 and queued_in < 1.0, queued_in
+        assert len(store.series(RID, 10, since=T0)) == 0  # nothing committed yet
+        lock.release()
+        lock = None
+        store.flush_soon()
+        wait_until(lambda: len(store.series(RID, 10, since=T0, max_points=5000)) == 1001,
+                   "all 1,001 values committed once the database let go",
+                   timeout=30.0, state=lambda: (store.pending, store.problems()))
+        assert store.coalesced_points == store.dropped_points == 0
+    finally:
+        if lock is not None:
+            lock.release()
+        store.close()
+
+
+def test_a_flush_says_how_long_its_changes_waited_to_be_committed(location: str,
+                                                                   clock: Clock) -> None:
+    store = StationStore(location, clock=clock)
+    try:
+        store.put_value(RID, 10, T0, 1.0)
+        time.sleep(0.2)  # the change waits in the queue: part of its commit lag
+        store.put_value(RID, 10, T0 + 1, 2.0)
+        assert store.flush()
+        times = store.flush_times
+        assert times.rows == 3  # two chart points and the newest current value
+        assert times.lag >= 0.2 + times.seconds - 0.01 and times.seconds > 0
+        assert times.lag_max == times.lag
+    finally:
+        store.close()
+
+
+def test_many_rows_of_one_upsert_end_as_they_would_one_by_one(location: str) -> None:
+    """A flush sends rows of one statement together (on PostgreSQL as statements of many
+    rows); rows repeating a key, older ones after newer, end as applied one by one."""
+    db = open_database(location).connect()
+    try:
+        db.execute("CREATE TABLE latest (k INTEGER PRIMARY KEY, v REAL, tm REAL)")
+        rows = [(i % 700, float(i), float(i)) for i in range(2500)]  # keys repeat
+        rows += [(k, -1.0, 0.0) for k in range(0, 700, 7)]  # older: changes nothing
+        db.executemany("INSERT INTO latest (k, v, tm) VALUES (?, ?, ?) ON CONFLICT (k) DO "
+                       "UPDATE SET v = excluded.v, tm = excluded.tm "
+                       "WHERE latest.tm <= excluded.tm", rows)
+        expected: dict[int, float] = {}
+        for k, v, _ in rows:
+            if v >= expected.get(k, -math.inf):
+                expected[k] = v
+        stored = dict(db.execute("SELECT k, v FROM latest").fetchall())
+        assert stored == expected and len(stored) == 700
+    finally:
+        db.close()

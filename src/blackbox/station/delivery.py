@@ -58,6 +58,9 @@ class DeliveryWatch:
         self._told_behind = False
         self.behind_total = 0.0
         """Seconds the station spent behind the fleet, summed over the run."""
+        self.coalesced = 0
+        """Characteristic values the follower left out while behind, each for a newer
+        value of its characteristic (:mod:`blackbox.station.coalesce`)."""
 
     def check(self, readers: Mapping[str, Any], now: float) -> None:
         """Read every reader's loss counters (at most every :data:`CHECK_EVERY` s)."""

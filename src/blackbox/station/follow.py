@@ -69,6 +69,7 @@ from blackbox.health.types import (
 from blackbox.record.store import KINDS, LogEntry
 from blackbox.station.claims import BootWatch
 from blackbox.station.clocks import ClockWatch
+from blackbox.station.coalesce import newest_per_characteristic
 from blackbox.station.delivery import DeliveryWatch
 from blackbox.station.enrolment import RobotKeys
 from blackbox.station.sequence import EventSequences, Gap
@@ -129,6 +130,10 @@ TAKE = 2048
 """Samples taken from one reader per poll; a full take means more were waiting. 512 held
 a station that polls every :data:`POLL_EVERY` s under 10,240 values a second, less than
 1,000 robots send."""
+VALUES_TOPIC = "C_Monitored_Characteristic"
+COALESCE_TAKE = 200_000
+"""Values taken at most at once from a backlog to be coalesced (the bus's queue holds
+100,000 per topic)."""
 POLL_EVERY = 0.05
 """Seconds between the starts of two polls at least. Samples arriving one by one made a
 poll, a commit and a walk over every robot's event numbers per sample (a hundred a
@@ -399,8 +404,11 @@ class StationFollower:
         return self.bus.reader(name, qos)
 
     def start(self) -> None:
-        """Open, then follow on a background thread until :meth:`stop`."""
+        """Open, then follow on a background thread until :meth:`stop`; the store writes on
+        a thread of its own meanwhile (:meth:`StationStore.start_writer`), so taking
+        samples never waits on the database."""
         self.open()
+        self.store.start_writer()
         self._stop.clear()
         self._threads = [threading.Thread(target=self._follow, name="station-follow",
                                           daemon=True),
@@ -418,6 +426,7 @@ class StationFollower:
         for t in self._threads:
             t.join(timeout=timeout)
         self._threads = []
+        self.store.stop_writer()
         self.store.flush(force=True)
         with self._bus_lock:
             if self.bus is not None:
@@ -478,22 +487,52 @@ class StationFollower:
             except Exception as exc:
                 self._reject(name, f"cannot read: {exc}")
                 continue
+            coalesce = False
             if len(samples) >= TAKE:
                 behind.add(name)
+                if name == VALUES_TOPIC and self.delivery.behind:
+                    samples = self._backlog(reader, samples)
+                    coalesce = True
+            admitted = []
             for sample in samples:
                 info = getattr(sample, "sample_info", None)
                 if info is not None and not info.valid_data:
                     continue
                 if self._admit(name, reader, sample, now):
-                    taken.append((name, sample))
+                    admitted.append(sample)
+            if coalesce:
+                admitted = self._coalesce(admitted)
+            taken.extend((name, sample) for sample in admitted)
         taken.extend(self.gate.released(now))
         self.ingest(taken, now, behind=behind)
         self._drop_foreign_replies()
-        self.store.flush()
+        self.store.flush_soon()  # on the store's writer thread once start() started it
         self._start_backfills()
         self.delivery.check(self._readers, now)
         self.delivery.took(bool(behind), now, time.monotonic() - started)
         return len(taken)
+
+    def _backlog(self, reader: Any, samples: list[Any]) -> list[Any]:
+        """``samples`` and the rest of the values reader's backlog (to be coalesced)."""
+        try:
+            return [*samples, *reader.take(N=COALESCE_TAKE)]
+        except Exception as exc:
+            self._reject(VALUES_TOPIC, f"cannot read: {exc}")
+            return samples
+
+    def _coalesce(self, values: list[Any]) -> list[Any]:
+        """The newest of each characteristic of admitted ``values`` (the station has been
+        behind for a while: see :mod:`blackbox.station.coalesce`); the older ones are
+        counted and reported."""
+        kept, left_out = newest_per_characteristic(values)
+        if left_out:
+            self.delivery.coalesced += left_out
+            self.store.report_problem(
+                "coalesced", f"the station is behind: {self.delivery.coalesced} "
+                             "characteristic values left out so far for a newer value of "
+                             "the same characteristic (charts thinned; events and statuses "
+                             "are all kept)")
+        return kept
 
     def ingest(self, taken: Sequence[tuple[str, Any]], now: float, *,
                behind: Collection[str] = ()) -> None:
@@ -1091,11 +1130,17 @@ class StationFollower:
                 robot.backfill_since = since
                 robot.backfill_due = [now, now + BACKFILL_REPEAT]
             while robot.backfill_due and robot.backfill_due[0] <= now:
+                if self._backfills.jobs.full():
+                    # try again on a later poll; and no other robot either: a fleet new to
+                    # the station (1,000 robots, two jobs each) filled the lane for
+                    # minutes, and trying each robot at every poll was a tenth of the
+                    # follower's work at 500 robots
+                    return
                 try:
                     self._backfills.jobs.put_nowait(
                         self._backfill_job(robot, robot.backfill_since))
                 except queue.Full:
-                    break  # try again on a later poll
+                    return
                 robot.backfill_due.pop(0)
 
     def _backfill_job(self, robot: _Robot, since: float) -> Callable[[], None]:

@@ -30,6 +30,7 @@ from blackbox.station.records import (
     RobotSummary,
 )
 from blackbox.station.status_history import StatusTrack
+from blackbox.station.writequeue import FlushTimes
 
 
 class FleetWrites(Protocol):
@@ -80,11 +81,26 @@ class FleetWrites(Protocol):
 
     def flush(self, force: bool = False) -> bool: ...
 
+    def start_writer(self) -> None: ...
+
+    def flush_soon(self) -> None: ...
+
+    def stop_writer(self) -> None: ...
+
     @property
     def pending(self) -> int: ...
 
     @property
     def dropped_points(self) -> int: ...
+
+    @property
+    def coalesced_points(self) -> int: ...
+
+    @property
+    def flush_times(self) -> FlushTimes: ...
+
+    @property
+    def dropped_changes(self) -> int: ...
 
 
 class RequestRecords(Protocol):

@@ -27,3 +27,13 @@ def robot_status(entity_statuses: Iterable[str], *, stale: bool, online: bool) -
     healths = [Health[s] if s in Health.__members__ else Health.UNKNOWN
                for s in entity_statuses]
     return robot_health(healths).name
+
+
+ROBOT_STATUS_SQL = (
+    "SELECT CASE WHEN count(*) = 0 THEN 'UNKNOWN' "
+    "WHEN min(status) = max(status) AND min(status) IN ('OPERATIONAL', 'NOT_OPERATIONAL') "
+    "THEN min(status) ELSE 'DEGRADED' END AS derived FROM entities "
+    "WHERE resource_id = ? AND status IN ('OPERATIONAL', 'DEGRADED', 'NOT_OPERATIONAL')")
+""":func:`robot_status` of a live robot over its stored entities (``?``: its resource id),
+as SQL, so that the database derives it inside a write without a round trip to read the
+entities (the same rule; ``tests/test_station_status_history.py`` checks that both agree)."""

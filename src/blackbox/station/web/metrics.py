@@ -47,6 +47,22 @@ def station_metrics(store: StationStore, alerts: AlertService | None,
     out.add("blackbox_station_store_dropped_points_total", "counter",
             "Chart points dropped while the database could not be written",
             store.dropped_points)
+    times = store.flush_times
+    out.add("blackbox_station_store_commit_lag_seconds", "gauge",
+            "Seconds the oldest change of the last committed batch waited to be committed",
+            times.lag)
+    out.add("blackbox_station_store_commit_lag_max_seconds", "gauge",
+            "The largest commit lag since the station started", times.lag_max)
+    out.add("blackbox_station_store_flush_seconds", "gauge",
+            "Seconds the last committed flush spent writing", times.seconds)
+    out.add("blackbox_station_store_flush_rows", "gauge",
+            "Changes the last committed flush wrote", times.rows)
+    out.add("blackbox_station_store_coalesced_points_total", "counter",
+            "Chart points replaced by a newer one of their characteristic while the write "
+            "queue was full", store.coalesced_points)
+    out.add("blackbox_station_store_dropped_changes_total", "counter",
+            "Changes other than chart points dropped while the write queue stayed full",
+            store.dropped_changes)
     out.add("blackbox_station_problems", "gauge", "Problems shown on the page",
             len(store.problems(200)))
     if delivery is not None:
@@ -57,6 +73,9 @@ def station_metrics(store: StationStore, alerts: AlertService | None,
                 "1 while the station cannot keep up with the fleet", int(delivery.behind))
         out.add("blackbox_station_ingest_behind_seconds_total", "counter",
                 "Seconds the station spent with samples waiting", delivery.behind_total)
+        out.add("blackbox_station_values_coalesced_total", "counter",
+                "Characteristic values left out while the station was behind, each for a "
+                "newer value of its characteristic", delivery.coalesced)
     if alerts is not None:
         engine = alerts.engine
         out.family("blackbox_station_alerts", "gauge", "Alerts by state")
