@@ -313,6 +313,7 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
     from blackbox.station.database import without_password
     from blackbox.station.enrolment import EnrolmentError, RobotKeys, read_robots_file
     from blackbox.station.follow import StationFollower
+    from blackbox.station.store import WRITER_SWITCH_INTERVAL
     from blackbox.station.web.app import WebSettings, create_app
     from blackbox.station.web.limits import uvicorn_options
     from blackbox.transport.participant import TransportSettings
@@ -345,6 +346,7 @@ def serve(args: argparse.Namespace, store: Any, auth: Auth, host: str, port: int
     follower = StationFollower(store, TransportSettings(args.domain, args.partition,
                                                         zenoh=zenoh),
                                signer=signer, robot_keys=robot_keys)
+    sys.setswitchinterval(min(sys.getswitchinterval(), WRITER_SWITCH_INTERVAL))
     follower.start()
     alerts = AlertService(store, store.database, alert_config or AlertConfig("<none>"),
                           audit=lambda u, a, t, o, d: auth.audit(u, a, t, o, "station", d))

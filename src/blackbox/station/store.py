@@ -32,7 +32,6 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -107,8 +106,12 @@ WRITER_IDLE = 0.25
 application or an operation queued), and after a failed flush."""
 
 WRITER_SWITCH_INTERVAL = 0.001
-"""Seconds a thread of a writing station's process keeps the interpreter's lock at most
-before another may have it (see :meth:`StationStore.start_writer`)."""
+"""Seconds a thread of a station's process should keep the interpreter's lock at most
+before another may have it; the station command sets it (:func:`sys.setswitchinterval`),
+a library object does not change its process. The writer waits on the database many times a
+flush and, each time it returns, on the interpreter's lock, which a busy follower or web
+thread keeps for up to the switch interval (5 ms by default): a flush of 36,000 rows beside
+a busy thread took 1.8-2.0 s at 5 ms and 1.1-1.4 s at 1 ms (1.0-1.1 s alone)."""
 
 _HEARD = ("INSERT INTO robots (resource_id, first_heard, last_heard) VALUES (?, ?, ?) "
           "ON CONFLICT (resource_id) DO UPDATE SET "
@@ -425,11 +428,6 @@ class StationStore:
         :meth:`close` stops it after a last flush."""
         if self._writer is not None or self._closed:
             return
-        # The writer waits on the database many times a flush and, each time it returns,
-        # on the interpreter's lock, which a busy follower or web thread keeps for up to
-        # the switch interval (5 ms by default): a flush of 36,000 rows beside a busy
-        # thread took 1.8-2.0 s at 5 ms and 1.1-1.4 s at 1 ms (1.0-1.1 s alone).
-        sys.setswitchinterval(min(sys.getswitchinterval(), WRITER_SWITCH_INTERVAL))
         self._writer_stop.clear()
         self._writer = threading.Thread(target=self._write_behind, name="station-writer",
                                         daemon=True)
