@@ -14,6 +14,7 @@ import yaml
 from blackbox.cli import main
 from blackbox.learn import Learned, learn_from, render_config, render_model
 from blackbox.learn.fields import classify, discover
+from blackbox.learn.model import cpu_limit
 from blackbox.learn.stats import SHIFT_SIGMAS, learn_bounds, round_down, round_up
 from blackbox.model import Observation, Resource
 from blackbox.observe.build import build_observers, load_config
@@ -142,6 +143,22 @@ def test_learned_configuration_sees_injected_faults_within_seconds(
     assert hits and 60.0 <= hits[0].time <= 60.0 + within, hits[:1]
     before = [o for o in observations if o.faulty and o.time < 60.0]
     assert before == []
+
+
+@SHARES_THE_LEARNED_THESIS
+def test_a_node_whose_cpu_share_more_than_doubles_on_a_loaded_host_is_no_fault(
+        tmp_path: Path) -> None:
+    """``/Signal_generator`` runs at about 6 % of a core; a loaded host can read it at well
+    over twice that (cold caches, context switches) without any fault of the node."""
+    observations = run(write_learned(tmp_path), 80.0,
+                       [Fault("cpu_hog", "/Signal_generator", 60, 70, {"percent": 14.0})])
+    assert [o for o in observations if o.faulty] == []
+
+
+def test_the_cpu_bound_leaves_a_node_its_own_high_mark_again_and_at_least_ten_points() -> None:
+    assert cpu_limit(5.0, 6.5) == 16.5
+    assert cpu_limit(30.0, 40.0) == 80.0
+    assert cpu_limit(0.0, 45.0) < 95.0  # a busy thread, a whole core, is still seen
 
 
 # ---- the rules --------------------------------------------------------------------------------
