@@ -103,6 +103,15 @@ for two minutes), blocks of ``SLOW_LIVE_BLOCK`` samples, at least ``MIN_LIVE_BLO
 them, their spread widened for the small sample (``widening``)."""
 SLOW_LIVE_BLOCK = 3
 MIN_LIVE_BLOCKS = 30
+NOISE_CAP = 25.0
+"""A squared second difference counts at most this many times the healthy mean squared
+second difference in a noise check's blocks, while learning and while judging. A step (a
+value going back when an offset or scale fault ends) is one large first difference and
+so two large second differences: uncapped, those two lifted a block by ten standard
+deviations and raised a noise burst after the fault had ended. A Gaussian healthy value
+exceeds the cap once in a million samples; a burst of three times the noise is many
+differences, most under the cap, and still lifts every block (by 2.1 of the log instead
+of 2.3)."""
 NOISE_SHIFT = math.log(10.0)
 """What a noise burst of three times a signal's noise std adds to the log of its mean
 squared second difference (the mean square grows 1 + 3² times)."""
@@ -203,6 +212,8 @@ class Liveness:
     consecutive samples (:func:`rate_bound`), else ``None``."""
     fastest: float = 0.0
     """The fastest change per second seen while learning."""
+    cap: float | None = None
+    """The most one squared second difference counts in a noise block (``NOISE_CAP``)."""
 
 
 @dataclass
@@ -1043,8 +1054,13 @@ def learn_liveness(s: Signal) -> Liveness | None:
     n = d.size // block
     z: np.ndarray | None = None
     mean = std = 0.0
+    squares = d ** 2
+    typical = float(squares.mean()) if squares.size else 0.0
+    cap = NOISE_CAP * typical if typical > 0 and math.isfinite(typical) else None
+    if cap is not None:
+        squares = np.minimum(squares, cap)
     if n >= MIN_LIVE_BLOCKS:
-        sq = (d[:n * block] ** 2).reshape(n, block).mean(axis=1)
+        sq = squares[:n * block].reshape(n, block).mean(axis=1)
         # a quantised signal has blocks without a change: they can only lower the upward
         # statistic, so the noise is learned from the others (when most blocks change)
         sq = sq[sq > 0]
@@ -1057,7 +1073,8 @@ def learn_liveness(s: Signal) -> Liveness | None:
     if repeats is None and z is None and rate is None:
         return None
     return Liveness(s, repeats, longest, block, mean, std, z, rate=rate,
-                    fastest=fastest_change(s) if rate is not None else 0.0)
+                    fastest=fastest_change(s) if rate is not None else 0.0,
+                    cap=cap if z is not None else None)
 
 
 # ---- configuration entries ----------------------------------------------------------------------
@@ -1178,6 +1195,7 @@ def liveness_entry(topic: str, lives: Sequence[Liveness]) -> dict[str, Any]:
         if live.z is not None and live.calibration is not None:
             item["noise"] = {"block": live.block, "mean": _g(live.mean, 5),
                              "std": _g(live.std, 4),
+                             **({"cap": _g(live.cap, 4)} if live.cap is not None else {}),
                              "cusum": {"k": live.calibration.k,
                                        "h": round_up(live.calibration.h, 3)}}
         if live.rate is not None:
@@ -1201,8 +1219,12 @@ def liveness_comments(lives: Sequence[Liveness]) -> list[str]:
             parts.append(f"repeats up to {live.longest_run} equal samples while healthy: no "
                          "stuck check")
         if live.calibration is not None:
+            capped = (f" (each difference squared at most {live.cap:.3g}, {NOISE_CAP:g} x "
+                      "the healthy mean: a step is not a burst)" if live.cap is not None
+                      else "")
             parts.append(f"log mean squared difference per {live.block} samples "
-                         f"{live.mean:.3g} +- {live.std:.3g}, {live.calibration.describe()}")
+                         f"{live.mean:.3g} +- {live.std:.3g}{capped}, "
+                         f"{live.calibration.describe()}")
         else:
             parts.append("no noise check (frozen blocks or too few samples while healthy)")
         if live.rate is not None:

@@ -36,7 +36,7 @@ _END = re.compile(r"^\s*# <<< learned (.+?) <<<\s*$")
 _LOWER_KEYS = frozenset({"lower_bound", "greater_than"})
 _UPPER_KEYS = frozenset({"upper_bound", "less_than", "timeout", "window_size",
                          "block_noise", "h", "repeats", "std", "fresh", "delay",
-                         "at_most"})
+                         "at_most", "cap"})
 _LIST_KEYS = {"fields": "name", "states": "number", "relations": "name", "signals": "name"}
 _SPAN_KEYS = frozenset({"span"})
 

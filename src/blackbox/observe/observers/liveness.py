@@ -9,7 +9,12 @@ A healthy sensor's reading moves a little from one message to the next (noise, m
 * **noise**: per block of ``block`` samples, ``ln(mean squared second difference)`` of
   consecutive samples (``x[k] - 2 x[k-1] + x[k-2]``: smooth motion cancels, noise stays),
   standardised by its healthy ``mean`` and ``std``; an upward CUSUM (``k``, ``h``
-  calibrated for a stated false-alarm rate) finds a *noise burst*. Only upward: a signal
+  calibrated for a stated false-alarm rate) finds a *noise burst*. Each squared second
+  difference counts at most ``cap`` (learned as a multiple of the healthy mean): a step
+  (an offset or scale fault ending, the value going back) is one large first difference,
+  two large second differences, and without the cap those two alone lifted a block by
+  ten standard deviations and raised a burst seconds after the fault had ended; a noise
+  burst is many large differences and still lifts every block. Only upward: a signal
   moves less when the robot stands still, so a variance collapse is no fault by itself
   (a frozen value is caught by ``repeats`` and by the relations);
 * **rate** (signals that climb: a wheel angle, an odometer, a warming motor): the change
@@ -35,7 +40,8 @@ see an offset), so its type does not exonerate.
       fresh: 0.5
       signals:
         - {name: angular_velocity_z, field: angular_velocity.z, repeats: 5,
-           noise: {block: 10, mean: -7.8, std: 0.45, cusum: {k: 0.5, h: 12.1}}}
+           noise: {block: 10, mean: -7.8, std: 0.45, cap: 0.0103,
+                   cusum: {k: 0.5, h: 12.1}}}
     - type: liveness
       topic: /odometer
       fresh: 6.0
@@ -75,6 +81,9 @@ class NoiseSpec:
     mean: float
     std: float
     cusum: CusumSpec
+    cap: float | None = None
+    """The most one squared second difference counts (``None``: no cap, files written
+    before the cap was learned)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -138,7 +147,8 @@ class _Signal:
         if math.isnan(last_d):
             return
         d -= last_d
-        self.sq += d * d
+        sq = d * d
+        self.sq += sq if noise.cap is None else min(sq, noise.cap)
         self.sq_n += 1
         if self.sq_n >= noise.block:
             self.last_z = (math.log(self.sq / self.sq_n + TINY) - noise.mean) / noise.std
@@ -274,10 +284,13 @@ def _signal(node: ConfigNode, topic: str, names: set[str]) -> LivenessSpec:
     noise_node = node.get("noise")
     noise = None
     if noise_node is not None and not noise_node.is_null:
-        noise_node.check_keys(("block", "mean", "std", "cusum"))
+        noise_node.check_keys(("block", "mean", "std", "cusum", "cap"))
+        cap_node = noise_node.get("cap")
         noise = NoiseSpec(noise_node["block"].int(min=2), noise_node["mean"].float(),
                           noise_node["std"].float(min=0.0, min_exclusive=True),
-                          CusumSpec.read(noise_node["cusum"]))
+                          CusumSpec.read(noise_node["cusum"]),
+                          None if cap_node is None or cap_node.is_null
+                          else cap_node.float(min=0.0, min_exclusive=True))
     wrap = node.get("wrap")
     rate_node = node.get("rate")
     rate = None
@@ -307,5 +320,5 @@ OBSERVERS.add("liveness", ObserverKind("liveness", liveness_from_config, Subject
                                        judges=Mode.RIGHT, exonerates=False), example={
     "type": "liveness", "topic": "/battery", "fresh": 1.2,
     "signals": [{"name": "voltage", "field": "voltage", "repeats": 5,
-                 "noise": {"block": 5, "mean": -7.34, "std": 0.77,
+                 "noise": {"block": 5, "mean": -7.34, "std": 0.77, "cap": 0.0162,
                            "cusum": {"k": 0.5, "h": 11.2}}}]})
