@@ -87,6 +87,23 @@ def test_a_measurement_gap_is_not_learned_from() -> None:
     assert span[1] < 5.0  # the garbage never reached the fit
 
 
+def test_a_starved_publishers_values_are_learned_from_and_its_periods_are_not() -> None:
+    """A loaded computer starves the IMU driver for most of the run: its starvation gaps
+    are timing-only, so the relation is learned from its values all the same, while the
+    same stretch as an ordinary gap leaves too little to learn from."""
+    starved = [MeasurementGap(t, t, t + 1.0, "the host starved /imu_driver",
+                              topic="/imu", timing_only=True) for t in range(10, 110, 2)]
+    _, text = learned_text(robot(120.0, extra=starved), 120.0)
+    assert relations_of(text), text
+    assert "inside measurement gaps not learned from" not in text
+    assert "gap(s) while a publisher was not running" in text  # its periods were dropped
+
+    blind = [MeasurementGap(t, t, t + 1.0, "paused", topic="/imu")
+             for t in range(10, 110, 2)]
+    _, text = learned_text(robot(120.0, extra=blind), 120.0)
+    assert "inside measurement gaps not learned from" in text
+
+
 def test_too_little_healthy_data_for_a_relation_is_said_not_guessed() -> None:
     _, text = learned_text(robot(20.0), 20.0)
     assert relations_of(text) == []

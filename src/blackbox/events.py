@@ -193,6 +193,11 @@ class MeasurementGap:
     but topics already connected and node liveness are still measured), so no observer
     leaves anything unjudged; the operator is told all the same.
 
+    ``timing_only``: the messages that did arrive are the robot's own, only their times and
+    the silences between them say nothing (a publisher or the black box starved of CPU: a
+    starved node sends its values late, with their own stamps). Observers judge such a gap
+    like any other; learning keeps its values and drops its periods (docs/learn.md).
+
     A source reports a gap when it starts (``end`` is ``None``) and again, with the same
     ``start``, when measurement resumes (``end`` set); a gap known only afterwards (a
     pause) comes once with both. ``time`` is when the source says so, as for every event.
@@ -205,6 +210,7 @@ class MeasurementGap:
     topic: str | None = None
     node: str | None = None
     graph: bool = False
+    timing_only: bool = False
 
     @property
     def everything(self) -> bool:

@@ -55,7 +55,8 @@ class StarvationGaps:
         found = watch.own(mono)
         own = None if found is None else MeasurementGap(
             now, max(base, now - found.span), now, f"a thread of the black box waited "
-            f"{found.waited:.3g} s for a CPU within {found.span:.3g} s (starved of CPU)")
+            f"{found.waited:.3g} s for a CPU within {found.span:.3g} s (starved of CPU)",
+            timing_only=True)
         pids, topics = self.local_publishers
         gaps: list[MeasurementGap] = []
         saturated: list[str] = []
@@ -73,6 +74,7 @@ class StarvationGaps:
                     + ("" if pressure is None else
                        f" (CPU pressure: some task waited {pressure:g} % of the last 10 s)")
                     + "; its topics' timing is not judged while it lasts")
-            gaps.extend(MeasurementGap(min(start, until), start, now, reason, topic=t)
+            gaps.extend(MeasurementGap(min(start, until), start, now, reason, topic=t,
+                                       timing_only=True)
                         for t in topics.get(node, ()))
         return Starvation(own, gaps, saturated)
