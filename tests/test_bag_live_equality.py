@@ -27,10 +27,12 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
+import psutil
 import pytest
 
 from blackbox.app import RunOptions, build
 from blackbox.output.jsonlines import read_records
+from blackbox.sources.cpu_wait import thread_delays
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros1_robot"))
 from inject import Injector
@@ -93,8 +95,57 @@ def default_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-def record_live(tmp: Path, config: Path,
-                stalls: StallMonitor) -> tuple[Path, float, float]:
+class RecorderWaits:
+    """Run-queue waits of ``rosbag record``'s processes, sampled every 0.05 s while it runs.
+
+    The recorder stamps a message when its callback gets to run: a recorder kept off the
+    CPU for 0.1 s stamps the message that arrived before it 0.1 s late (seen: ``silent_for``
+    0.1 s live against 0.00003 s replayed on /audio while the machine as a whole did not
+    stall, so :class:`StallMonitor` saw nothing). Its own waits bound that lateness."""
+
+    def __init__(self) -> None:
+        self._spans: list[tuple[float, float, float]] = []
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def watch(self, pid: int) -> None:
+        self._thread = threading.Thread(target=self._sample, args=(pid,), daemon=True)
+        self._thread.start()
+
+    def _sample(self, pid: int) -> None:
+        before: dict[str, float] = {}
+        then = time.time()
+        while not self._stop.wait(0.05):
+            try:
+                pids = [pid] + [c.pid for c in psutil.Process(pid).children(recursive=True)]
+            except psutil.Error:
+                return
+            now_waits: dict[str, float] = {}
+            for p in pids:
+                for tid, (wait, _) in (thread_delays(p) or {}).items():
+                    now_waits[f"{p}/{tid}"] = wait
+            now = time.time()
+            worst = max((w - before[k] for k, w in now_waits.items() if k in before),
+                        default=0.0)
+            with self._lock:
+                self._spans.append((then, now, max(0.0, worst)))
+            before, then = now_waits, now
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+
+    def waited(self, start: float, end: float) -> float:
+        """Seconds the recorder's most delayed thread waited in samples touching
+        ``[start, end]``."""
+        with self._lock:
+            return sum(w for a, b, w in self._spans if b >= start and a <= end)
+
+
+def record_live(tmp: Path, config: Path, stalls: StallMonitor,
+                waits: RecorderWaits) -> tuple[Path, float, float]:
     """Live run with faults, recorded by ``rosbag record``: the bag, start and end times.
     ``stalls`` runs meanwhile: the recorder stamps each message when it gets to run, so
     a machine that stopped scheduling processes moves the bag's times by that long."""
@@ -106,6 +157,7 @@ def record_live(tmp: Path, config: Path,
             ["rosbag", "record", "-O", str(tmp / "live.bag"), *TOPICS, "__name:=bag_recorder"],
             env=robot.env, cwd=tmp, stdout=log, stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL, start_new_session=True, preexec_fn=default_sigint)
+        waits.watch(recorder.pid)
         deadline = time.monotonic() + 30
         while not (tmp / "live.bag.active").exists() and time.monotonic() < deadline:
             time.sleep(0.1)
@@ -132,6 +184,7 @@ def record_live(tmp: Path, config: Path,
         ended = box.pipeline.stats.ended
         time.sleep(1.0)
     finally:
+        waits.stop()
         if recorder is not None:
             os.killpg(recorder.pid, signal.SIGINT)
             recorder.wait(timeout=20)
@@ -173,8 +226,9 @@ def test_replaying_the_bag_of_a_live_run_gives_its_observations_and_diagnoses(
     config = tmp_path / "observers.yaml"
     config.write_text(CONFIG)
     (tmp_path / "model.yaml").write_text(MODEL)
+    waits = RecorderWaits()
     with StallMonitor() as stalls:
-        bag, started, ended = record_live(tmp_path, config, stalls)
+        bag, started, ended = record_live(tmp_path, config, stalls, waits)
     replay = build(RunOptions(config=config, source=f"bag:{bag}?start={started!r}",
                               simulated_clock=True, duration=ended - started,
                               observations=tmp_path / "bag.obs.jsonl",
@@ -214,12 +268,13 @@ def test_replaying_the_bag_of_a_live_run_gives_its_observations_and_diagnoses(
                 # seen at load 12: spans of 0.268 and 0.300 s), so the spans are compared
                 # plus any machine stall over the window, which moves the bag's stamps
                 span, span_again = WINDOW / value, WINDOW / replayed
-                stalled = stalls.stalled(key[2] - max(span, span_again) - LAG, key[2])
+                start = key[2] - max(span, span_again) - LAG
+                stalled = stalls.stalled(start, key[2]) + waits.waited(start, key[2])
                 assert span_again == pytest.approx(span, abs=LAG + stalled), \
                     (key, name, value, replayed, stalled)
                 continue
-            slack = LAG + stalls.stalled(key[2] - 1.0, key[2]) if name == "silent_for" \
-                else 0.05
+            slack = (LAG + stalls.stalled(key[2] - 1.0, key[2])
+                     + waits.waited(key[2] - 1.0, key[2])) if name == "silent_for" else 0.05
             assert replayed == pytest.approx(value, rel=0.05, abs=slack), (key, name)
     print(f"{len(live)} observations compared, {tipped} verdicts differ within "
           f"{TRANSITION} s of a live verdict change")
