@@ -99,9 +99,10 @@ class RecorderWaits:
     """Run-queue waits of ``rosbag record``'s processes, sampled every 0.05 s while it runs.
 
     The recorder stamps a message when its callback gets to run: a recorder kept off the
-    CPU for 0.1 s stamps the message that arrived before it 0.1 s late (seen: ``silent_for``
-    0.1 s live against 0.00003 s replayed on /audio while the machine as a whole did not
-    stall, so :class:`StallMonitor` saw nothing). Its own waits bound that lateness."""
+    CPU for 0.1 s stamps the message that arrived before it 0.1 s late. Seen once:
+    ``silent_for`` 0.1 s live against 0.00003 s replayed on /audio while the machine as a
+    whole did not stall (:class:`StallMonitor` saw nothing); the recorder's own lateness is
+    the likely cause, not measured in that run. Its run-queue waits bound that lateness."""
 
     def __init__(self) -> None:
         self._spans: list[tuple[float, float, float]] = []
