@@ -32,7 +32,7 @@ import pytest
 
 from blackbox.app import RunOptions, build
 from blackbox.output.jsonlines import read_records
-from blackbox.sources.cpu_wait import thread_delays
+from blackbox.sources.cpu_wait import WaitMeter
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts" / "ros1_robot"))
 from inject import Injector
@@ -115,23 +115,19 @@ class RecorderWaits:
         self._thread.start()
 
     def _sample(self, pid: int) -> None:
-        before: dict[str, float] = {}
+        meter = WaitMeter()
         then = time.time()
         while not self._stop.wait(0.05):
             try:
                 pids = [pid] + [c.pid for c in psutil.Process(pid).children(recursive=True)]
             except psutil.Error:
                 return
-            now_waits: dict[str, float] = {}
-            for p in pids:
-                for tid, (wait, _) in (thread_delays(p) or {}).items():
-                    now_waits[f"{p}/{tid}"] = wait
             now = time.time()
-            worst = max((w - before[k] for k, w in now_waits.items() if k in before),
-                        default=0.0)
+            waits = [meter.threads_since_last(p, now) or {} for p in pids]
+            worst = max((w for per in waits for w in per.values()), default=0.0)
             with self._lock:
-                self._spans.append((then, now, max(0.0, worst)))
-            before, then = now_waits, now
+                self._spans.append((then, now, worst))
+            then = now
 
     def stop(self) -> None:
         self._stop.set()
