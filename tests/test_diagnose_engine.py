@@ -188,3 +188,23 @@ def test_a_hand_written_configuration_on_a_new_robot_keeps_the_driver_a_suspect(
     assert d is not None
     assert [set(c) for c in d.candidates] == [{"/estimator"}, {"/imu_driver"}]
     assert "Nothing observes the values of /imu" in d.explanation
+
+
+def test_a_search_kept_off_the_cpu_is_not_cut_short_by_its_budget():
+    # Each consistency check waits longer than the whole budget without using the CPU, as a
+    # diagnosis preempted on a loaded robot does: the budget counts CPU, so the search still
+    # completes with the same candidates a quiet machine finds.
+    import time
+
+    quiet = diagnose(KILL_USB_CAM | {("hz", "/audio")})
+    engine = DiagnosisEngine.from_model_file(THESIS_MODEL, time_budget=0.02)
+    check = engine.checker.conflict
+
+    def preempted(*args, **kwargs):
+        time.sleep(0.03)
+        return check(*args, **kwargs)
+
+    engine.checker.conflict = preempted  # type: ignore[method-assign]
+    d = engine.update(1.0, observations(engine, KILL_USB_CAM | {("hz", "/audio")}))
+    assert d is not None and d.complete
+    assert [set(c) for c in d.candidates] == quiet

@@ -314,11 +314,11 @@ class CircuitDiagnoser:
         facts = self.facts(observations)
 
         def prover(path: frozenset[str]) -> frozenset[str] | None:
-            c = self.checker.conflict(facts, path, deadline)
+            c = self.checker.conflict(facts, path, deadline, time.perf_counter)
             return None if c is None else c.components
 
         res = hs_dag(prover, minimum_only=True, max_cardinality=max_cardinality,
-                     deadline=deadline)
+                     deadline=deadline, clock=time.perf_counter)
         return res.sets, res.complete, res.prover_calls
 
     def run(self, scenario: Scenario, limit: float = 1.0, report: str = "best"

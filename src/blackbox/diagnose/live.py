@@ -12,7 +12,7 @@ Configured by the native ``diagnosis:`` section::
       model: robot_model.yaml   # optional tug_diagnosis file, relative to the config file
       priors: {/usb_cam: 0.2, topic: 0.005}   # component names or kinds -> probability
       max_cardinality: 4        # largest diagnosis searched
-      time_budget: 0.1          # seconds per re-diagnosis (anytime: best so far)
+      time_budget: 0.1          # CPU seconds per re-diagnosis (anytime: best so far)
       engine: cbd               # cbd | sfdd | hybrid (docs/diagnosis.md, "SFDD")
       sfdd: {signals: [...]}    # SFDD's signals and settings (diagnose/sfdd_live.py)
       hybrid: rank              # rank | verify: may SFDD withhold a CBD value alarm?

@@ -14,7 +14,7 @@ stays valid and can be reused without asking the solver again.
 from __future__ import annotations
 
 import time
-from collections.abc import Hashable, Iterable, Sequence
+from collections.abc import Callable, Hashable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -118,10 +118,11 @@ class ConsistencyChecker:
         return healthy
 
     def conflict(self, facts: Sequence[int], abnormal: Iterable[str] = (),
-                 deadline: float | None = None) -> Conflict | None:
+                 deadline: float | None = None,
+                 clock: Callable[[], float] = time.thread_time) -> Conflict | None:
         """A conflict disjoint from ``abnormal``, or ``None`` when that set is a diagnosis.
 
-        Past ``deadline`` (``time.perf_counter`` value) the core is returned unminimised.
+        Past ``deadline`` (a value of ``clock``) the core is returned unminimised.
         """
         self.sync()
         healthy = self._healthy(abnormal)
@@ -131,16 +132,17 @@ class ConsistencyChecker:
         fact_set = set(facts)
         kept = [lit for lit in healthy if lit in core]
         if self.minimise:
-            kept, core = self._minimise(list(facts), kept, core, deadline)
+            kept, core = self._minimise(list(facts), kept, core, deadline, clock)
         return Conflict(frozenset(self._component_of[lit] for lit in kept),
                         frozenset(lit for lit in core if lit in fact_set))
 
     def _minimise(self, facts: list[int], kept: list[int], core: set[int],
-                  deadline: float | None) -> tuple[list[int], set[int]]:
+                  deadline: float | None, clock: Callable[[], float]
+                  ) -> tuple[list[int], set[int]]:
         """Deletion-based minimisation; each unsatisfiable trial shrinks to its own core."""
         i = 0
         while i < len(kept):
-            if deadline is not None and time.perf_counter() >= deadline:
+            if deadline is not None and clock() >= deadline:
                 break
             trial = kept[:i] + kept[i + 1:]
             if self._solve([*facts, *trial]):
