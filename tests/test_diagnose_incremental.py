@@ -112,6 +112,7 @@ def test_incremental_updates_say_what_a_fresh_engine_says(seed: int) -> None:
                                 rng.choice((Code.GENERAL_OK, Code.GENERAL_ERROR)))
             batch.append(extra)
         rng.shuffle(batch)
+        blamed = engine.blamed
         engine.update(now, batch)
         for obs in batch:
             held[obs.key()] = obs
@@ -119,7 +120,8 @@ def test_incremental_updates_say_what_a_fresh_engine_says(seed: int) -> None:
 
         fresh = DiagnosisEngine(engine.model, max_cardinality=MAX_CARDINALITY,
                                 time_budget=30.0, propagation=propagation,
-                                independent=engine.independent, cache_size=0)
+                                independent=engine.independent, cache_size=0,
+                                blamed=blamed)
         fresh.update(now, list(held.values()))
         theirs = fresh.current()
         assert [o.key() for o in mine.failed] == [o.key() for o in theirs.failed], step

@@ -87,6 +87,11 @@ def observation_fact(code: Code) -> bool | None:
 
 _UNKNOWN = object()
 
+VALUE_HOP_PRIOR = 0.02
+"""The prior chance that a wrong input value makes a node's output values wrong, one node
+crossed (``rank``): below a node's own fault prior, so two faulty producers rank before one
+node upstream of both whose wrong values would have to cross a node to reach them."""
+
 BUDGET_CLOCK = time.thread_time
 """The clock of ``time_budget``: the diagnosing thread's CPU time, not wall time, so a search
 that other processes keep off the CPU is not cut short, and a replay diagnoses alike on a quiet
@@ -105,15 +110,18 @@ class DiagnosisEngine:
     size of a diagnosis, ``time_budget`` (seconds of this thread's CPU, :data:`BUDGET_CLOCK`)
     the search of one re-diagnosis.
     ``propagation`` says how input faults reach a node's outputs; ``independent`` are edges
-    already learnt not to carry silence (an engine rebuilt for a changed graph keeps them).
+    already learnt not to carry silence and ``blamed`` the components of the first candidate
+    so far (an engine rebuilt for a changed graph keeps both).
     """
 
     def __init__(self, model: RobotModel, priors: Mapping[str, float] | None = None, *,
                  max_cardinality: int | None = None, time_budget: float = 0.1,
                  cache_size: int = 256, propagation: Propagation | None = None,
                  independent: Iterable[Edge] = (),
-                 signals: Mapping[Key, JudgedSignals] | None = None) -> None:
+                 signals: Mapping[Key, JudgedSignals] | None = None,
+                 blamed: Iterable[str] = ()) -> None:
         self.priors = dict(priors or {})
+        self._blamed = frozenset(blamed)
         for name, p in self.priors.items():
             if not 0.0 < p < 1.0:
                 raise ValueError(f"prior of {name!r} must be in (0, 1), got {p}")
@@ -150,6 +158,7 @@ class DiagnosisEngine:
         self._depends: dict[Edge, int] = {}
         self._slot: dict[Key, int] = {}
         self._seen_failed: dict[Key, int] = {}
+        self._upstream_of: dict[str, frozenset[str]] = {}
         for t in model.topics:
             self._rate_clause(th.var(("live", t)), st.producers(t, (), rate=True))
             self._value_clause(th.var(("right", t)), st.producers(t, (), rate=False))
@@ -167,16 +176,26 @@ class DiagnosisEngine:
                 # Failed: the values of one of its signals (fields, when the observer says
                 # which, else its topics) are wrong. Held: each it clears is right (faults
                 # that cancel out exactly are not assumed).
+                # A fault upstream of every topic of the relation moves them all alike: seen
+                # failed, it needs a wrong value outside their shared upstream topics (its
+                # own literal, so a relation not judged constrains nothing).
                 judged = self._signals.get(spec.key())
+                common = self._common_upstream(spec)
                 if judged is None:
                     topics = [t for t in (spec.resource.topic, spec.resource.topic_b) if t]
                     th.add([ok, *(-th.var(("right", t)) for t in topics)])
                     for t in topics:
                         th.add([th.var(("right", t)), -ok])
+                    if common:
+                        th.add([-self._seen_failed_var(spec.key()),
+                                *(-self._right_var(t, common) for t in topics)])
                     continue
                 th.add([ok, *(-self._signal_var(t, f) for t, f in judged.accused)])
                 for t, f in judged.cleared:
                     th.add([self._signal_var(t, f), -ok])
+                if common:
+                    th.add([-self._seen_failed_var(spec.key()),
+                            *(-self._signal_var(t, f, common) for t, f in judged.accused)])
                 continue
             if (ex.components and not ex.inputs and not ex.edges
                     and diagnosable.issuperset(ex.components)):
@@ -256,19 +275,77 @@ class DiagnosisEngine:
                                                if self._evidences(w)}
         self.checker.warm_up()
 
-    def _signal_var(self, topic: str, field: str) -> int:
+    def _signal_var(self, topic: str, field: str, common: frozenset[str] = frozenset()
+                    ) -> int:
         """``right(topic, field)``: the values of one field are right. It holds when the
         topic's values are right, and else, as the topic's value mode, unless a producer is
         abnormal or an input's values are wrong: a fault of the field is a fault of the
-        topic's producers, but a relation held on one field clears no other field."""
+        topic's producers, but a relation held on one field clears no other field.
+
+        With ``common`` (the upstream topics every topic of a relation shares), the field's
+        mode for that relation: it holds when the field is right, and else as above with the
+        ``common`` topics taken as right."""
         th = self.theory
-        key = ("right signal", topic, field)
+        key = ("right signal", topic, field, common) if common else ("right signal", topic, field)
         known = th.num_vars
         var = th.var(key)
         if th.num_vars > known:
-            th.add([var, -th.var(("right", topic))])
-            self._value_clause(var, self.structure.producers(topic, (), rate=False))
+            if common:
+                th.add([var, -self._signal_var(topic, field)])
+            else:
+                th.add([var, -th.var(("right", topic))])
+            self._value_clause(var, self.structure.producers(topic, (), rate=False), common)
         return var
+
+    def _seen_failed_var(self, key: Key) -> int:
+        """A literal assumed exactly while the observation ``key`` is failed."""
+        lit = self._seen_failed.get(key)
+        if lit is None:
+            lit = self._seen_failed[key] = self.theory.var(("seen failed", key))
+        return lit
+
+    def _right_var(self, topic: str, common: frozenset[str] = frozenset()) -> int:
+        """``right(topic)``, or with ``common`` its mode for a relation whose topics all
+        share those upstream topics (holds when ``right(topic)`` does, and else unless a
+        producer is abnormal or an input outside ``common`` is wrong for it)."""
+        th = self.theory
+        if not common:
+            return th.var(("right", topic))
+        known = th.num_vars
+        var = th.var(("right", topic, common))
+        if th.num_vars > known:
+            th.add([var, -th.var(("right", topic))])
+            self._value_clause(var, self.structure.producers(topic, (), rate=False), common)
+        return var
+
+    def _upstream_topics(self, topic: str) -> frozenset[str]:
+        """The topics whose wrong values can reach ``topic``'s through its producers (inputs
+        from outside its feedback loop, transitively)."""
+        known = self._upstream_of.get(topic)
+        if known is not None:
+            return known
+        inputs = self.structure.producers(topic, (), rate=False).inputs
+        out: set[str] = set()
+        frontier = list(inputs)
+        while frontier:
+            t = frontier.pop()
+            if t not in out:
+                out.add(t)
+                frontier.extend(self.structure.producers(t, (), rate=False).inputs)
+        found = self._upstream_of[topic] = frozenset(out)
+        return found
+
+    def _common_upstream(self, spec: ObservationSpec) -> frozenset[str]:
+        """The upstream topics every topic of a relation over two or more topics shares,
+        less those topics: a wrong value there reaches all of its signals alike (a command
+        the wheels, the odometry computed from them and the IMU on the moving robot all
+        follow), so it cannot make them disagree (docs/diagnosis.md, "relation")."""
+        topics = list(dict.fromkeys(t for t in (spec.resource.topic, spec.resource.topic_b)
+                                    if t))
+        if len(topics) < 2:
+            return frozenset()
+        shared = frozenset.intersection(*(self._upstream_topics(t) for t in topics))
+        return shared - set(topics)
 
     def _silenced(self, edge: Edge) -> int:
         """A helper literal: the edge's input is not live *and* the output's rate needs it."""
@@ -286,14 +363,17 @@ class DiagnosisEngine:
         th.add(dict.fromkeys([head, *(th.ab(c) for c in ex.components),
                               *(self._silenced(e) for e in ex.edges)]))
 
-    def _value_clause(self, head: int, ex: Explanation) -> None:
+    def _value_clause(self, head: int, ex: Explanation,
+                      common: frozenset[str] = frozenset()) -> None:
         """``head`` holds unless a component is abnormal or an input's values are wrong (or,
-        where configured, an input is not live)."""
+        where configured, an input is not live); inputs in ``common`` are taken as right,
+        the others in their mode for ``common`` (:meth:`_right_var`)."""
         th = self.theory
         stale = [-th.var(("live", e.input)) for e in ex.edges
                  if self.propagation.value_from_rate_of(e.node)]
         th.add(dict.fromkeys([head, *(th.ab(c) for c in ex.components),
-                              *(-th.var(("right", i)) for i in ex.inputs), *stale]))
+                              *(-self._right_var(i, common) for i in ex.inputs
+                                if i not in common), *stale]))
 
     def _exonerate(self, mode: int, covering: Sequence[ObservationSpec]) -> None:
         """A mode holds when all the observations judging it are OK. A mode nobody judges is
@@ -312,10 +392,7 @@ class DiagnosisEngine:
         th = self.theory
 
         def seen_failed(spec: ObservationSpec) -> int:
-            lit = self._seen_failed.get(spec.key())
-            if lit is None:
-                lit = self._seen_failed[spec.key()] = th.var(("seen failed", spec.key()))
-            return lit
+            return self._seen_failed_var(spec.key())
 
         activated = {s.resource.node: s for s in self.model.observations
                      if shows_silent(s.type) is Subject.NODE and s.resource.node}
@@ -464,24 +541,33 @@ class DiagnosisEngine:
 
     def rank(self, sets: Iterable[frozenset[str]], failed: Iterable[Key] = ()
              ) -> tuple[frozenset[str], ...]:
-        """Cardinality first, then the larger prior odds product, then the components
+        """The likelier first: the larger product of the components' prior odds and of
+        :data:`VALUE_HOP_PRIOR`'s odds for every node a wrong value must cross to reach a
+        failed value observation (:meth:`value_hops`), then cardinality, then the components
         closer to the ``failed`` observations (fewer nodes the fault must cross, summed
         over the failed observations: the producer of the one topic two failed relations
-        share is closer than a node upstream of one of them), then the more
-        evidence short of an alarm against the candidate (``_pending_evidence``), then the
+        share is closer than a node upstream of one of them), then the more components of
+        the first candidate so far (:attr:`blamed`: a fault persists, so a new failure two
+        candidates explain alike is likelier a new fault than the old one moving), then the
+        more evidence short of an alarm against the candidate (``_pending_evidence``), then the
         fewer passing observations that involve the candidate (a command that four relations
         and its liveness currently pass is less suspect than a sensor only one passes), then
         names.
         Closeness and passing are only computed when candidates tie on the first two."""
-        def odds(s: frozenset[str]) -> float:
-            return round(sum(math.log(self.prior(c) / (1.0 - self.prior(c))) for c in s), 9)
+        sets = list(sets)
+        keys = list(dict.fromkeys(failed))
+        hops = self.value_hops(sets, keys) if len(sets) > 1 else {}
+        hop = math.log(VALUE_HOP_PRIOR / (1.0 - VALUE_HOP_PRIOR))
 
-        keyed = sorted(((len(s), -odds(s), sorted(s), s) for s in sets),
+        def odds(s: frozenset[str]) -> float:
+            return round(sum(math.log(self.prior(c) / (1.0 - self.prior(c))) for c in s)
+                         + hop * hops.get(s, 0), 9)
+
+        keyed = sorted(((-odds(s), len(s), sorted(s), s) for s in sets),
                        key=lambda k: k[:3])
         tied = any(a[:2] == b[:2] for a, b in itertools.pairwise(keyed))
         if not tied:
             return tuple(k[3] for k in keyed)
-        keys = list(dict.fromkeys(failed))
         far = len(self.model.topics) + 1
         cleared = self._cleared_now()
         nears = [self.closeness((key,), cleared) for key in keys]
@@ -504,9 +590,36 @@ class DiagnosisEngine:
         def suspected(s: frozenset[str]) -> float:
             return -round(sum(pending.get(c, 0.0) for c in s), 6)
 
+        def kept(s: frozenset[str]) -> int:
+            return -len(s & self._blamed)
+
         return tuple(k[3] for k in sorted(
-            keyed, key=lambda k: (k[0], k[1], distance(k[3]), suspected(k[3]),
+            keyed, key=lambda k: (k[0], k[1], distance(k[3]), kept(k[3]), suspected(k[3]),
                                   vouched(k[3]), k[2])))
+
+    def value_hops(self, sets: Sequence[frozenset[str]], failed: Iterable[Key]
+                   ) -> dict[frozenset[str], int]:
+        """Per candidate, the nodes wrong values must cross from it to the failed value
+        observations, summed over them (each from its nearest component; 0 for one it
+        produces). A single node upstream of two faulty sensors explains both through the
+        graph, but that a wrong input makes a node's output wrong is itself unlikely: the
+        real and simulated robots' nodes compute from their own measurements, and a node
+        that does compute from its input moves the relations of both alike (issue 22:
+        ``/teleop`` or ``/base_driver`` alone outranked the two faulty sensors by
+        cardinality)."""
+        keys = [k for k in dict.fromkeys(failed) if not is_rate_type(k[0])]
+        if not keys:
+            return {}
+        cleared = self._cleared_now()
+        nears = [self.closeness((key,), cleared) for key in keys]
+        out: dict[frozenset[str], int] = {}
+        for s in sets:
+            total = 0
+            for near in nears:
+                reach = [near[c] for c in s if c in near]
+                total += min(reach) if reach else 0
+            out[s] = total
+        return out
 
     def _pending_evidence(self) -> dict[str, float]:
         """Per component, the mean evidence short of an alarm (a sequential test's
@@ -529,6 +642,12 @@ class DiagnosisEngine:
             for c in self._explain(key).components:
                 levels.setdefault(c, []).append(max(evidence))
         return {c: sum(ls) / len(ls) for c, ls in levels.items()}
+
+    @property
+    def blamed(self) -> frozenset[str]:
+        """The components of the first candidate of the latest diagnosis (ranking prefers
+        them among candidates that explain a new failure alike)."""
+        return self._blamed
 
     @property
     def independent(self) -> frozenset[Edge]:
@@ -691,7 +810,7 @@ class DiagnosisEngine:
         hit = self._cache.get(key)
         if hit is not None:
             self._cache.move_to_end(key)
-            return hit
+            return self.rank(hit[0], failed), hit[1]
         deadline = BUDGET_CLOCK() + self.time_budget
         reusable = [c for c, support in self._conflicts.items() if self._holds(support)]
         assumptions = facts.tolist()
@@ -710,12 +829,11 @@ class DiagnosisEngine:
 
         res = hs_dag(prover, conflicts=reusable, max_cardinality=self.max_cardinality,
                      deadline=deadline, clock=BUDGET_CLOCK)
-        out = (self.rank(res.sets, failed), res.complete)
         if res.complete:
-            self._cache[key] = out
+            self._cache[key] = (res.sets, res.complete)
             if len(self._cache) > self._cache_size:
                 self._cache.popitem(last=False)
-        return out
+        return self.rank(res.sets, failed), res.complete
 
     def update(self, now: float, observations: Sequence[Observation]) -> Diagnosis | None:
         """Feed new observations; a new :class:`Diagnosis` when the failed observations or the
@@ -768,6 +886,7 @@ class DiagnosisEngine:
             candidates, complete = self._search(facts, fkey, (keys[i] for i in failed_rows))
         else:
             candidates, complete = (), True
+        self._blamed = candidates[0] if candidates else frozenset()
         previous = self._current
         if (candidates == previous.candidates and complete == previous.complete
                 and failed_rows == self._emitted_rows and previous.time > 0.0):

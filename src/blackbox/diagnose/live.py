@@ -154,6 +154,7 @@ class LiveDiagnoser:
                                      "signals": judged_signals(self.observers)}
         if self.engine is not None:
             kwargs["independent"] = self.engine.independent
+            kwargs["blamed"] = self.engine.blamed
         return kwargs
 
     def on_graph(self, graph: GraphSnapshot) -> None:
