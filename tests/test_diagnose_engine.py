@@ -208,3 +208,54 @@ def test_a_search_kept_off_the_cpu_is_not_cut_short_by_its_budget():
     d = engine.update(1.0, observations(engine, KILL_USB_CAM | {("hz", "/audio")}))
     assert d is not None and d.complete
     assert [set(c) for c in d.candidates] == quiet
+
+
+def _engine(nodes, specs, **kw) -> DiagnosisEngine:
+    from blackbox.diagnose.robot_model import NodeSpec, build_model
+
+    return DiagnosisEngine(build_model([NodeSpec(*n) for n in nodes], specs), **kw)
+
+
+def test_two_faulty_producers_rank_before_one_node_upstream_of_both():
+    # /a feeds /b and /c; the values of /y and /z are wrong and nothing judges /x. /a alone
+    # explains both only if its wrong values cross /b and /c (two unlikely steps): the
+    # producers of the two wrong topics rank first (issue 22: /teleop alone outranked the
+    # two faulty sensors by cardinality).
+    specs = [ObservationSpec("liveness", Resource(topic="/y")),
+             ObservationSpec("liveness", Resource(topic="/z"))]
+    engine = _engine([("/a", ("/x",)), ("/b", ("/y",), ("/x",)), ("/c", ("/z",), ("/x",))],
+                     specs)
+    d = engine.update(1.0, [Observation(1.0, s.type, s.resource, Code.NO_STATE_FITS)
+                            for s in specs])
+    assert d is not None
+    assert [set(c) for c in d.candidates] == [{"/b", "/c"}, {"/a"}]
+    assert engine.value_hops(d.candidates, [s.key() for s in specs]) == {
+        frozenset({"/b", "/c"}): 0, frozenset({"/a"}): 2}
+
+
+def test_a_new_failure_two_candidates_explain_alike_keeps_the_blame_where_it_was():
+    # /p and /q are each the only suspect of their own liveness and tie on the relation of
+    # their topics. The node blamed before stays first when the relation fails after it.
+    liveness_q = ObservationSpec("liveness", Resource(topic="/y"))
+    relation = ObservationSpec("relation", Resource(topic="/x", topic_b="/y"))
+    nodes = [("/p", ("/x",)), ("/q", ("/y",))]
+
+    def code(failed: bool) -> Code:
+        return Code.NO_STATE_FITS if failed else Code.GENERAL_OK
+
+    fresh = _engine(nodes, [liveness_q, relation])
+    d = fresh.update(1.0, [Observation(1.0, "relation", relation.resource, code(True)),
+                           Observation(1.0, "liveness", liveness_q.resource, code(False))])
+    assert d is not None and [set(c) for c in d.candidates] == [{"/p"}, {"/q"}]  # by name
+
+    engine = _engine(nodes, [liveness_q, relation])
+    engine.update(1.0, [Observation(1.0, "liveness", liveness_q.resource, code(True)),
+                        Observation(1.0, "relation", relation.resource, code(False))])
+    assert engine.blamed == {"/q"}
+    d = engine.update(2.0, [Observation(2.0, "relation", relation.resource, code(True)),
+                            Observation(2.0, "liveness", liveness_q.resource, code(False))])
+    assert d is not None and [set(c) for c in d.candidates] == [{"/q"}, {"/p"}]
+    rebuilt = _engine(nodes, [liveness_q, relation], blamed=engine.blamed)
+    d = rebuilt.update(2.0, [Observation(2.0, "relation", relation.resource, code(True)),
+                             Observation(2.0, "liveness", liveness_q.resource, code(False))])
+    assert d is not None and [set(c) for c in d.candidates] == [{"/q"}, {"/p"}]
