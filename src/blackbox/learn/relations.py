@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -156,6 +156,8 @@ class Signal:
     its level nor as a target (its level carries every past error of the count)."""
     stamp: str | None = None
     """Its topic's header stamp, which times its samples (``sample_time``)."""
+    magnitude: bool = False
+    """An input by its absolute value (``grid`` holds it): :func:`magnitudes_of`."""
 
 
 @dataclass
@@ -960,11 +962,45 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
                     return together
         return single
 
+    def by_magnitude(ti: int, topic: str) -> Relation | None:
+        """A signal no other topic relates linearly, from the absolute values of a topic's
+        signals (a current that grows with the forward and the turning speed, whichever
+        their sign): the single best, or together when that explains materially more."""
+        target = signals[ti]
+        if target.monotonic:
+            return None
+        mags = magnitudes_of([s for s in signals if s.ref.topic == topic])
+        peers = sorted(((m, *best_lag(target.grid, m.grid, max_steps)) for m in mags),
+                       key=lambda p: -abs(p[2]))
+        if not peers or abs(peers[0][2]) < SCREEN:
+            return None
+        best: Relation | None = None
+        fitted = fitted_for(target, [peers[0][0]], [_taps(peers[0][1])])
+        if fitted is not None and fitted.r2 >= MAGNITUDE_R2_MIN:
+            best = relation_from_fit(target, [peers[0][0]], fitted)
+        joint = peers[:MAX_JOINT]
+        if len(joint) >= 2:
+            inputs = [p[0] for p in joint]
+            together: Fit | None = None
+            for lags in [[_taps(p[1]) for p in joint], [_taps(0)] * len(joint)]:
+                f = fitted_for(target, inputs, lags)
+                if f is not None and (together is None or f.r2 > together.r2 + 1e-4):
+                    together = f
+            if together is not None and together.r2 >= MAGNITUDE_R2_MIN and (
+                    best is None or prefer_joint(best.r2, together.r2)):
+                joint_relation = relation_from_fit(target, inputs, together)
+                if joint_relation is not None:
+                    return joint_relation
+        return best
+
     by_target: dict[int, list[Relation]] = {}
     topics = sorted({s.ref.topic for s in signals})
     for ti, target in enumerate(signals):
         found = [r for topic in topics if topic != target.ref.topic
                  for r in [from_topic(ti, topic)] if r is not None]
+        if not found:
+            found = [r for topic in topics if topic != target.ref.topic
+                     for r in [by_magnitude(ti, topic)] if r is not None]
         if not found:
             own = from_topic(ti, target.ref.topic)
             found = [own] if own is not None else []
@@ -983,6 +1019,31 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
         seen.add(key)
         kept.append(r)
     return sorted(kept, key=lambda r: (r.topics, r.target.name))
+
+
+MAGNITUDE_R2_MIN = 0.95
+"""The held-out R² a relation from absolute values must reach: a magnitude fits much that
+is not the relation (one wheel's speed stands for the robot's speed and turn while the
+two minutes of learning drive one way), so only a near-exact one is kept."""
+
+
+def magnitudes_of(signals: Sequence[Signal]) -> list[Signal]:
+    """The absolute values of the signals that take both signs around zero (a speed, a yaw
+    rate), as inputs: not those that trend, count or wrap, nor those of one sign, whose
+    magnitude is the signal itself."""
+    out = []
+    for s in signals:
+        if _trending(s) or s.monotonic or s.wrap or s.grid.size == 0:
+            continue
+        g = s.grid[np.isfinite(s.grid)]
+        if g.size == 0:
+            continue
+        spread = float(np.percentile(g, 95) - np.percentile(g, 5))
+        if spread <= 0 or min(-float(np.percentile(g, 5)), float(np.percentile(g, 95))) \
+                < 0.1 * spread:
+            continue
+        out.append(replace(s, grid=np.abs(s.grid), magnitude=True))
+    return out
 
 
 def _relative_noise(s: Signal) -> float:
@@ -1117,6 +1178,7 @@ def relation_entry(pair: tuple[str, str], relations: Sequence[Relation]) -> dict
             "target": {"topic": r.target.ref.topic, "field": r.target.ref.field},
             **({"target_lag": _g(r.target_steps * STEP)} if r.target_steps else {}),
             "inputs": [{"topic": s.ref.topic, "field": s.ref.field,
+                        **({"magnitude": True} if s.magnitude else {}),
                         "lags": [_g(lag * STEP) for lag in lags],
                         "gains": (_zero_sum(gains) if s.ref.label() in r.on_changes
                                   else [_g(g) for g in gains])}
@@ -1160,7 +1222,8 @@ def relation_comments(relations: Sequence[Relation]) -> list[str]:
     out = []
     for r in relations:
         assert r.calibration is not None
-        inputs = ", ".join(f"{s.ref.label()} (lags {lags[0] * STEP:g}..{lags[-1] * STEP:g} s)"
+        inputs = ", ".join(f"{'|' + s.ref.label() + '|' if s.magnitude else s.ref.label()} "
+                           f"(lags {lags[0] * STEP:g}..{lags[-1] * STEP:g} s)"
                            for s, lags in r.inputs)
         mode = ("standing still judged with its own noise" if r.still is not None
                 else "unjudged while standing still (not seen while learning)")

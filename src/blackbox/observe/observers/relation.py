@@ -23,6 +23,8 @@ checks them on a common grid of ``step`` seconds:
   climbing wheel angles) have a residual bias that moves slowly: it is followed over
   ``track`` seconds, by at most ``track_rate`` a second (bounded by what it did while
   learning), so a fault's offset or drift is not learned as the new normal;
+* an input with ``magnitude: true`` enters by its absolute value (a motor or battery
+  current follows how fast the robot drives and turns, whichever the direction);
 * ``topic_b`` may be ``topic``: a signal related to others of its own topic (the only
   relation it has) accuses that topic's producers alone;
 * ``clears: false``: the relation sees a fault of its target but not one of its inputs (a
@@ -113,11 +115,13 @@ _NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ012
 
 @dataclass(frozen=True, slots=True)
 class Tap:
-    """``gain * signal(t - lag)``, the lag in grid steps."""
+    """``gain * signal(t - lag)``, the lag in grid steps; with ``magnitude``,
+    ``gain * |signal(t - lag)|`` (a motor current follows the speed's size, not its sign)."""
 
     signal: SignalRef
     steps: int
     gain: float
+    magnitude: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -152,7 +156,8 @@ class RelationSpec:
     their own), ``None``: the learned bias is fixed."""
 
     def inputs(self) -> str:
-        return ", ".join(dict.fromkeys(t.signal.label() for t in self.taps))
+        return ", ".join(dict.fromkeys(f"|{t.signal.label()}|" if t.magnitude
+                                       else t.signal.label() for t in self.taps))
 
 
 class _Judge:
@@ -396,7 +401,8 @@ class RelationObserver(ObserverBase):
             y = history[spec.target][spec.target_steps]
             predicted = spec.intercept
             for tap in spec.taps:
-                predicted += tap.gain * history[tap.signal][tap.steps]
+                x = history[tap.signal][tap.steps]
+                predicted += tap.gain * (abs(x) if tap.magnitude else x)
             if math.isnan(y) or math.isnan(predicted):
                 stale = [ref.label() for ref in (spec.target, *(t.signal for t in spec.taps))
                          if math.isnan(history[ref][0])]
@@ -580,7 +586,7 @@ def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
     if not inputs:
         raise node["inputs"].error("a relation needs at least one input")
     for item in inputs:
-        item.check_keys(("topic", "field", "lags", "gains"))
+        item.check_keys(("topic", "field", "lags", "gains", "magnitude"))
         ref = read_signal_ref(ConfigNode.mapping({"topic": item["topic"],
                                                  "field": item["field"]}, item))
         if ref.topic not in topics:
@@ -590,7 +596,8 @@ def _relation(node: ConfigNode, step: float, topics: tuple[str, str],
         if not lags or len(lags) != len(gains):
             raise item["gains"].error(f"lags and gains must be lists of one length, got "
                                       f"{len(lags)} and {len(gains)}")
-        taps.extend(Tap(ref, _steps(lag, step), gain.float())
+        magnitude = item["magnitude"].bool() if item.get("magnitude") is not None else False
+        taps.extend(Tap(ref, _steps(lag, step), gain.float(), magnitude)
                     for lag, gain in zip(lags, gains, strict=True))
     span_node = node["span"]
     span = span_node.list()
