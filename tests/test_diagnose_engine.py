@@ -259,3 +259,33 @@ def test_a_new_failure_two_candidates_explain_alike_keeps_the_blame_where_it_was
     d = rebuilt.update(2.0, [Observation(2.0, "relation", relation.resource, code(True)),
                              Observation(2.0, "liveness", liveness_q.resource, code(False))])
     assert d is not None and [set(c) for c in d.candidates] == [{"/q"}, {"/p"}]
+
+
+def test_a_driver_whose_wrong_values_reach_the_odometry_ranks_as_the_driver_and_odometry():
+    # The real robots' three overlapping faults in miniature: the wheel driver's values are
+    # noisy (liveness) and the odometry disagrees with the command, the wheels and the
+    # current. {driver} alone explains it all by its wrong values crossing the odometry node
+    # (two crossings); {odometry, teleop} needs one. A faulty odometry node beside the driver is
+    # likelier than the crossings, so the driver ranks as that pair, before the pair that
+    # needs a crossing (before: /teleop reported, a false alarm on both middlewares).
+    from blackbox.observe.base import JudgedSignals
+
+    liveness = ObservationSpec("liveness", Resource(topic="/joint_states"))
+    cmd_odom = ObservationSpec("relation", Resource(topic="/cmd_vel", topic_b="/odom"))
+    wheels_odom = ObservationSpec("relation", Resource(topic="/joint_states", topic_b="/odom"))
+    current_odom = ObservationSpec("relation", Resource(topic="/battery", topic_b="/odom"))
+    specs = [liveness, cmd_odom, wheels_odom, current_odom]
+    signals = {cmd_odom.key(): JudgedSignals((("/cmd_vel", "v"), ("/odom", "v")),
+                                             (("/cmd_vel", "v"), ("/odom", "v"))),
+               current_odom.key(): JudgedSignals((("/battery", "current"), ("/odom", "v")),
+                                                 (("/battery", "current"), ("/odom", "v"))),
+               wheels_odom.key(): JudgedSignals((("/joint_states", "v"), ("/odom", "v")),
+                                                (("/joint_states", "v"), ("/odom", "v")))}
+    engine = _engine([("/teleop", ("/cmd_vel",)),
+                      ("/base_driver", ("/joint_states",), ("/cmd_vel",)),
+                      ("/odometry", ("/odom",), ("/joint_states",)),
+                      ("/battery_monitor", ("/battery",))], specs, signals=signals)
+    d = engine.update(1.0, [Observation(1.0, s.type, s.resource, Code.NO_STATE_FITS)
+                            for s in specs])
+    assert d is not None
+    assert [set(c) for c in d.candidates] == [{"/base_driver"}, {"/odometry", "/teleop"}]

@@ -543,7 +543,12 @@ class DiagnosisEngine:
              ) -> tuple[frozenset[str], ...]:
         """The likelier first: the larger product of the components' prior odds and of
         :data:`VALUE_HOP_PRIOR`'s odds for every node a wrong value must cross to reach a
-        failed value observation (:meth:`value_hops`), then cardinality, then the components
+        failed value observation (:meth:`value_hops`), or, if likelier, of the prior odds of
+        the candidate with the producers of those observations added (a wheel driver alone
+        explains a wrong odometry through the odometry node, but a wrong odometry node
+        beside it is likelier than that crossing: the driver then ranks as the pair, before
+        another pair that needs a crossing), then cardinality (of the candidate so
+        completed), then the components
         closer to the ``failed`` observations (fewer nodes the fault must cross, summed
         over the failed observations: the producer of the one topic two failed relations
         share is closer than a node upstream of one of them), then the more components of
@@ -556,14 +561,24 @@ class DiagnosisEngine:
         Closeness and passing are only computed when candidates tie on the first two."""
         sets = list(sets)
         keys = list(dict.fromkeys(failed))
-        hops = self.value_hops(sets, keys) if len(sets) > 1 else {}
+        paths = self._value_paths(sets, keys) if len(sets) > 1 else {}
         hop = math.log(VALUE_HOP_PRIOR / (1.0 - VALUE_HOP_PRIOR))
 
-        def odds(s: frozenset[str]) -> float:
-            return round(sum(math.log(self.prior(c) / (1.0 - self.prior(c))) for c in s)
-                         + hop * hops.get(s, 0), 9)
+        def log_odds(s: Iterable[str]) -> float:
+            return sum(math.log(self.prior(c) / (1.0 - self.prior(c))) for c in s)
 
-        keyed = sorted(((-odds(s), len(s), sorted(s), s) for s in sets),
+        def odds(s: frozenset[str]) -> tuple[float, int]:
+            """Log odds and size of the likelier of its wrong values crossing nodes and
+            its members with those producers faulty too (which, a superset, is no minimal
+            diagnosis itself)."""
+            hops, direct = paths.get(s, (0, frozenset()))
+            crossing = round(log_odds(s) + hop * hops, 9)
+            if not hops:
+                return crossing, len(s)
+            both = round(log_odds(s | direct), 9)
+            return (both, len(s | direct)) if both > crossing else (crossing, len(s))
+
+        keyed = sorted(((-o, n, sorted(s), s) for s in sets for o, n in [odds(s)]),
                        key=lambda k: k[:3])
         tied = any(a[:2] == b[:2] for a, b in itertools.pairwise(keyed))
         if not tied:
@@ -607,18 +622,40 @@ class DiagnosisEngine:
         that does compute from its input moves the relations of both alike (issue 22:
         ``/teleop`` or ``/base_driver`` alone outranked the two faulty sensors by
         cardinality)."""
+        return {s: hops for s, (hops, _) in self._value_paths(sets, failed).items()}
+
+    def _value_paths(self, sets: Sequence[frozenset[str]], failed: Iterable[Key]
+                     ) -> dict[frozenset[str], tuple[int, frozenset[str]]]:
+        """Per candidate, :meth:`value_hops` and the producers that would explain the
+        observations it reaches only across nodes directly (a greedy cover by the
+        observations' own producers)."""
         keys = [k for k in dict.fromkeys(failed) if not is_rate_type(k[0])]
         if not keys:
             return {}
         cleared = self._cleared_now()
         nears = [self.closeness((key,), cleared) for key in keys]
-        out: dict[frozenset[str], int] = {}
+        out: dict[frozenset[str], tuple[int, frozenset[str]]] = {}
         for s in sets:
             total = 0
+            far: list[frozenset[str]] = []
             for near in nears:
                 reach = [near[c] for c in s if c in near]
-                total += min(reach) if reach else 0
-            out[s] = total
+                hop = min(reach) if reach else 0
+                total += hop
+                if hop:
+                    far.append(frozenset(c for c, d in near.items() if d == 0))
+            extra: set[str] = set()
+            while far:
+                counts: dict[str, int] = {}
+                for own in far:
+                    for c in own:
+                        counts[c] = counts.get(c, 0) + 1
+                if not counts:
+                    break
+                best = min(counts, key=lambda c: (-counts[c], -self.prior(c), c))
+                extra.add(best)
+                far = [own for own in far if best not in own]
+            out[s] = (total, frozenset(extra))
         return out
 
     def _pending_evidence(self) -> dict[str, float]:
