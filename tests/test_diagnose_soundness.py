@@ -311,17 +311,6 @@ def code(value: bool | None) -> Code:
     return {True: Code.GENERAL_OK, False: Code.NO_STATE_FITS, None: Code.NOT_AVAILABLE}[value]
 
 
-def expected_diagnoses(robot: Robot) -> set[frozenset[str]]:
-    """The reference's minimal diagnoses; when there is none and a relation holds, those
-    with the held relations not judged (their clearing contradicted the failures)."""
-    expected = Reference(robot).minimal_diagnoses(MAX_CARDINALITY)
-    if expected or not any(v is True and s.type == RELATION for s, v in robot.observations):
-        return expected
-    relaxed = replace(robot, observations=tuple(
-        (s, None if v is True and s.type == RELATION else v) for s, v in robot.observations))
-    return Reference(relaxed).minimal_diagnoses(MAX_CARDINALITY)
-
-
 def flowing_robot(rng: random.Random) -> Robot:
     """A robot whose data flows down from one command (a teleop, a base driver, odometry
     computed from its wheels, sometimes a loop back), beside sensors of their own, watched
@@ -382,7 +371,7 @@ def test_engine_reports_exactly_the_minimal_diagnoses_of_the_documented_semantic
             if not any(v is False for _, v in robot.observations):
                 assert got.candidates == ()
                 continue
-            expected = expected_diagnoses(robot)
+            expected = Reference(robot).minimal_diagnoses(MAX_CARDINALITY)
             assert got.complete
             assert set(got.candidates) == expected, (case, step, robot)
             assert len(got.candidates) == len(expected)
@@ -443,13 +432,10 @@ def test_a_relation_held_on_one_field_clears_no_other_field():
     d = engine_for(robot).update(1.0, [Observation(1.0, s.type, s.resource, code(v))
                                        for s, v in observed])
     assert d is not None and set(d.candidates) == expected
-    # Topic-level, the held relation clears both topics and contradicts the failure: no
-    # diagnosis exists, and the engine judges without the held relation's clearing.
     topic_level = replace(robot, signals={})
-    assert Reference(topic_level).minimal_diagnoses(2) == set()
-    assert set(engine_for(topic_level).update(
+    assert engine_for(topic_level).update(
         1.0, [Observation(1.0, s.type, s.resource, code(v)) for s, v in observed]
-    ).candidates) == expected  # type: ignore[union-attr]
+    ).candidates == ()  # type: ignore[union-attr]
 
 
 def test_a_command_every_side_of_a_relation_follows_does_not_explain_its_failure():

@@ -159,7 +159,6 @@ class DiagnosisEngine:
         self._slot: dict[Key, int] = {}
         self._seen_failed: dict[Key, int] = {}
         self._upstream_of: dict[str, frozenset[str]] = {}
-        self._relation_oks: set[int] = set()
         for t in model.topics:
             self._rate_clause(th.var(("live", t)), st.producers(t, (), rate=True))
             self._value_clause(th.var(("right", t)), st.producers(t, (), rate=False))
@@ -174,7 +173,6 @@ class DiagnosisEngine:
                 ex = Explanation(tuple(t for t in (spec.resource.topic, spec.resource.topic_b)
                                        if t), ())
             if is_relation_type(spec.type):
-                self._relation_oks.add(ok)
                 # Failed: the values of one of its signals (fields, when the observer says
                 # which, else its topics) are wrong. Held: each it clears is right (faults
                 # that cancel out exactly are not assumed).
@@ -868,19 +866,6 @@ class DiagnosisEngine:
 
         res = hs_dag(prover, conflicts=reusable, max_cardinality=self.max_cardinality,
                      deadline=deadline, clock=BUDGET_CLOCK)
-        held = [lit for lit in assumptions if lit in self._relation_oks]
-        if not res.sets and res.complete and held:
-            # No diagnosis at all: the held relations' clearing contradicts the failures (a
-            # relation too coarse to see a fault still held and cleared the faulty signal,
-            # against the assumption that faults do not cancel). Judge without it.
-            relaxed = [lit for lit in assumptions if lit not in self._relation_oks]
-
-            def relaxed_prover(path: frozenset[str]) -> frozenset[str] | None:
-                conflict = self.checker.conflict(relaxed, path, deadline, BUDGET_CLOCK)
-                return None if conflict is None else conflict.components
-
-            res = hs_dag(relaxed_prover, max_cardinality=self.max_cardinality,
-                         deadline=deadline, clock=BUDGET_CLOCK)
         if res.complete:
             self._cache[key] = (res.sets, res.complete)
             if len(self._cache) > self._cache_size:
