@@ -921,6 +921,33 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
             notes.append(why)
         return rates
 
+    def single_or_joint(target: Signal, single: tuple[Signal, int] | None,
+                        joint: list[tuple[Signal, int]], common: Sequence[int],
+                        r2_min: float) -> Relation | None:
+        """The relation of ``target`` from its ``single`` best peer (at its lag), or from
+        the ``joint`` peers when together they explain materially more
+        (:func:`prefer_joint`): each joint input at its own best lag, or all at one of
+        ``common``; either kept at a held-out R2 of ``r2_min``."""
+        alone: Relation | None = None
+        if single is not None:
+            fitted = fitted_for(target, [single[0]], [_taps(single[1])])
+            if fitted is not None and fitted.r2 >= r2_min:
+                alone = relation_from_fit(target, [single[0]], fitted)
+        if len(joint) >= 2:
+            inputs = [x for x, _ in joint]
+            best: Fit | None = None
+            for lags in [[_taps(lag) for _, lag in joint], *([_taps(c)] * len(joint)
+                                                            for c in common)]:
+                fitted = fitted_for(target, inputs, lags)
+                if fitted is not None and (best is None or fitted.r2 > best.r2 + 1e-4):
+                    best = fitted
+            if best is not None and best.r2 >= r2_min and (
+                    alone is None or prefer_joint(alone.r2, best.r2)):
+                together = relation_from_fit(target, inputs, best)
+                if together is not None:
+                    return together
+        return alone
+
     def from_topic(ti: int, topic: str) -> Relation | None:
         target = signals[ti]
         if target.monotonic:
@@ -928,39 +955,22 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
         peers = [(xi, *lag_corr(ti, xi)) for xi, s in enumerate(signals)
                  if s.ref.topic == topic and xi != ti]
         peers.sort(key=lambda p: -abs(p[2]))
-        single: Relation | None = None
-        if peers and abs(peers[0][2]) >= SCREEN:
-            xi, lag, _ = peers[0]
-            fitted = fitted_for(target, [signals[xi]], [_taps(lag)])
-            if fitted is not None and fitted.r2 >= R2_MIN:
-                single = relation_from_fit(target, [signals[xi]], fitted)
+        single = ((signals[peers[0][0]], peers[0][1])
+                  if peers and abs(peers[0][2]) >= SCREEN else None)
         # together, signals may explain what none does alone (a yaw rate from the left and
         # right wheel speeds, each mostly the forward speed): the best few of the same kind
         # (trending or not) as the target, whatever their single correlation; or explain
         # materially more than the best one alone (a wheel speed turns with the forward
         # speed and the yaw rate: from the forward command alone its residual wanders with
         # every turn), which the held-out residuals decide (:func:`prefer_joint`)
-        joint = [p for p in peers
-                 if _trending(signals[p[0]]) == _trending(target)][:MAX_JOINT]
-        if len(joint) >= 2:
-            inputs = [signals[p[0]] for p in joint]
-            # each input at its own best lag, or all at one: a signal that is mostly
-            # another quantity (a wheel speed is mostly the forward speed) correlates best
-            # with the target at a lag that says nothing of the delay (a yaw rate from four
-            # wheel speeds: R2 0.77 at their own lags, 0.995 all at 0)
-            best: Fit | None = None
-            common = [] if _trending(target) else sorted({0, *(p[1] for p in joint)})
-            for lags in [[_taps(p[1]) for p in joint], *([_taps(c)] * len(joint)
-                                                         for c in common)]:
-                fitted = fitted_for(target, inputs, lags)
-                if fitted is not None and (best is None or fitted.r2 > best.r2 + 1e-4):
-                    best = fitted
-            if best is not None and best.r2 >= R2_MIN and (
-                    single is None or prefer_joint(single.r2, best.r2)):
-                together = relation_from_fit(target, inputs, best)
-                if together is not None:
-                    return together
-        return single
+        joint = [(signals[xi], lag) for xi, lag, _ in peers
+                 if _trending(signals[xi]) == _trending(target)][:MAX_JOINT]
+        # each input at its own best lag, or all at one: a signal that is mostly another
+        # quantity (a wheel speed is mostly the forward speed) correlates best with the
+        # target at a lag that says nothing of the delay (a yaw rate from four wheel
+        # speeds: R2 0.77 at their own lags, 0.995 all at 0)
+        common = [] if _trending(target) else sorted({0, *(lag for _, lag in joint)})
+        return single_or_joint(target, single, joint, common, R2_MIN)
 
     def by_magnitude(ti: int, topic: str) -> Relation | None:
         """A signal no other topic relates linearly, from the absolute values of a topic's
@@ -974,24 +984,8 @@ def _search(signals: list[Signal], notes: list[str]) -> list[Relation]:
                        key=lambda p: -abs(p[2]))
         if not peers or abs(peers[0][2]) < SCREEN:
             return None
-        best: Relation | None = None
-        fitted = fitted_for(target, [peers[0][0]], [_taps(peers[0][1])])
-        if fitted is not None and fitted.r2 >= MAGNITUDE_R2_MIN:
-            best = relation_from_fit(target, [peers[0][0]], fitted)
-        joint = peers[:MAX_JOINT]
-        if len(joint) >= 2:
-            inputs = [p[0] for p in joint]
-            together: Fit | None = None
-            for lags in [[_taps(p[1]) for p in joint], [_taps(0)] * len(joint)]:
-                f = fitted_for(target, inputs, lags)
-                if f is not None and (together is None or f.r2 > together.r2 + 1e-4):
-                    together = f
-            if together is not None and together.r2 >= MAGNITUDE_R2_MIN and (
-                    best is None or prefer_joint(best.r2, together.r2)):
-                joint_relation = relation_from_fit(target, inputs, together)
-                if joint_relation is not None:
-                    return joint_relation
-        return best
+        joint = [(m, lag) for m, lag, _ in peers[:MAX_JOINT]]
+        return single_or_joint(target, joint[0], joint, [0], MAGNITUDE_R2_MIN)
 
     by_target: dict[int, list[Relation]] = {}
     topics = sorted({s.ref.topic for s in signals})
