@@ -15,17 +15,12 @@ from blackbox.events import GraphSnapshot, MessageArrival, NodeInfo, TopicInfo
 from blackbox.learn import learn_from, render_config
 from blackbox.learn.relations import magnitudes_of
 from blackbox.model import Code
-from blackbox.observe.build import build_observer, load_config_text
 from blackbox.observe.observers.relation import relation_from_config
 from blackbox.sources.memory import MemorySource
+from test_learn_joint import Twist
+from test_learn_slow_signals import judge, relations
 
 NODES = {"/cmd_vel": "/teleop", "/battery": "/power_monitor"}
-
-
-@dataclass(frozen=True)
-class Twist:
-    v: float
-    w: float
 
 
 @dataclass(frozen=True)
@@ -63,30 +58,19 @@ def robot(start: float, seconds: float, *, offset: float = 0.0, seed: int = 0) -
 def test_a_current_is_related_to_the_size_of_the_speeds_and_an_offset_inside_its_range_fails_it():
     learned = learn_from(lambda: MemorySource(robot(0.0, 120.0)), 120.0)
     text = render_config(learned, "r", "r.model.yaml", "now")
-    config = load_config_text(text, "r.yaml")
-    entries = [e for e in config.observers if e.to_python()["type"] == "relation"]
-    current = [r for e in entries for r in e.to_python()["relations"]
+    current = [r for e in relations(text) for r in e["relations"]  # type: ignore[attr-defined]
                if r["target"] == {"topic": "/battery", "field": "current"}]
     assert current, text
     assert all(i.get("magnitude") for i in current[0]["inputs"])
     assert "|/cmd_vel" in text  # the comment says so
-    observer = build_observer(entries[0])
-
-    def verdicts(start: float, offset: float) -> list:
-        out = []
-        for event in robot(start, 20.0, offset=offset, seed=int(start)):
-            if isinstance(event, MessageArrival):
-                observer.on_message(event)
-        for t in range(int(start) + 1, int(start) + 21):
-            out.extend(o for o in observer.evaluate(float(t)) if o.observer == "relation")
-        return out
-
-    healthy = verdicts(200.0, 0.0)
-    assert all(o.code != Code.NO_STATE_FITS for o in healthy), [o.message for o in healthy]
-    faulty = verdicts(220.0, 0.3)  # 0.3 A on a current of 1.5 to 6.5 A
-    failed = [o for o in faulty if o.code == Code.NO_STATE_FITS]
+    verdicts = judge(text, robot(200.0, 20.0, seed=200)
+                     + robot(220.0, 20.0, offset=0.3, seed=220))  # 0.3 A on 1.5 to 6.5 A
+    healthy = [o for o in verdicts if o.time <= 220.0]
+    assert healthy and all(o.code != Code.NO_STATE_FITS for o in healthy), \
+        [o.message for o in healthy]
+    failed = [o for o in verdicts if o.time > 220.0 and o.code == Code.NO_STATE_FITS]
     assert failed and "/battery current disagrees with |/cmd_vel" in failed[0].message, \
-        [o.message for o in faulty]
+        [o.message for o in verdicts if o.time > 220.0]
 
 
 def test_only_signals_of_both_signs_give_magnitudes():
