@@ -159,6 +159,7 @@ class DiagnosisEngine:
         self._slot: dict[Key, int] = {}
         self._seen_failed: dict[Key, int] = {}
         self._upstream_of: dict[str, frozenset[str]] = {}
+        self._upstream: dict[str, Explanation] = {}
         for t in model.topics:
             self._rate_clause(th.var(("live", t)), st.producers(t, (), rate=True))
             self._value_clause(th.var(("right", t)), st.producers(t, (), rate=False))
@@ -248,7 +249,6 @@ class DiagnosisEngine:
         self._cache: OrderedDict[bytes, tuple[tuple[frozenset[str], ...], bool]] = (
             OrderedDict())
         self._facts_key: bytes | None = None
-        self._upstream: dict[str, Explanation] = {}
         self._explained: dict[Key, Explanation] = {}
         self._judged: frozenset[tuple[str, bool]] | None = None
         self._kinds: dict[str, str] = {}
@@ -324,14 +324,13 @@ class DiagnosisEngine:
         known = self._upstream_of.get(topic)
         if known is not None:
             return known
-        inputs = self.structure.producers(topic, (), rate=False).inputs
         out: set[str] = set()
-        frontier = list(inputs)
+        frontier = list(self._producers(topic).inputs)
         while frontier:
             t = frontier.pop()
             if t not in out:
                 out.add(t)
-                frontier.extend(self.structure.producers(t, (), rate=False).inputs)
+                frontier.extend(self._producers(t).inputs)
         found = self._upstream_of[topic] = frozenset(out)
         return found
 
@@ -558,10 +557,14 @@ class DiagnosisEngine:
         fewer passing observations that involve the candidate (a command that four relations
         and its liveness currently pass is less suspect than a sensor only one passes), then
         names.
-        Closeness and passing are only computed when candidates tie on the first two."""
+        The closeness of failed value observations is computed for any two candidates;
+        that of the others, and passing, only when candidates tie on the first two."""
         sets = list(sets)
         keys = list(dict.fromkeys(failed))
-        paths = self._value_paths(sets, keys) if len(sets) > 1 else {}
+        cleared = self._cleared_now() if len(sets) > 1 else frozenset()
+        nears = ({key: self.closeness((key,), cleared) for key in keys
+                  if not is_rate_type(key[0])} if len(sets) > 1 else {})
+        paths = self._value_paths(sets, list(nears.values()))
         hop = math.log(VALUE_HOP_PRIOR / (1.0 - VALUE_HOP_PRIOR))
 
         def log_odds(s: Iterable[str]) -> float:
@@ -584,12 +587,12 @@ class DiagnosisEngine:
         if not tied:
             return tuple(k[3] for k in keyed)
         far = len(self.model.topics) + 1
-        cleared = self._cleared_now()
-        nears = [self.closeness((key,), cleared) for key in keys]
+        closeness = [nears[key] if key in nears else self.closeness((key,), cleared)
+                     for key in keys]
 
         def distance(s: frozenset[str]) -> int:
-            return sum(min(near.get(c, far) for near in nears) if nears else 0 for c in s) \
-                + sum(min(near.get(c, far) for c in s) for near in nears)
+            return sum(min(near.get(c, far) for near in closeness) if closeness else 0
+                       for c in s) + sum(min(near.get(c, far) for c in s) for near in closeness)
 
         passing: dict[str, int] = {}
         for key, obs in zip(self._keys, self._obs, strict=True):
@@ -622,18 +625,18 @@ class DiagnosisEngine:
         that does compute from its input moves the relations of both alike (issue 22:
         ``/teleop`` or ``/base_driver`` alone outranked the two faulty sensors by
         cardinality)."""
-        return {s: hops for s, (hops, _) in self._value_paths(sets, failed).items()}
-
-    def _value_paths(self, sets: Sequence[frozenset[str]], failed: Iterable[Key]
-                     ) -> dict[frozenset[str], tuple[int, frozenset[str]]]:
-        """Per candidate, :meth:`value_hops` and the producers that would explain the
-        observations it reaches only across nodes directly (a greedy cover by the
-        observations' own producers)."""
-        keys = [k for k in dict.fromkeys(failed) if not is_rate_type(k[0])]
-        if not keys:
-            return {}
         cleared = self._cleared_now()
-        nears = [self.closeness((key,), cleared) for key in keys]
+        nears = [self.closeness((key,), cleared) for key in dict.fromkeys(failed)
+                 if not is_rate_type(key[0])]
+        return {s: hops for s, (hops, _) in self._value_paths(sets, nears).items()}
+
+    def _value_paths(self, sets: Sequence[frozenset[str]], nears: Sequence[Mapping[str, int]]
+                     ) -> dict[frozenset[str], tuple[int, frozenset[str]]]:
+        """Per candidate, :meth:`value_hops` over the failed value observations' closeness
+        (``nears``) and the producers that would explain the observations it reaches only
+        across nodes directly (a greedy cover by the observations' own producers)."""
+        if not nears:
+            return {}
         out: dict[frozenset[str], tuple[int, frozenset[str]]] = {}
         for s in sets:
             total = 0
