@@ -55,11 +55,11 @@ def make_report(settings: CampaignSettings, result: CampaignResult, out: Path,
     """Run the filter experiments, draw every figure and write ``out/report.md``."""
     out.mkdir(parents=True, exist_ok=True)
     say = progress or (lambda _: None)
-    tmp = Path(tempfile.mkdtemp(prefix="blackbox-filters-"))
-    sim = simulated_filter_experiments(
-        Path(settings.config), tmp, kinds=settings.kinds, runs=filter_runs,
-        duration=min(settings.duration, 300.0), fault_free=fault_free, seed=settings.seed,
-        grace=settings.grace, windows=windows, progress=say)
+    with tempfile.TemporaryDirectory(prefix="blackbox-filters-") as tmp:
+        sim = simulated_filter_experiments(
+            Path(settings.config), Path(tmp), kinds=settings.kinds, runs=filter_runs,
+            duration=min(settings.duration, 300.0), fault_free=fault_free,
+            seed=settings.seed, grace=settings.grace, windows=windows, progress=say)
     real_points: list[FilterPoint] | None = None
     real_runs = [r.real for r in result.runs if r.real is not None]
     harness = settings.harness()
