@@ -29,29 +29,33 @@ TOPICS = [f"/s{i}" for i in range(10)]
 RATE = 100.0
 
 
-def baseline_entries() -> list[str]:
+def baseline_entries(topics: list[str] = TOPICS, field: str = "x") -> list[str]:
+    """Per topic what ``blackbox learn`` writes without relations (``field`` is the signal)."""
     out = []
-    for t in TOPICS:
+    for t in topics:
         out.append(f"{{type: hz, topic: {t}, filter: {{type: mean, window_size: 100}}, states: "
                    "[{number: 1, name: nominal, period: {value: {type: in_between, "
                    "lower_bound: 0.009, upper_bound: 0.011}}}]}")
         out.append(f"{{type: timeout, topic: {t}, timeout: 0.5}}")
-        out.append(f"{{type: fields, topic: {t}, fields: [{{name: x, field: x, filter: "
+        out.append(f"{{type: fields, topic: {t}, fields: [{{name: x, field: {field}, filter: "
                    "{type: mean, window_size: 100, deviation: std_deviation}}], states: "
                    "[{number: 1, name: nominal, x: {value: {type: in_between, "
                    "lower_bound: -3, upper_bound: 3}}}]}")
     return out
 
 
-def relation_entries() -> list[str]:
+def relation_entries(topics: list[str] = TOPICS, field: str = "x") -> list[str]:
+    """One liveness observer per topic and a relation for each neighbouring pair."""
     out = []
-    for t in TOPICS:
-        out.append(f"{{type: liveness, topic: {t}, signals: [{{name: x, field: x, repeats: 5, "
+    for t in topics:
+        out.append(f"{{type: liveness, topic: {t}, signals: [{{name: x, field: {field}, "
+                   "repeats: 5, "
                    "noise: {block: 50, mean: -7.0, std: 0.3, cusum: {k: 0.5, h: 12}}}]}")
-    for a, b in itertools.pairwise(TOPICS):
+    for a, b in itertools.pairwise(topics):
         out.append(
             f"{{type: relation, topic: {a}, topic_b: {b}, relations: [{{name: r, target: "
-            f"{{topic: {b}, field: x}}, inputs: [{{topic: {a}, field: x, lags: [0.0, 0.05, "
+            f"{{topic: {b}, field: {field}}}, inputs: [{{topic: {a}, field: {field}, lags: "
+            "[0.0, 0.05, "
             "0.1], gains: [0.3, 0.4, 0.3]}], block_noise: 0.01, cusum: {k: 0.5, h: 12}, "
             "excitation: 0.02, span: [-5, 5]}]}")
     return out

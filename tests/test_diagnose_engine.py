@@ -289,3 +289,32 @@ def test_a_driver_whose_wrong_values_reach_the_odometry_ranks_as_the_driver_and_
                             for s in specs])
     assert d is not None
     assert [set(c) for c in d.candidates] == [{"/base_driver"}, {"/odometry", "/teleop"}]
+
+
+def test_with_no_explanation_the_operator_reads_which_observations_contradict_each_other():
+    # Three sensors of one quantity: /a ~ /b fails while /a ~ /c and /b ~ /c hold, which
+    # clear all three signals. No set of faults explains it; the explanation names the
+    # failed relation and the two that clear every suspect, not only "check the model".
+    from blackbox.observe.base import JudgedSignals
+
+    pairs = [("/a", "/b"), ("/a", "/c"), ("/b", "/c")]
+    specs = [ObservationSpec("relation", Resource(topic=x, topic_b=y)) for x, y in pairs]
+    signals = {s.key(): JudgedSignals(((x, "v"), (y, "v")), ((x, "v"), (y, "v")))
+               for s, (x, y) in zip(specs, pairs, strict=True)}
+    engine = _engine([("/pa", ("/a",)), ("/pb", ("/b",)), ("/pc", ("/c",))], specs,
+                     signals=signals)
+    d = engine.update(1.0, [Observation(1.0, "relation", s.resource,
+                                        Code.NO_STATE_FITS if i == 0 else Code.GENERAL_OK)
+                            for i, s in enumerate(specs)])
+    assert d is not None and d.candidates == () and d.complete
+    assert ("No set of modelled components explains them: the failed relation on /a -> /b "
+            "contradicts the passing relation on /a -> /c and relation on /b -> /c, which "
+            "clear every component that could explain it") in d.explanation
+    failed, passing = engine.contradiction() or ((), ())
+    assert [o.resource.topic_b for o in failed] == ["/b"]
+    assert [o.resource.topic_b for o in passing] == ["/c", "/c"]
+
+    d = engine.update(2.0, [Observation(2.0, "relation", specs[2].resource,
+                                        Code.NO_STATE_FITS)])
+    assert d is not None and d.candidates == ({"/pb"},)
+    assert engine.contradiction() is None

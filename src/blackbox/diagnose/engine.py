@@ -932,13 +932,55 @@ class DiagnosisEngine:
                 and failed_rows == self._emitted_rows and previous.time > 0.0):
             return None
         failed = tuple(o for i in failed_rows if (o := held[i]) is not None)
+        clash = self.contradiction(facts) if failed and not candidates and complete else None
         self._current = Diagnosis(now, candidates, failed,
-                                  self.explain(candidates, failed, complete), complete)
+                                  self.explain(candidates, failed, complete, clash), complete)
         self._emitted_rows = failed_rows
         return self._current
 
     def current(self) -> Diagnosis:
         return self._current
+
+    def contradiction(self, facts: npt.NDArray[np.int64] | None = None
+                      ) -> tuple[tuple[Observation, ...], tuple[Observation, ...]] | None:
+        """The failed and the passing observations that contradict each other whatever is
+        faulty (a minimal set, within the time budget), or ``None`` when some assignment of
+        faults explains every failure.
+
+        When no diagnosis exists the operator must learn which observations disagree: a
+        passing one clears what it sees, so a failure whose every explanation it clears is
+        a fault of the model or the configuration (or of the observers), not of the robot.
+        """
+        lits = (self._facts() if facts is None else facts).tolist()
+        deadline = BUDGET_CLOCK() + self.time_budget
+        everyone = self.checker.components
+        found = self.checker.conflict(lits, everyone, deadline, BUDGET_CLOCK)
+        if found is None:
+            return None
+        core = sorted(found.support)
+        i = 0
+        while i < len(core) and BUDGET_CLOCK() < deadline:
+            trial = self.checker.conflict(core[:i] + core[i + 1:], everyone, deadline,
+                                          BUDGET_CLOCK)
+            if trial is None:
+                i += 1
+            else:
+                core = sorted(trial.support)
+        row_of: dict[int, int] = {}
+        for i, (ok, seen) in enumerate(zip(self._ok_var.tolist(), self._seen_var.tolist(),
+                                           strict=True)):
+            row_of[ok] = i
+            if seen:
+                row_of[seen] = i
+        bad: dict[int, Observation] = {}
+        good: dict[int, Observation] = {}
+        for lit in core:
+            row = row_of.get(abs(lit))
+            if row is not None and (obs := self._obs[row]) is not None:
+                (good if self._fact[row] else bad)[row] = obs
+        order = self._order
+        return (tuple(bad[r] for r in sorted(bad, key=order.__getitem__)),
+                tuple(good[r] for r in sorted(good, key=order.__getitem__)))
 
     # ---- words -------------------------------------------------------------------------------
 
@@ -958,8 +1000,11 @@ class DiagnosisEngine:
         return " and ".join(self._name(c) for c in sorted(s))
 
     def explain(self, candidates: Sequence[frozenset[str]], failed: Sequence[Observation],
-                complete: bool) -> str:
-        """One paragraph a technician can act on."""
+                complete: bool,
+                clash: tuple[Sequence[Observation], Sequence[Observation]] | None = None
+                ) -> str:
+        """One paragraph a technician can act on; ``clash`` is :meth:`contradiction`'s
+        answer when no diagnosis exists."""
         total = self._held
         if not failed:
             return f"All {total} current observations are OK; no component is suspected."
@@ -968,7 +1013,18 @@ class DiagnosisEngine:
         more = f" and {len(failed) - 6} more" if len(failed) > 6 else ""
         text = f"{len(failed)} of {total} observations failed: {listed}{more}. "
         if not candidates:
-            if complete:
+            if complete and clash is not None and clash[0]:
+                text += (f"No set of modelled components explains them: "
+                         f"{self._observations_words('failed', clash[0])} "
+                         + (f"contradict{'s' if len(clash[0]) == 1 else ''} "
+                            f"{self._observations_words('passing', clash[1])}, which "
+                            f"clear{'s' if len(clash[1]) == 1 else ''} every component "
+                            f"that could explain {'it' if len(clash[0]) == 1 else 'them'}"
+                            if clash[1] else
+                            "cannot all fail together under the model's rules")
+                         + "; check the model, the observer configuration or those "
+                           "observers.")
+            elif complete:
                 text += ("No set of modelled components explains them"
                          + (f" with at most {self.max_cardinality} faults" if
                             self.max_cardinality else "")
@@ -1033,6 +1089,16 @@ class DiagnosisEngine:
                 out.append((t, "rate" if rate else "values"))
                 frontier.extend(self._producers(t).inputs)
         return sorted(out)
+
+    @staticmethod
+    def _observations_words(state: str, observations: Sequence[Observation],
+                            shown: int = 4) -> str:
+        """``the failed relation on /a -> /b and hz on /c``."""
+        words = [f"{o.observer} on {o.resource.label()}" for o in observations[:shown]]
+        if len(observations) > shown:
+            words.append(f"{len(observations) - shown} more")
+        joined = words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
+        return f"the {state} {joined}"
 
     def _listing(self, sets: Sequence[frozenset[str]], shown: int = 3) -> str:
         words = "; ".join(self._set_words(c) for c in sets[:shown])

@@ -1,0 +1,157 @@
+"""What relation observers add to the whole black box: 10 signals at 100 Hz on real ROS 1.
+
+    .venv/bin/python benchmarks/relations_blackbox.py [--seconds 30] [--repeat 3] [--learn 60]
+
+A bare Debian ROS 1 master and two rospy processes publishing five ``std_msgs/Float64``
+topics each at 100 Hz, every message one slow sine of the wall clock plus noise (so the ten
+signals measure one motion, as redundant sensors do). ``blackbox run --source ros1://...``
+watches them, one variant after the other, alternating within each round so load from
+elsewhere falls on both alike:
+
+* ``hand``: what ``benchmarks/relations_cpu.py`` measures for the observers alone, now in
+  the whole process (receive, decode, observe, diagnose): per topic ``hz``, ``timeout`` and
+  a ``fields`` envelope, then the same plus one ``liveness`` observer per topic and a
+  ``relation`` for each of the nine neighbouring pairs.
+* ``learned`` (with ``--learn S`` > 0): ``blackbox learn`` watches the robot for S seconds;
+  the file it writes, and the same file without its ``relation`` and ``liveness`` observers.
+
+CPU is the ``blackbox run`` process's user+system time over the window (100 % = one core),
+after a warm-up; the table gives every round and the median. Issue 22 item 5 asks that the
+relations add at most 10 % to the black box.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import yaml
+
+from relations_cpu import baseline_entries, relation_entries
+from support import BLACKBOX, ROOT, measure, stop, summary_rate
+
+sys.path.insert(0, str(ROOT / "scripts" / "ros1_robot"))
+from robot import ROS_PYTHON, ThesisRobot, free_port
+
+LOAD_SCRIPT = ROOT / "scripts" / "ros1_robot" / "load_publishers.py"
+PROCESSES = ("/wave0", "/wave1")
+PER_PROCESS = 5
+RATE = 100.0
+TOPICS = [f"{p}/t{i}" for p in PROCESSES for i in range(PER_PROCESS)]
+RELATION_KINDS = ("relation", "liveness")
+
+
+def write_config(path: Path, entries: list[str]) -> Path:
+    path.write_text("version: 1\nrobot: {id: wave}\nobservers:\n"
+                    + "".join(f"  - {e}\n" for e in entries))
+    return path
+
+
+def without_relations(learned: Path, out: Path) -> int:
+    """Write ``learned`` without its relation and liveness observers; how many it had."""
+    data = yaml.safe_load(learned.read_text())
+    kept = [o for o in data["observers"] if o.get("type") not in RELATION_KINDS]
+    removed = len(data["observers"]) - len(kept)
+    data["observers"] = kept
+    out.write_text(yaml.safe_dump(data, sort_keys=False))
+    return removed
+
+
+def run_blackbox(config: Path, port: int, log: Path) -> subprocess.Popen[bytes]:
+    env = {k: v for k, v in os.environ.items() if k != "ROS_MASTER_URI"}
+    with log.open("wb") as out:
+        return subprocess.Popen([*BLACKBOX, "run", "--config", str(config), "--source",
+                                 f"ros1://127.0.0.1:{port}", "--quiet"],
+                                stdout=out, stderr=subprocess.STDOUT, env=env, cwd=ROOT)
+
+
+def learn(port: int, seconds: float, out: Path, log: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if k != "ROS_MASTER_URI"}
+    with log.open("wb") as sink:
+        done = subprocess.run([*BLACKBOX, "learn", "--source", f"ros1://127.0.0.1:{port}",
+                               "--duration", str(seconds), "--discovery", "3", "--quiet",
+                               "-o", str(out), "--robot-id", "wave"],
+                              stdout=sink, stderr=subprocess.STDOUT, env=env, cwd=ROOT,
+                              timeout=seconds + 120)
+    if done.returncode != 0:
+        raise RuntimeError(f"blackbox learn failed ({done.returncode}), see {log}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seconds", type=float, default=30.0, help="measuring window")
+    parser.add_argument("--warmup", type=float, default=5.0)
+    parser.add_argument("--repeat", type=int, default=3, help="rounds of every variant")
+    parser.add_argument("--learn", type=float, default=60.0,
+                        help="seconds to learn for the learned pair (0: skip it)")
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory(prefix="relations-bb-") as tmp:
+        work = Path(tmp)
+        robot = ThesisRobot(free_port(), log_dir=work / "robot")
+        robot.start_master()
+        pubs = [subprocess.Popen([ROS_PYTHON, str(LOAD_SCRIPT), "--name", name, "--topics",
+                                  str(PER_PROCESS), "--rate", str(RATE), "--wave"],
+                                 env=robot.env, stdout=subprocess.DEVNULL,
+                                 stderr=subprocess.DEVNULL, start_new_session=True)
+                 for name in PROCESSES]
+        try:
+            robot.wait_registered(list(PROCESSES))
+            variants = {
+                "hand: hz, timeout, fields per topic": write_config(
+                    work / "hand-base.yaml", baseline_entries(TOPICS, "data")),
+                "hand: + 10 liveness, 9 relation observers": write_config(
+                    work / "hand-rel.yaml",
+                    baseline_entries(TOPICS, "data") + relation_entries(TOPICS, "data")),
+            }
+            if args.learn > 0:
+                print(f"learning {args.learn:g} s ...", flush=True)
+                learned = work / "learned.yaml"
+                learn(robot.port, args.learn, learned, work / "learn.log")
+                stripped = work / "learned-base.yaml"
+                removed = without_relations(learned, stripped)
+                variants["learned, without relation and liveness"] = stripped
+                variants[f"learned ({removed} relation and liveness observers)"] = learned
+            cpu: dict[str, list[float]] = {name: [] for name in variants}
+            rates: dict[str, list[float]] = {name: [] for name in variants}
+            for r in range(args.repeat):
+                for name, config in variants.items():
+                    log = work / f"bb-{r}-{len(cpu[name])}.log"
+                    print(f"round {r + 1}/{args.repeat}: {name} ...", flush=True)
+                    bb = run_blackbox(config, robot.port, log)
+                    try:
+                        usage = measure(bb, name, args.warmup, args.seconds)
+                    finally:
+                        stop(bb)
+                    cpu[name].append(usage.cpu_percent)
+                    rate = summary_rate(log)
+                    if rate is not None:
+                        rates[name].append(rate)
+        finally:
+            for p in pubs:
+                stop(p, group=True)
+            robot.stop()
+    print(f"machine: {os.cpu_count()} cores, python {sys.version.split()[0]}; "
+          f"{len(TOPICS)} topics x {RATE:g} Hz from {len(PROCESSES)} rospy processes; "
+          f"{args.repeat} rounds x {args.seconds:g} s after {args.warmup:g} s warm-up")
+    print("| blackbox run with | CPU % of one core, rounds | median | received msg/s | added |")
+    print("|---|---|---|---|---|")
+    names = list(variants)
+    for i, name in enumerate(names):
+        med = statistics.median(cpu[name])
+        added = ""
+        if i % 2 == 1:
+            base = statistics.median(cpu[names[i - 1]])
+            added = f"{med - base:+.2f} points ({100 * (med / base - 1):+.0f} %)"
+        got = f"{statistics.median(rates[name]):.0f}" if rates[name] else "-"
+        rounds = ", ".join(f"{c:.2f}" for c in cpu[name])
+        print(f"| {name} | {rounds} | {med:.2f} | {got} | {added} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
