@@ -726,6 +726,33 @@ def relation_from_fit(target: Signal, inputs: list[Signal], fitted: Fit) -> Rela
                     block=block, widen=widen)
 
 
+def clear_only_what_they_see(relations: Sequence[Relation]) -> None:
+    """Turn ``clears`` off where a fault of four noise std on an input would not break the
+    relation, with each signal's noise bounded by the residual of the relations predicting
+    it as well as by its consecutive differences.
+
+    The differences overstate the noise of a signal sampled slowly beside the motion it
+    follows (a 2 Hz battery current: three times its noise), and with it how far a fault
+    of that signal moves the relations it feeds. A voltage ~ current relation then claimed
+    to see current offsets it cannot (a 0.08 ohm sag hides an offset of 0.2 A in the
+    voltage's noise) and, held, cleared the current while the current ~ speed relation
+    failed: no diagnosis at all. A relation's out-of-fold residual contains its target's
+    noise, so the smallest such residual bounds that noise too.
+    """
+    bound: dict[SignalRef, float] = {}
+    for r in relations:
+        key = r.target.ref
+        bound[key] = min(bound.get(key, math.inf), r.noise)
+    for r in relations:
+        if not r.clears:
+            continue
+        noise_mode = max(r.moving[1], r.still[1] if r.still is not None else 0.0)
+        seen = [4 * min(sig.noise, bound.get(sig.ref, math.inf)) * abs(sum(g)) / noise_mode
+                for (sig, _), g in zip(r.inputs, r.gains, strict=True)]
+        if min(seen) < SENSITIVITY:
+            r.clears = False
+
+
 def relation_drift(sensitivity: float) -> float:
     """The CUSUM drift ``k`` of a relation: half the smallest shift it must see (a fault of
     four noise std on any of its signals moves its residual by ``sensitivity`` block noise),
@@ -776,6 +803,7 @@ def learn_relations(rec: Recording) -> RelationsLearned:
                         "band, it would leave it; checked for being alive")
     if rec.duration > 0 and len(related) >= 2:
         relations = _search(related, notes)
+        clear_only_what_they_see(relations)
     checks = len(relations) + sum(1 for ls in liveness.values() for live in ls
                                   if live.z is not None)
     rate = FALSE_ALARMS_PER_HOUR / max(1, checks)

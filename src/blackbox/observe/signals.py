@@ -59,7 +59,12 @@ def read_signal_ref(node: ConfigNode) -> SignalRef:
 
 def number_of(value: Any) -> float | None:
     """``value`` as a float, ``None`` when it is not a real number (bools are not)."""
-    if isinstance(value, bool):
+    kind = type(value)
+    if kind is float:
+        return value  # type: ignore[no-any-return]
+    if kind is int:
+        return float(value)
+    if kind is bool:
         return None
     if isinstance(value, Real):
         return float(value)

@@ -424,7 +424,9 @@ class RelationObserver(ObserverBase):
         pairs = self._by_topic.get(msg.topic)
         if pairs is None:
             return
-        self._advance(msg.time)
+        nxt = self._next
+        if nxt is None or msg.time > nxt:  # else no grid point passed: nothing to tick
+            self._advance(msg.time)
         try:
             value = msg.value
         except Exception:  # the robot's garbage, never the black box's crash
