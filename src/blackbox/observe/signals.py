@@ -23,10 +23,13 @@ from bisect import bisect_right
 from collections.abc import Callable
 from dataclasses import dataclass
 from numbers import Real
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from blackbox.config.node import ConfigNode
 from blackbox.observe.fieldpath import compile_field_access
+
+if TYPE_CHECKING:
+    from blackbox.events import MessageArrival
 
 TWO_PI = 2.0 * math.pi
 
@@ -93,32 +96,49 @@ def sample_time(arrival: float, stamp: float | None) -> float:
 class SignalReader:
     """Reads one signal from decoded messages; counts what could not be read, and why."""
 
-    __slots__ = ("_access", "last_problem", "non_finite", "ref", "unreadable")
+    __slots__ = ("_access", "_key", "last_problem", "non_finite", "ref", "unreadable")
 
     def __init__(self, ref: SignalRef) -> None:
         self.ref = ref
         self._access: Callable[[Any], Any] = compile_field_access(ref.field)
+        self._key = ("number", ref.field)
         self.unreadable = 0
         self.non_finite = 0
         self.last_problem = ""
 
     def read(self, message: Any) -> float | None:
         """The finite number at the field, or ``None`` (counted) when there is none."""
+        return self._counted(self._number(message))
+
+    def read_arrival(self, arrival: MessageArrival, message: Any) -> float | None:
+        """:meth:`read` of ``arrival``'s decoded ``message``, shared through its memo with
+        every other reader of the same field."""
+        memo = arrival.memo
+        found = memo.get(self._key)
+        if found is None:
+            found = memo[self._key] = self._number(message)
+        return self._counted(found)
+
+    def _number(self, message: Any) -> float | str:
+        """The number at the field, or why there is none."""
         try:
             x = number_of(self._access(message))
         except ValueError as exc:
-            self.unreadable += 1
-            self.last_problem = str(exc)
-            return None
+            return str(exc)
         if x is None:
-            self.unreadable += 1
-            self.last_problem = f"{self.ref.field} is not a number"
-            return None
-        if not math.isfinite(x):
-            self.non_finite += 1
-            self.last_problem = f"{self.ref.field} is {x}"
-            return None
+            return f"{self.ref.field} is not a number"
         return x
+
+    def _counted(self, found: float | str) -> float | None:
+        if isinstance(found, str):
+            self.unreadable += 1
+            self.last_problem = found
+            return None
+        if not math.isfinite(found):
+            self.non_finite += 1
+            self.last_problem = f"{self.ref.field} is {found}"
+            return None
+        return found
 
 
 class GridCell:

@@ -210,7 +210,7 @@ class LivenessObserver(ObserverBase):
         for s in self._signals:
             if resumed:
                 s.restart()
-            x = s.reader.read(value)
+            x = s.reader.read_arrival(msg, value)
             if x is not None:
                 s.add(x, msg.time)
 

@@ -437,10 +437,16 @@ class RelationObserver(ObserverBase):
         t = msg.time
         stamp = self._stamps.get(msg.topic)
         if stamp is not None:
-            with contextlib.suppress(ValueError):  # no stamp: its arrival times it
-                t = sample_time(t, stamp_seconds(stamp(value)))
+            memo = msg.memo
+            key = ("time", self.stamps[msg.topic])
+            t = memo.get(key, math.nan)
+            if t != t:  # NaN: not derived yet
+                t = msg.time
+                with contextlib.suppress(ValueError):  # no stamp: its arrival times it
+                    t = sample_time(t, stamp_seconds(stamp(value)))
+                memo[key] = t
         for reader, cell in pairs:
-            x = reader.read(value)
+            x = reader.read_arrival(msg, value)
             if x is not None:
                 cell.add(t, x)
 
