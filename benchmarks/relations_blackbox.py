@@ -1,6 +1,7 @@
 """What relation observers add to the whole black box: 10 signals at 100 Hz on real ROS 1.
 
     .venv/bin/python benchmarks/relations_blackbox.py [--seconds 30] [--repeat 3] [--learn 60]
+                                                      [--before SRC]
 
 A bare Debian ROS 1 master and two rospy processes publishing five ``std_msgs/Float64``
 topics each at 100 Hz, every message one slow sine of the wall clock plus noise (so the ten
@@ -17,7 +18,9 @@ elsewhere falls on both alike:
 
 CPU is the ``blackbox run`` process's user+system time over the window (100 % = one core),
 after a warm-up; the table gives every round and the median. Issue 22 item 5 asks that the
-relations add at most 10 % to the black box.
+relations add at most 10 % to the black box. ``--before SRC`` runs every variant a second
+time per round with ``PYTHONPATH=SRC`` (an older ``src/``, e.g. from ``git archive``), so
+two versions of the code are compared in one run on the same robot and learned file.
 """
 
 from __future__ import annotations
@@ -62,8 +65,11 @@ def without_relations(learned: Path, out: Path) -> int:
     return removed
 
 
-def run_blackbox(config: Path, port: int, log: Path) -> subprocess.Popen[bytes]:
+def run_blackbox(config: Path, port: int, log: Path, src: Path | None = None
+                 ) -> subprocess.Popen[bytes]:
     env = {k: v for k, v in os.environ.items() if k != "ROS_MASTER_URI"}
+    if src is not None:
+        env["PYTHONPATH"] = str(src)
     with log.open("wb") as out:
         return subprocess.Popen([*BLACKBOX, "run", "--config", str(config), "--source",
                                  f"ros1://127.0.0.1:{port}", "--quiet"],
@@ -89,7 +95,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=3, help="rounds of every variant")
     parser.add_argument("--learn", type=float, default=60.0,
                         help="seconds to learn for the learned pair (0: skip it)")
+    parser.add_argument("--before", type=Path, default=None,
+                        help="an older src/ to run every variant with as well")
     args = parser.parse_args(argv)
+    if args.before is not None and not (args.before / "blackbox").is_dir():
+        parser.error(f"--before {args.before}: no blackbox package in it")
+    versions: list[tuple[str, Path | None]] = [("", None)]
+    if args.before is not None:
+        versions.insert(0, ("before: ", args.before.resolve()))
+    load_start = os.getloadavg()[0]
     with tempfile.TemporaryDirectory(prefix="relations-bb-") as tmp:
         work = Path(tmp)
         robot = ThesisRobot(free_port(), log_dir=work / "robot")
@@ -116,13 +130,15 @@ def main(argv: list[str] | None = None) -> int:
                 removed = without_relations(learned, stripped)
                 variants["learned, without relation and liveness"] = stripped
                 variants[f"learned ({removed} relation and liveness observers)"] = learned
-            cpu: dict[str, list[float]] = {name: [] for name in variants}
-            rates: dict[str, list[float]] = {name: [] for name in variants}
+            runs = [(label + name, config, src) for label, src in versions
+                    for name, config in variants.items()]
+            cpu: dict[str, list[float]] = {name: [] for name, _, _ in runs}
+            rates: dict[str, list[float]] = {name: [] for name, _, _ in runs}
             for r in range(args.repeat):
-                for name, config in variants.items():
-                    log = work / f"bb-{r}-{len(cpu[name])}.log"
+                for i, (name, config, src) in enumerate(runs):
+                    log = work / f"bb-{r}-{i}.log"
                     print(f"round {r + 1}/{args.repeat}: {name} ...", flush=True)
-                    bb = run_blackbox(config, robot.port, log)
+                    bb = run_blackbox(config, robot.port, log, src)
                     try:
                         usage = measure(bb, name, args.warmup, args.seconds)
                     finally:
@@ -137,10 +153,11 @@ def main(argv: list[str] | None = None) -> int:
             robot.stop()
     print(f"machine: {os.cpu_count()} cores, python {sys.version.split()[0]}; "
           f"{len(TOPICS)} topics x {RATE:g} Hz from {len(PROCESSES)} rospy processes; "
-          f"{args.repeat} rounds x {args.seconds:g} s after {args.warmup:g} s warm-up")
+          f"{args.repeat} rounds x {args.seconds:g} s after {args.warmup:g} s warm-up; "
+          f"load average {load_start:.1f} at the start, {os.getloadavg()[0]:.1f} at the end")
     print("| blackbox run with | CPU % of one core, rounds | median | received msg/s | added |")
     print("|---|---|---|---|---|")
-    names = list(variants)
+    names = list(cpu)
     for i, name in enumerate(names):
         med = statistics.median(cpu[name])
         added = ""
