@@ -318,3 +318,33 @@ def test_with_no_explanation_the_operator_reads_which_observations_contradict_ea
                                         Code.NO_STATE_FITS)])
     assert d is not None and d.candidates == ({"/pb"},)
     assert engine.contradiction() is None
+
+
+def test_a_relation_failing_with_its_signals_noise_burst_names_the_noisy_sensor():
+    # The real ROS 1 robot at 681 s: the IMU's yaw rate had a noise burst. Its liveness
+    # check failed and so did command ~ IMU, while IMU ~ odometry and command ~ odometry
+    # held and cleared both signals (a zero-mean burst moves no block mean). Held relations
+    # see offsets, not bursts: the failed relation is put down to the burst, and the IMU
+    # driver explains both (before: no diagnosis at all).
+    from blackbox.observe.base import JudgedSignals
+
+    pairs = [("/cmd_vel", "/imu"), ("/imu", "/odom"), ("/cmd_vel", "/odom")]
+    relations = [ObservationSpec("relation", Resource(topic=a, topic_b=b)) for a, b in pairs]
+    liveness = ObservationSpec("liveness", Resource(topic="/imu"))
+    signals = {s.key(): JudgedSignals(((a, "z"), (b, "z")), ((a, "z"), (b, "z")))
+               for s, (a, b) in zip(relations, pairs, strict=True)}
+    nodes = [("/teleop", ("/cmd_vel",)), ("/imu_driver", ("/imu",)),
+             ("/base_driver", ("/wheels",), ("/cmd_vel",)),
+             ("/odometry", ("/odom",), ("/wheels",))]
+    engine = _engine(nodes, [*relations, liveness], signals=signals)
+
+    def seen(failed: set[ObservationSpec]) -> list[Observation]:
+        return [Observation(1.0, s.type, s.resource,
+                            Code.NO_STATE_FITS if s in failed else Code.GENERAL_OK)
+                for s in (*relations, liveness)]
+
+    d = engine.update(1.0, seen({relations[0], liveness}))
+    assert d is not None and [set(c) for c in d.candidates] == [{"/imu_driver"}]
+    d = engine.update(2.0, seen({relations[0]}))  # the same failure without the burst
+    assert d is not None and d.candidates == () and d.complete
+    assert "the failed relation on /cmd_vel -> /imu contradicts" in d.explanation

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import itertools
 import random
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import pytest
@@ -37,8 +37,9 @@ from blackbox.model import Code, Observation, Resource
 from blackbox.observe.base import JudgedSignals
 
 RATE = ("hz", "timeout", "timestamp")
-VALUE = ("scores", "moving", "fields")
-ENVELOPES = ("fields",)  # judge values, accuse when failed, never clear (issue 22 item 8)
+VALUE = ("scores", "moving", "fields", "liveness")
+ENVELOPES = ("fields", "liveness")  # judge values, accuse when failed, never clear (item 8)
+ALIVE = "liveness"  # failed, a relation of its topic without shared upstream may fail by it
 RATE_PAIR, VALUE_PAIR = "timing", "velocity"
 RELATION = "relation"  # learned: failed, one topic's values are wrong; held, both are right
 NODE_KINDS = ("activated", "resources")
@@ -159,18 +160,30 @@ class Reference:
                 todo.extend(i for mode, i in self.cause(t, False, ())[1] if mode == "right")
         return out
 
+    def shared(self, spec: ObservationSpec) -> set[str]:
+        """The upstream topics all of a relation's topics share, less its own."""
+        topics = list(dict.fromkeys(t for t in (spec.resource.topic, spec.resource.topic_b)
+                                    if t))
+        if len(topics) < 2:
+            return set()
+        return set.intersection(*(self.upstream(t) for t in topics)) - set(topics)
+
     def for_relation(self, spec: ObservationSpec, forced: set[tuple[str, str]],
                      abnormal: frozenset[str]) -> set[tuple[str, str]]:
         """The modes that must hold for a relation's failure: the upstream topics all of
         its topics share (less its own) are taken as right, and the fixpoint rerun."""
-        topics = list(dict.fromkeys(t for t in (spec.resource.topic, spec.resource.topic_b)
-                                    if t))
-        if len(topics) < 2:
-            return forced
-        shared = set.intersection(*(self.upstream(t) for t in topics)) - set(topics)
+        shared = self.shared(spec)
         if not shared:
             return forced
         return self._fixpoint(forced | {("right", t) for t in shared}, abnormal)
+
+    def excused(self, spec: ObservationSpec, topics: Iterable[str]) -> bool:
+        """A failed relation without shared upstream topics may fail by a signal seen not
+        alive: a failed aliveness check on one of the topics it accuses."""
+        accused = set(topics)
+        return not self.shared(spec) and any(
+            v is False and s.type == ALIVE and s.resource.topic in accused
+            for s, v in self.robot.observations)
 
     def _fixpoint(self, forced: set[tuple[str, str]], abnormal: frozenset[str]
                   ) -> set[tuple[str, str]]:
@@ -224,12 +237,13 @@ class Reference:
             if value is False and spec.key() in self.robot.signals:
                 accused = self.robot.signals[spec.key()].accused
                 mine = self.for_relation(spec, forced, abnormal)
-                if all(self.signal_holds(mine, t, f) for t, f in accused):
+                if (all(self.signal_holds(mine, t, f) for t, f in accused)
+                        and not self.excused(spec, (t for t, _ in accused))):
                     return False
             elif value is False and spec.type == RELATION:
-                pair = (spec.resource.topic, spec.resource.topic_b)
+                pair = (spec.resource.topic or "", spec.resource.topic_b or "")
                 mine = self.for_relation(spec, forced, abnormal)
-                if all(("right", t) in mine for t in pair):
+                if all(("right", t) in mine for t in pair) and not self.excused(spec, pair):
                     return False
             elif value is False:
                 comps, needs = self.obs_cause(spec)
@@ -329,7 +343,7 @@ def flowing_robot(rng: random.Random) -> Robot:
     obs: list[ObservationSpec] = []
     for _ in range(rng.randint(2, 8)):
         kind = rng.choice((RELATION, RELATION, RELATION, "hz", "scores", "fields",
-                           "activated"))
+                           ALIVE, "activated"))
         if kind == RELATION:
             a, b = rng.sample(topics, 2)
             obs.append(ObservationSpec(kind, Resource(topic=a, topic_b=b)))

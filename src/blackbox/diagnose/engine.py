@@ -52,6 +52,7 @@ from blackbox.diagnose.robot_model import (
     exonerates,
     is_rate_type,
     is_relation_type,
+    judges_alive,
     load_robot_model,
     shows_silent,
 )
@@ -166,6 +167,15 @@ class DiagnosisEngine:
         mentions: dict[str, list[ObservationSpec]] = {}
         direct: dict[Key, frozenset[str]] = {}
         diagnosable = set(model.components)
+        # Per topic, literals true while a check of its signals' aliveness is seen failed: a
+        # relation of the topic failing meanwhile may be that burst or freeze (held
+        # relations clear offsets, not those), so the two failures share one explanation.
+        # The shared-upstream rule still holds: a burst upstream of both sides reaches both.
+        not_alive: dict[str, list[int]] = {}
+        for spec in model.observations:
+            if judges_alive(spec.type) and spec.resource.topic:
+                not_alive.setdefault(spec.resource.topic, []).append(
+                    self._seen_failed_var(spec.key()))
         for spec in model.observations:
             ok = th.var(("ok", spec.key()))
             self._slot[spec.key()] = ok
@@ -184,14 +194,17 @@ class DiagnosisEngine:
                 common = self._common_upstream(spec)
                 if judged is None:
                     topics = [t for t in (spec.resource.topic, spec.resource.topic_b) if t]
-                    th.add([ok, *(-th.var(("right", t)) for t in topics)])
+                    dying = [lit for t in dict.fromkeys(topics) for lit in not_alive.get(t, ())]
+                    th.add([ok, *(-th.var(("right", t)) for t in topics), *dying])
                     for t in topics:
                         th.add([th.var(("right", t)), -ok])
                     if common:
                         th.add([-self._seen_failed_var(spec.key()),
                                 *(-self._right_var(t, common) for t in topics)])
                     continue
-                th.add([ok, *(-self._signal_var(t, f) for t, f in judged.accused)])
+                dying = [lit for t in dict.fromkeys(t for t, _ in judged.accused)
+                         for lit in not_alive.get(t, ())]
+                th.add([ok, *(-self._signal_var(t, f) for t, f in judged.accused), *dying])
                 for t, f in judged.cleared:
                     th.add([self._signal_var(t, f), -ok])
                 if common:
@@ -268,6 +281,8 @@ class DiagnosisEngine:
                                   dtype=np.int64)
         self._fact: list[bool | None] = [None] * len(self._keys)
         self._failed: set[int] = set()
+        seen = self._seen_var[self._seen_var > 0]
+        self._assign[seen] = -seen  # not seen failed until an observation fails
         self._set_facts({i: observation_fact(o.code) for i, o in enumerate(self._obs)
                          if o is not None})
         self._write_depends()
@@ -298,7 +313,8 @@ class DiagnosisEngine:
         return var
 
     def _seen_failed_var(self, key: Key) -> int:
-        """A literal assumed exactly while the observation ``key`` is failed."""
+        """A literal true exactly while the observation ``key`` is failed (assumed false
+        otherwise, unobserved included)."""
         lit = self._seen_failed.get(key)
         if lit is None:
             lit = self._seen_failed[key] = self.theory.var(("seen failed", key))
@@ -760,14 +776,14 @@ class DiagnosisEngine:
                 ok, seen = self._ok_var.item(i), self._seen_var.item(i)
                 assign[ok] = ok * sg
                 if seen:
-                    assign[seen] = seen if sg < 0 else 0
+                    assign[seen] = seen if sg < 0 else -seen
             return
         at = np.array(rows, dtype=np.int64)
         sign = np.fromiter(map(_SIGN.__getitem__, values), dtype=np.int64, count=len(rows))
         ok_vars = self._ok_var[at]
         self._assign[ok_vars] = ok_vars * sign
         seen_vars = self._seen_var[at]
-        self._assign[seen_vars] = np.where(sign < 0, seen_vars, 0)
+        self._assign[seen_vars] = np.where(sign < 0, seen_vars, -seen_vars)
         self._assign[0] = 0
 
     def _write_depends(self) -> None:

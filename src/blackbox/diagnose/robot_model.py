@@ -67,6 +67,14 @@ def exonerates(observer: str) -> bool:
     return kind is None or (kind.exonerates and not kind.relation)
 
 
+def judges_alive(observer: str) -> bool:
+    """Whether a failed observation of this type says a signal of its topic is not alive
+    (stuck or noisy), which a relation of that topic may fail by (:class:`ObserverKind`
+    ``judges_alive``)."""
+    kind = observer_kind(observer)
+    return kind is not None and kind.judges_alive
+
+
 def shows_silent(observer: str) -> Subject | None:
     """What a failed observation of this type shows to send nothing: its node, its topic,
     or nothing (``None``) when its failure may have another cause (a rate that is too high,

@@ -223,6 +223,10 @@ class ObserverKind:
     """A relation between the values of its topics (``relation``): failed, the values of
     one of its topics are wrong; held, each of its topics' values is cleared by it alone."""
     failure_means_silent: bool = False
+    judges_alive: bool = False
+    """Whether it judges that its topic's signals are alive (not stuck, no noise burst):
+    failed, a relation of that topic failing meanwhile may be put down to it, even where
+    held relations clear the topic's values (they see offsets, not a zero-mean burst)."""
     logged_values: int = 2
 
     def unit(self, quantity: str) -> str:

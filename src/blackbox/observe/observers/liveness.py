@@ -317,7 +317,8 @@ def liveness_from_config(node: ConfigNode) -> LivenessObserver:
 
 
 OBSERVERS.add("liveness", ObserverKind("liveness", liveness_from_config, Subject.TOPIC, (),
-                                       judges=Mode.RIGHT, exonerates=False), example={
+                                       judges=Mode.RIGHT, exonerates=False,
+                                       judges_alive=True), example={
     "type": "liveness", "topic": "/battery", "fresh": 1.2,
     "signals": [{"name": "voltage", "field": "voltage", "repeats": 5,
                  "noise": {"block": 5, "mean": -7.34, "std": 0.77, "cap": 0.0162,
