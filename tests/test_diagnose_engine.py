@@ -347,4 +347,5 @@ def test_a_relation_failing_with_its_signals_noise_burst_names_the_noisy_sensor(
     assert d is not None and [set(c) for c in d.candidates] == [{"/imu_driver"}]
     d = engine.update(2.0, seen({relations[0]}))  # the same failure without the burst
     assert d is not None and d.candidates == () and d.complete
-    assert "the failed relation on /cmd_vel -> /imu contradicts" in d.explanation
+    assert ("the failed relation on /cmd_vel -> /imu contradicts the passing relation on "
+            "/cmd_vel -> /odom and relation on /imu -> /odom, which clear") in d.explanation

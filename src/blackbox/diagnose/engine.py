@@ -982,17 +982,18 @@ class DiagnosisEngine:
                 i += 1
             else:
                 core = sorted(trial.support)
-        row_of: dict[int, int] = {}
-        for i, (ok, seen) in enumerate(zip(self._ok_var.tolist(), self._seen_var.tolist(),
-                                           strict=True)):
-            row_of[ok] = i
-            if seen:
-                row_of[seen] = i
+        # An observation's own literal says it failed or passed; its "seen failed" literal
+        # counts only when it failed (an aliveness check that did not fail clears nobody).
+        row_of = {ok: i for i, ok in enumerate(self._ok_var.tolist())}
+        row_of.update((seen, i) for i, seen in enumerate(self._seen_var.tolist()) if seen)
+        ok_vars = set(row_of) - set(self._seen_var.tolist())
         bad: dict[int, Observation] = {}
         good: dict[int, Observation] = {}
         for lit in core:
             row = row_of.get(abs(lit))
-            if row is not None and (obs := self._obs[row]) is not None:
+            if row is None or (lit < 0 and abs(lit) not in ok_vars):
+                continue
+            if (obs := self._obs[row]) is not None:
                 (good if self._fact[row] else bad)[row] = obs
         order = self._order
         return (tuple(bad[r] for r in sorted(bad, key=order.__getitem__)),
