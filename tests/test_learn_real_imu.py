@@ -126,17 +126,27 @@ def imu_offset_is_caught_and_blamed_on_the_driver(robot: RealRobot, config: Path
         inject = time.time()
         robot.set_yaw_offset(OFFSET)
         try:
-            assert wait_for(lambda: bool(sink.accusing(inject, by=RELATION)), DETECT_WITHIN), \
-                f"a diagnosis from a failed relation within {DETECT_WITHIN} s of the IMU offset"
-            first = sink.accusing(inject, by=RELATION)[0]
+            # The first relation to fail may be IMU ~ odometry alone, which cannot tell the
+            # IMU from the odometry node (both explain it; on a saturated host the other IMU
+            # relations may still be unjudged): the driver must be a suspect from the first
+            # such diagnosis and ranked first once the relations tell them apart.
+            assert wait_for(lambda: any(d.candidates[0] == {IMU_DRIVER}
+                                        for d in sink.accusing(inject, by=RELATION)),
+                            DETECT_WITHIN), \
+                (f"a diagnosis from a failed relation ranking {IMU_DRIVER} first within "
+                 f"{DETECT_WITHIN} s of the IMU offset: "
+                 + described(sink.accusing(inject, by=RELATION), inject))
             detected = time.time()
+            first = sink.accusing(inject, by=RELATION)[0]
+            named = next(d for d in sink.accusing(inject, by=RELATION)
+                         if d.candidates[0] == {IMU_DRIVER})
         finally:
             robot.set_yaw_offset(0.0)
 
     before = sink.accusing(started, inject, by=VALUE_OBSERVERS)
     assert before == [], "no value observer accuses anyone before the offset: " + described(
         before, inject)
-    assert first.candidates[0] == frozenset({IMU_DRIVER}), described([first], inject)
+    assert any(IMU_DRIVER in c for c in first.candidates), described([first], inject)
     healthy = yaw_rates(robot.epoch, learn_start, learn_end)
     faulty = [w + OFFSET for w in yaw_rates(robot.epoch, inject, detected)]
     spread = max(healthy) - min(healthy)
@@ -144,7 +154,8 @@ def imu_offset_is_caught_and_blamed_on_the_driver(robot: RealRobot, config: Path
     assert min(healthy) <= min(faulty) and max(faulty) <= max(healthy), \
         "every yaw rate the faulty IMU reported is one it also reports when healthy"
     print(f"{robot.source}: learned in {learn_end - learn_start:.1f} s, relations {relations}, "
-          f"detected {first.time - inject:.2f} s after the offset; healthy yaw rate "
+          f"detected {first.time - inject:.2f} s after the offset, the IMU driver first "
+          f"{named.time - inject:.2f} s after it; healthy yaw rate "
           f"{min(healthy):.3f}..{max(healthy):.3f} rad/s, offset {OFFSET}; diagnoses before "
           f"the offset from timing observers only: {len(sink.accusing(started, inject))}")
 
