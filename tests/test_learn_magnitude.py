@@ -28,6 +28,12 @@ class Battery:
     current: float
 
 
+@dataclass(frozen=True)
+class PoweredBattery:
+    current: float
+    voltage: float
+
+
 def graph(t: float) -> GraphSnapshot:
     nodes = {n: NodeInfo(n, True, 100 + i) for i, n in enumerate(NODES.values())}
     topics = {t_: TopicInfo(t_, "std_msgs/Float64", (n,), ()) for t_, n in NODES.items()}
@@ -40,7 +46,11 @@ def motion(t: float) -> tuple[float, float]:
             0.5 * math.sin(2 * math.pi * t / 17.0 + 1.0) + 0.2 * math.sin(2 * math.pi * t / 5.3))
 
 
-def robot(start: float, seconds: float, *, offset: float = 0.0, seed: int = 0) -> list:
+def robot(start: float, seconds: float, *, offset: float = 0.0, seed: int = 0,
+          battery_every: int = 4, sagging: bool = False) -> list:
+    """A 20 Hz command and a battery every ``battery_every`` commands (5 Hz); with
+    ``sagging``, a battery voltage (noise std 0.03 V) that sags 0.08 V per ampere and
+    discharges about 1 V an hour."""
     rng = np.random.default_rng(seed)
     events: list = [graph(start + float(t)) for t in range(int(seconds) + 1)]
     for k in range(int(seconds * 20)):
@@ -48,10 +58,13 @@ def robot(start: float, seconds: float, *, offset: float = 0.0, seed: int = 0) -
         v, w = motion(t)
         events.append(MessageArrival(t, "/cmd_vel", "/teleop", 8,
                                      value=Twist(v + rng.normal(0, 0.01), w + rng.normal(0, 0.01))))
-        if k % 4 == 0:
+        if k % battery_every == 0:
             current = 1.5 + 4.0 * abs(v) + 2.0 * abs(w) + rng.normal(0, 0.05) + offset
-            events.append(MessageArrival(t + 0.02, "/battery", "/power_monitor", 8,
-                                         value=Battery(current)))
+            value: object = Battery(current)
+            if sagging:
+                voltage = 25.2 - 0.08 * current - 0.00028 * t + rng.normal(0, 0.03)
+                value = PoweredBattery(current, voltage)
+            events.append(MessageArrival(t + 0.02, "/battery", "/power_monitor", 8, value=value))
     return sorted(events, key=lambda e: e.time)
 
 
@@ -112,37 +125,14 @@ def test_magnitude_must_be_a_boolean():
         relation_from_config(ConfigNode.parse(RELATION.replace("MAG", "sometimes")))
 
 
-@dataclass(frozen=True)
-class PoweredBattery:
-    current: float
-    voltage: float
-
-
-def sagging_robot(start: float, seconds: float, seed: int = 0) -> list:
-    """The robot above with a 2 Hz battery whose voltage (noise std 0.03 V) sags 0.08 V
-    per ampere and discharges about 1 V an hour."""
-    rng = np.random.default_rng(seed)
-    events: list = [graph(start + float(t)) for t in range(int(seconds) + 1)]
-    for k in range(int(seconds * 20)):
-        t = start + k / 20 + 0.003
-        v, w = motion(t)
-        events.append(MessageArrival(t, "/cmd_vel", "/teleop", 8,
-                                     value=Twist(v + rng.normal(0, 0.01), w + rng.normal(0, 0.01))))
-        if k % 10 == 0:
-            current = 1.5 + 4.0 * abs(v) + 2.0 * abs(w) + rng.normal(0, 0.05)
-            voltage = 25.2 - 0.08 * current - 0.00028 * t + rng.normal(0, 0.03)
-            events.append(MessageArrival(t + 0.02, "/battery", "/power_monitor", 8,
-                                         value=PoweredBattery(current, voltage)))
-    return sorted(events, key=lambda e: e.time)
-
-
 def test_a_voltage_sag_that_hides_a_current_offset_does_not_clear_the_current():
     # A 4-noise-std current offset (0.2 A) moves the voltage by 0.016 V, under its noise:
     # held, voltage ~ current must not vouch for the current. The current's consecutive
     # differences at 2 Hz carry the motion (about three times its noise); the residual of
     # current ~ |command| bounds it (before: a current offset on the real robots left no
     # diagnosis, as voltage ~ current held and cleared the current).
-    learned = learn_from(lambda: MemorySource(sagging_robot(0.0, 120.0)), 120.0)
+    learned = learn_from(lambda: MemorySource(robot(0.0, 120.0, battery_every=10, sagging=True)),
+                         120.0)
     text = render_config(learned, "r", "r.model.yaml", "now")
     by_target = {r["target"]["field"]: r  # type: ignore[index]
                  for e in relations(text) for r in e["relations"]}  # type: ignore[attr-defined]

@@ -986,7 +986,7 @@ class DiagnosisEngine:
         # counts only when it failed (an aliveness check that did not fail clears nobody).
         row_of = {ok: i for i, ok in enumerate(self._ok_var.tolist())}
         row_of.update((seen, i) for i, seen in enumerate(self._seen_var.tolist()) if seen)
-        ok_vars = set(row_of) - set(self._seen_var.tolist())
+        ok_vars = set(self._ok_var.tolist())
         bad: dict[int, Observation] = {}
         good: dict[int, Observation] = {}
         for lit in core:
