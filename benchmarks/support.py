@@ -54,6 +54,26 @@ def measure(proc: subprocess.Popen[bytes], what: str, warmup: float, seconds: fl
     return Usage(what, 100.0 * (c1 - c0) / (t1 - t0), peak_rss(proc.pid) / 1e6, t1 - t0)
 
 
+def measure_together(procs: dict[str, subprocess.Popen[bytes]], warmup: float,
+                     seconds: float) -> dict[str, Usage]:
+    """After ``warmup`` seconds, each process's usage over the same next ``seconds``: the
+    processes share every change of the machine's speed (a virtual machine's cores run
+    fast and slow in phases of a minute or more), so their ratios are fair where a
+    process measured after another is not."""
+    handles = {what: psutil.Process(proc.pid) for what, proc in procs.items()}
+    time.sleep(warmup)
+    for what, proc in procs.items():
+        if proc.poll() is not None:
+            raise RuntimeError(f"{what} exited early with {proc.returncode}")
+    t0 = time.monotonic()
+    c0 = {what: sum(h.cpu_times()[:2]) for what, h in handles.items()}
+    time.sleep(seconds)
+    c1 = {what: sum(h.cpu_times()[:2]) for what, h in handles.items()}
+    t1 = time.monotonic()
+    return {what: Usage(what, 100.0 * (c1[what] - c0[what]) / (t1 - t0),
+                        peak_rss(procs[what].pid) / 1e6, t1 - t0) for what in procs}
+
+
 def stop(proc: subprocess.Popen[bytes], timeout: float = 10.0, group: bool = False) -> None:
     """SIGINT a running process (its whole process group with ``group``), so it closes
     cleanly and prints its summary; SIGKILL it if it has not exited after ``timeout``."""

@@ -117,6 +117,8 @@ class SignalReader:
         found = memo.get(self._key)
         if found is None:
             found = memo[self._key] = self._number(message)
+        if type(found) is float and found - found == 0.0:  # finite: the common case
+            return found
         return self._counted(found)
 
     def _number(self, message: Any) -> float | str:

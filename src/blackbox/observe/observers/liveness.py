@@ -106,11 +106,13 @@ class LivenessSpec:
 
 
 class _Signal:
-    __slots__ = ("blocks", "cusum", "last", "last_d", "last_t", "last_z", "reader", "run",
-                 "spec", "sq", "sq_n", "step")
+    __slots__ = ("blocks", "cap", "cusum", "last", "last_d", "last_t", "last_z", "noise",
+                 "rate", "reader", "run", "spec", "sq", "sq_n", "step", "wrap")
 
     def __init__(self, spec: LivenessSpec) -> None:
         self.spec = spec
+        self.wrap, self.rate, self.noise = spec.wrap, spec.rate, spec.noise
+        self.cap = math.inf if spec.noise is None or spec.noise.cap is None else spec.noise.cap
         self.reader = SignalReader(spec.signal)
         self.cusum = (Cusum(spec.noise.cusum, two_sided=False) if spec.noise is not None
                       else None)
@@ -132,23 +134,23 @@ class _Signal:
     def add(self, x: float, t: float) -> None:
         last, last_t = self.last, self.last_t
         self.last, self.last_t = x, t
-        if math.isnan(last):
+        if last != last:  # NaN: the first sample of a chain
             return
         self.run = self.run + 1 if x == last else 0
-        d = wrapped_difference(x, last) if self.spec.wrap else x - last
-        rate = self.spec.rate
+        d = wrapped_difference(x, last) if self.wrap else x - last
+        rate = self.rate
         if rate is not None:
             self.step = max(self.step, abs(d) / max(t - last_t, rate.period))
-        noise = self.spec.noise
+        noise = self.noise
         if noise is None or self.cusum is None:
             return
         last_d = self.last_d
         self.last_d = d
-        if math.isnan(last_d):
+        if last_d != last_d:
             return
         d -= last_d
         sq = d * d
-        self.sq += sq if noise.cap is None else min(sq, noise.cap)
+        self.sq += sq if sq < self.cap else self.cap
         self.sq_n += 1
         if self.sq_n >= noise.block:
             self.last_z = (math.log(self.sq / self.sq_n + TINY) - noise.mean) / noise.std
