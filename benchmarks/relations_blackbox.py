@@ -13,7 +13,10 @@ watches them with each variant:
   a ``fields`` envelope, then the same plus one ``liveness`` observer per topic and a
   ``relation`` for each of the nine neighbouring pairs.
 * ``learned`` (with ``--learn S`` > 0): ``blackbox learn`` watches the robot for S seconds;
-  the file it writes, and the same file without its ``relation`` and ``liveness`` observers.
+  the file it writes; the same file without its ``relation`` and ``liveness`` observers
+  (it then reads no value: rate-only topics, bodies dropped by the kernel); and that one
+  plus a ``fields`` envelope per topic, which receives and decodes every message as the
+  relations must. The relations are compared with the last.
 
 Every round runs all variants at once, each its own ``blackbox run`` process watching the
 same robot over the same window: this machine's cores run fast and slow in phases of a
@@ -68,6 +71,19 @@ def without_relations(learned: Path, out: Path) -> int:
     return removed
 
 
+def with_fields(stripped: Path, out: Path) -> None:
+    """``stripped`` plus a ``fields`` envelope of every topic's ``data``: the black box
+    then receives and decodes every message, as it must to relate them. The learned file
+    without relations reads no value (the learner writes no band for a signal whose range
+    depends on the operating mode), so the kernel drops the bodies and nothing is decoded;
+    the difference between the two is the price of reading values at all, not of
+    relations."""
+    data = yaml.safe_load(stripped.read_text())
+    data["observers"] += [yaml.safe_load(e) for e in baseline_entries(TOPICS, "data")
+                          if e.startswith("{type: fields")]
+    out.write_text(yaml.safe_dump(data, sort_keys=False))
+
+
 def run_blackbox(config: Path, port: int, log: Path, src: Path | None = None
                  ) -> subprocess.Popen[bytes]:
     env = {k: v for k, v in os.environ.items() if k != "ROS_MASTER_URI"}
@@ -118,32 +134,42 @@ def main(argv: list[str] | None = None) -> int:
                  for name in PROCESSES]
         try:
             robot.wait_registered(list(PROCESSES))
-            variants = {
-                "hand: hz, timeout, fields per topic": write_config(
-                    work / "hand-base.yaml", baseline_entries(TOPICS, "data")),
-                "hand: + 10 liveness, 9 relation observers": write_config(
+            hand_base = "hand: hz, timeout, fields per topic"
+            variants: list[tuple[str, Path, str | None]] = [
+                (hand_base, write_config(work / "hand-base.yaml",
+                                         baseline_entries(TOPICS, "data")), None),
+                ("hand: + 10 liveness, 9 relation observers", write_config(
                     work / "hand-rel.yaml",
                     baseline_entries(TOPICS, "data") + relation_entries(TOPICS, "data")),
-            }
+                 hand_base),
+            ]
             if args.learn > 0:
                 print(f"learning {args.learn:g} s ...", flush=True)
                 learned = work / "learned.yaml"
                 learn(robot.port, args.learn, learned, work / "learn.log")
                 stripped = work / "learned-base.yaml"
                 removed = without_relations(learned, stripped)
-                variants["learned, without relation and liveness"] = stripped
-                variants[f"learned ({removed} relation and liveness observers)"] = learned
-            runs = [(label + name, config, src) for label, src in versions
-                    for name, config in variants.items()]
-            cpu: dict[str, list[float]] = {name: [] for name, _, _ in runs}
-            rates: dict[str, list[float]] = {name: [] for name, _, _ in runs}
+                decoded = work / "learned-fields.yaml"
+                with_fields(stripped, decoded)
+                variants += [
+                    ("learned, without relation and liveness", stripped, None),
+                    ("learned, without them, + a fields envelope per topic", decoded, None),
+                    (f"learned ({removed} relation and liveness observers)", learned,
+                     "learned, without them, + a fields envelope per topic"),
+                ]
+            runs = [(label + name, config, src, label + against if against else None)
+                    for label, src in versions for name, config, against in variants]
+            cpu: dict[str, list[float]] = {name: [] for name, _, _, _ in runs}
+            rates: dict[str, list[float]] = {name: [] for name, _, _, _ in runs}
+            against_of = {name: against for name, _, _, against in runs}
             for r in range(args.repeat):
                 print(f"round {r + 1}/{args.repeat}: {len(runs)} black boxes at once ...",
                       flush=True)
-                logs = {name: work / f"bb-{r}-{i}.log" for i, (name, _, _) in enumerate(runs)}
+                logs = {name: work / f"bb-{r}-{i}.log"
+                        for i, (name, _, _, _) in enumerate(runs)}
                 boxes: dict[str, subprocess.Popen[bytes]] = {}
                 try:
-                    for name, config, src in runs:
+                    for name, config, src, _ in runs:
                         boxes[name] = run_blackbox(config, robot.port, logs[name], src)
                     usage = measure_together(boxes, args.warmup, args.seconds)
                 finally:
@@ -165,15 +191,15 @@ def main(argv: list[str] | None = None) -> int:
     print("| blackbox run with | CPU % of one core, rounds | median | received msg/s | added, "
           "median of the rounds |")
     print("|---|---|---|---|---|")
-    names = list(cpu)
-    for i, name in enumerate(names):
+    for name in cpu:
         med = statistics.median(cpu[name])
         added = ""
-        if i % 2 == 1:
-            pairs = list(zip(cpu[name], cpu[names[i - 1]], strict=True))
+        against = against_of[name]
+        if against is not None:
+            pairs = list(zip(cpu[name], cpu[against], strict=True))
             points = statistics.median(c - b for c, b in pairs)
             ratio = statistics.median(c / b for c, b in pairs if b > 0)
-            added = f"{points:+.2f} points ({100 * (ratio - 1):+.1f} %)"
+            added = f"{points:+.2f} points ({100 * (ratio - 1):+.1f} %) to the row above"
         got = f"{statistics.median(rates[name]):.0f}" if rates[name] else "-"
         rounds = ", ".join(f"{c:.2f}" for c in cpu[name])
         print(f"| {name} | {rounds} | {med:.2f} | {got} | {added} |")

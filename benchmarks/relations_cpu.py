@@ -24,6 +24,7 @@ from types import SimpleNamespace
 from blackbox.config.node import ConfigNode
 from blackbox.events import MessageArrival
 from blackbox.observe.build import build_observer
+from blackbox.observe.signals import GridUser, share_cells
 
 TOPICS = [f"/s{i}" for i in range(10)]
 RATE = 100.0
@@ -63,10 +64,11 @@ def relation_entries(topics: list[str] = TOPICS, field: str = "x") -> list[str]:
 
 def measure(entries: list[str], seconds: float) -> float:
     observers = [build_observer(ConfigNode.parse(e)) for e in entries]
+    share_cells(o for o in observers if isinstance(o, GridUser))  # as build_observers does
     by_topic: dict[str, list] = {t: [] for t in TOPICS}  # type: ignore[type-arg]
     for o in observers:
         for t in TOPICS:
-            if t in (o.resource.topic, o.resource.topic_b):
+            if t in o.interest().topics | o.interest().decoded:
                 by_topic[t].append(o)
     start = time.process_time()
     n = int(seconds * RATE)

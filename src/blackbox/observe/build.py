@@ -18,6 +18,7 @@ from blackbox.config.node import ConfigNode
 from blackbox.config.tug import TugForm
 from blackbox.model import Resource
 from blackbox.observe.base import OBSERVERS, Observer, ObserverKind
+from blackbox.observe.signals import GridUser, share_cells
 
 
 def tug_forms() -> TugForms:
@@ -69,6 +70,7 @@ def build_observers(config: LoadedConfig) -> list[Observer]:
     type, same resource) are an error, since their records would be indistinguishable."""
     observers = [build_observer(entry) for entry in config.observers]
     reject_twins(config.observers, observers)
+    share_cells(o for o in observers if isinstance(o, GridUser))
     return observers
 
 

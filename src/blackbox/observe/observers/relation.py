@@ -65,7 +65,7 @@ from __future__ import annotations
 import contextlib
 import math
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Hashable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -349,17 +349,11 @@ class RelationObserver(ObserverBase):
                                                             self._cells[ref]))
         depth = 1 + max(max((t.steps for r in relations for t in r.taps), default=0),
                         max(r.target_steps for r in relations))
+        self._fed = list(self._cells.values())
+        """The cells this observer feeds and resets (:meth:`use_cells`)."""
         self._history = {ref: deque([math.nan] * depth, maxlen=depth) for ref in self._refs}
         self._judges = [_Judge(r, self.window_blocks, step * block) for r in relations]
-        history = self._history
-        self._closing = [(cell.close, history[ref].appendleft)
-                         for ref, cell in self._cells.items()]
-        self._predicting = [
-            (judge, history[j.target], j.target_steps, j.intercept,
-             [(history[t.signal], t.steps, t.gain, t.magnitude) for t in j.taps])
-            for judge, j in zip(self._judges, relations, strict=True)]
-        """Per relation the histories it reads, resolved once (a tick runs 20 times a
-        second per observer, and a dictionary look-up per tap per tick showed in profiles)."""
+        self._resolve()
         self._next: float | None = None
         self._ticks = 0
         self._phased = False
@@ -367,9 +361,42 @@ class RelationObserver(ObserverBase):
         self._undecodable: dict[str, int] = {}
         """Messages per topic since the last evaluation that gave no value to read."""
 
+    def _resolve(self) -> None:
+        """What a tick reads and writes, from the cells and histories."""
+        history = self._history
+        self._closing = [(cell.close, history[ref].appendleft)
+                         for ref, cell in self._cells.items()]
+        self._predicting = [
+            (judge, history[j.target], j.target_steps, j.intercept,
+             [(history[t.signal], t.steps, t.gain, t.magnitude) for t in j.taps])
+            for judge, j in zip(self._judges, self.relations, strict=True)]
+        """Per relation the histories it reads, resolved once (a tick runs 20 times a
+        second per observer, and a dictionary look-up per tap per tick showed in profiles)."""
+
+    def grid_keys(self) -> dict[SignalRef, Hashable]:
+        """What makes each signal's cell (``signals.share_cells``)."""
+        return {ref: (ref, self.stamps.get(ref.topic), self.fresh, self.step, self.delay)
+                for ref in self._refs}
+
+    def use_cells(self, cells: Mapping[SignalRef, GridCell], fed: Collection[SignalRef]
+                  ) -> None:
+        """Read ``cells`` instead of cells of its own; feed only those in ``fed`` (another
+        observer feeds the rest, from the same messages)."""
+        own = self._cells
+        self._cells = {ref: cells.get(ref, own[ref]) for ref in self._refs}
+        feeds = {ref for ref in self._refs if ref not in cells or ref in fed}
+        self._by_topic = {ref.topic: [] for ref in self._refs}
+        for ref in self._refs:
+            if ref in feeds:
+                self._by_topic[ref.topic].append((self._readers[ref], self._cells[ref]))
+        self._fed = [self._cells[ref] for ref in self._refs if ref in feeds]
+        self._resolve()
+
     def interest(self) -> Interest:
-        topics = frozenset({self.topic, self.topic_b})
-        return Interest(decoded=topics)
+        """The topics whose cells it feeds: a topic whose cells another observer feeds
+        (:meth:`use_cells`) needs no message here; the grid advances on the others and at
+        every evaluation, and reads the shared cells' closed points."""
+        return Interest(decoded=frozenset(t for t, feeds in self._by_topic.items() if feeds))
 
     def quantity_names(self) -> tuple[str, ...]:
         return tuple(n for r in self.relations
@@ -380,8 +407,13 @@ class RelationObserver(ObserverBase):
     def _advance(self, t: float) -> None:
         nxt = self._next
         if nxt is None:
-            self._next = math.ceil(t / self.step) * self.step
-            return
+            # the grid starts at the first sample of its signals, which is this message's
+            # unless another observer fed a shared cell first (use_cells)
+            first = min((cell.first_time for cell in self._cells.values()), default=t)
+            nxt = math.ceil(min(first, t) / self.step) * self.step
+            if nxt >= t:
+                self._next = nxt
+                return
         if t - nxt > MAX_GAP:
             self._restart(t, f"no message for {t - nxt:.0f} s: restarted")
             return
@@ -391,7 +423,7 @@ class RelationObserver(ObserverBase):
         self._next = nxt
 
     def _restart(self, t: float, why: str) -> None:
-        for cell in self._cells.values():
+        for cell in self._fed:
             cell.reset()
         for hist in self._history.values():
             hist.extend([math.nan] * (hist.maxlen or 1))
@@ -440,6 +472,8 @@ class RelationObserver(ObserverBase):
             value = None
         if value is None:
             self._undecodable[msg.topic] = self._undecodable.get(msg.topic, 0) + 1
+            return
+        if not pairs:  # another observer feeds this topic's cells
             return
         t = msg.time
         stamp = self._stamps.get(msg.topic) if self._stamps else None
