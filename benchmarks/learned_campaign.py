@@ -30,13 +30,14 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import math
 import os
 import platform
 import shlex
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,11 +47,15 @@ from blackbox.evaluate.metrics import DEFAULT_GRACE, Episode, RunScore, percenti
 from blackbox.learn import learn_from, render_config, render_model
 from blackbox.sinks import Collector
 from blackbox.sources.sim import GroundTruth, Topology, open_sim, random_campaign
+from blackbox.sources.sim.faults import noise_std
 from blackbox.sources.sim.messages import scalars_of
 
 SHIPPED = {"sim:diffdrive": Path(__file__).parents[1] / "src" / "blackbox" / "configs"
            / "diffdrive.yaml"}
 KINDS = ("stuck", "drift", "offset", "scale", "noise", "kill", "stall")
+DRIFT_WITHIN = 5.0
+"""Issue 22 item 5: a drift is found within this many seconds of exceeding three noise
+standard deviations of its signal."""
 ENGINES = ("cbd", "sfdd", "hybrid")
 
 
@@ -64,6 +69,9 @@ class KindTally:
     first_ranked: int = 0
     in_candidates: int = 0
     delays: list[float] = field(default_factory=list)
+    past_three_std: list[float] = field(default_factory=list)
+    """Per drift fault whose signal's noise is known: seconds from the drift exceeding
+    three noise standard deviations to its detection (``inf`` if never detected)."""
 
     @property
     def precision(self) -> float | None:
@@ -130,8 +138,28 @@ def aftermath_kind(alarm: Episode, truth: Sequence[GroundTruth], end: float) -> 
     return max(ended, key=lambda f: f.end or end).kind if ended else None
 
 
-def tally(row: Row, score: RunScore, truth: Sequence[GroundTruth]) -> None:
+def past_three_std(fault: GroundTruth, delay: float | None,
+                   noise: Mapping[tuple[str, str], float]) -> float | None:
+    """For a drift of known rate on a signal of known noise std: seconds from the drift
+    exceeding three noise std (``3 std / |rate|`` after its start) to its detection, ``inf``
+    if it was never detected; ``None`` for any other fault."""
+    rate = abs(fault.params.get("rate", 0.0))
+    std = noise.get((fault.component, fault.field or ""))
+    if fault.kind != "drift" or not rate or not std:
+        return None
+    return math.inf if delay is None else delay - 3.0 * std / rate
+
+
+def sim_noise(topology: Topology) -> dict[tuple[str, str], float]:
+    """Each simulated field's own measurement noise std."""
+    return {(t.name, s.field): noise_std(s) for t in topology.topics.values()
+            for s in scalars_of(t.value)}
+
+
+def tally(row: Row, score: RunScore, truth: Sequence[GroundTruth],
+          noise: Mapping[tuple[str, str], float] | None = None) -> None:
     for outcome in score.outcomes:
+        past = past_three_std(outcome.fault, outcome.delay, noise or {})
         for t in (row.overall, row.kinds.setdefault(outcome.fault.kind, KindTally())):
             t.faults += 1
             t.detected += outcome.detected
@@ -139,6 +167,8 @@ def tally(row: Row, score: RunScore, truth: Sequence[GroundTruth]) -> None:
             t.in_candidates += bool(outcome.in_candidates)
             if outcome.delay is not None:
                 t.delays.append(outcome.delay)
+            if past is not None:
+                t.past_three_std.append(past)
     for alarm in score.false_positives:
         row.overall.false_alarms += 1
         kind = aftermath_kind(alarm, truth, score.end)
@@ -169,7 +199,7 @@ def perform(task: Task) -> tuple[Task, Row]:
     if task.healthy:
         part.healthy_alarms = len(score.false_positives)
     else:
-        tally(part, score, truth)
+        tally(part, score, truth, sim_noise(open_sim(task.robot).topology))
     return task, part
 
 
@@ -180,6 +210,7 @@ def merge(into: KindTally, part: KindTally) -> None:
     into.first_ranked += part.first_ranked
     into.in_candidates += part.in_candidates
     into.delays += part.delays
+    into.past_three_std += part.past_three_std
 
 
 def fmt(x: float | None, digits: int = 3) -> str:
@@ -204,6 +235,14 @@ def print_table(rows: Sequence[Row], healthy: float) -> None:
                   f"{fmt(t.in_candidates / t.faults if t.faults else None)} | "
                   f"{fmt(percentile(delays, 50), 2)} / {fmt(percentile(delays, 90), 2)} | "
                   f"{alarms} |")
+    for row in rows:
+        past = sorted(row.kinds.get("drift", KindTally()).past_three_std)
+        if past:
+            within = sum(p <= DRIFT_WITHIN for p in past)
+            print(f"\n{row.label}: drift found within {DRIFT_WITHIN:g} s of exceeding three "
+                  f"noise std: {within} of {len(past)} (seconds after: p50 "
+                  f"{fmt(percentile(past, 50), 2)}, p90 {fmt(percentile(past, 90), 2)}, max "
+                  f"{fmt(past[-1], 2)}; negative: found before)")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

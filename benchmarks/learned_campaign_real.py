@@ -357,7 +357,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     score = score_run(truth, verdicts, publishers, start=start, end=end, grace=DEFAULT_GRACE,
                       diagnoses=diagnoses)
     row = Row(f"learned ({args.learn:g} s), {args.middleware}, seed {args.seed}")
-    tally(row, score, truth)
+    tally(row, score, truth, {key: std for key, (std, _) in faults_model.FIELDS.items()})
     healthy = healthy_seconds(truth, start, end)
     row.healthy_alarms = len(score.false_positives)
     per_hour = len(score.false_positives) * 3600.0 / healthy if healthy > 0 else None
@@ -399,6 +399,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                "first_ranked": t.first_ranked,
                                "in_candidates": t.in_candidates}
                            for k, t in row.kinds.items()},
+              "drift_past_three_std": sorted(row.kinds.get("drift", Row("").overall)
+                                             .past_three_std),
               "misses": misses, "false_alarms": alarms, "out": str(out)}
     if args.json is not None:
         args.json.write_text(json.dumps(result, indent=2))
