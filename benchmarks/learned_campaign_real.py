@@ -399,8 +399,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                                "first_ranked": t.first_ranked,
                                "in_candidates": t.in_candidates}
                            for k, t in row.kinds.items()},
-              "drift_past_three_std": sorted(row.kinds.get("drift", Row("").overall)
-                                             .past_three_std),
+              "drift_past_three_std": [
+                  {"found_after_s": p if p < float("inf") else None, "lasted_after_s": lasted}
+                  for p, lasted in row.kinds.get("drift", Row("").overall).past_three_std],
               "misses": misses, "false_alarms": alarms, "out": str(out)}
     if args.json is not None:
         args.json.write_text(json.dumps(result, indent=2))

@@ -1088,6 +1088,32 @@ def _longest_run(x: np.ndarray) -> int:
 
 RATE_MARGIN = 1.5
 """A climbing signal may change this many times as fast as it did while learning."""
+SLOW_STUCK_PERIOD = 0.2
+"""A signal this slow or slower (5 Hz) is stuck at three equal samples when continuous."""
+
+
+def stuck_repeats(s: Signal, longest: int) -> int | None:
+    """Equal samples in a row that mean stuck, ``None`` for a signal that repeats too
+    often to tell. At least five and twice the longest healthy run; but three for a slow
+    signal (``SLOW_STUCK_PERIOD``) whose values never repeated and whose changes are all
+    distinct: continuous noise repeats a value with a probability of nothing, so three equal
+    samples are a frozen sensor, found in about two of its periods instead of four (a 1 Hz
+    temperature stuck for 4-5 s before it was reported, sim:skidsteer). A quantised signal
+    (its changes fall on a grid and repeat) keeps five: two minutes at 1 Hz cannot show
+    that it never repeats three times in an hour."""
+    if longest > 3:
+        return None
+    if longest == 1 and s.period >= SLOW_STUCK_PERIOD and _continuous(s.values):
+        return 3
+    return max(5, 2 * longest + 1)
+
+
+def _continuous(x: np.ndarray) -> bool:
+    """Whether the changes of ``x`` are all distinct (no grid of values), over enough of
+    them to tell."""
+    d = np.abs(np.diff(x))
+    d = d[d > 0]
+    return bool(d.size >= 20 and np.unique(d).size >= 0.95 * d.size)
 
 
 def fastest_change(s: Signal) -> float:
@@ -1126,7 +1152,7 @@ def learn_liveness(s: Signal) -> Liveness | None:
     rate = rate_bound(s)
     x = s.values
     longest = _longest_run(x)
-    repeats = max(5, 2 * longest + 1) if longest <= 3 else None
+    repeats = stuck_repeats(s, longest)
     block = max(5, round(LIVENESS_BLOCK_SECONDS / s.period)) if s.period > 0 else 5
     d = np.diff(x)
     if s.wrap:
