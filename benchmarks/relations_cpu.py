@@ -7,7 +7,9 @@ motion. *Baseline* is what ``blackbox learn`` writes per topic without relations
 ``timeout`` and a ``fields`` envelope). *With relations* adds one ``liveness`` observer
 per topic and a ``relation`` observer for each of the nine neighbouring pairs of topics
 (the pairs a learned configuration of ten redundant signals has at most per target,
-``MAX_PEERS``, give or take). The observers are fed the same messages and evaluated once a
+``MAX_PEERS``, give or take). Built as ``build_observers`` builds them (relations that
+share a signal share its grid cell), each message goes to the observers whose interest
+names its topic, as the pipeline routes them, and every observer is evaluated once a
 second; the figure is process CPU time per second of robot time (median of ``--repeat``).
 The acceptance line of issue 22 is that relations add at most 10 % to the black box.
 """
