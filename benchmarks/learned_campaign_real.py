@@ -59,7 +59,7 @@ from diffdrive_support import (  # noqa: E402
     ros1_diffdrive,
     ros2_diffdrive_publishing,
 )
-from learned_campaign import Row, fmt, print_table, tally  # noqa: E402
+from learned_campaign import KindTally, Row, fmt, print_table, tally  # noqa: E402
 
 faults_model = load_script(SCRIPTS / "robots" / "diffdrive_faults.py", "diffdrive_faults")
 
@@ -401,7 +401,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                            for k, t in row.kinds.items()},
               "drift_past_three_std": [
                   {"found_after_s": p if p < float("inf") else None, "lasted_after_s": lasted}
-                  for p, lasted in row.kinds.get("drift", Row("").overall).past_three_std],
+                  for p, lasted in row.kinds.get("drift", KindTally()).past_three_std],
               "misses": misses, "false_alarms": alarms, "out": str(out)}
     if args.json is not None:
         args.json.write_text(json.dumps(result, indent=2))

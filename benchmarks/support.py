@@ -44,14 +44,7 @@ def peak_rss(pid: int) -> int:
 
 def measure(proc: subprocess.Popen[bytes], what: str, warmup: float, seconds: float) -> Usage:
     """After ``warmup`` seconds, the process's usage over the next ``seconds``."""
-    p = psutil.Process(proc.pid)
-    time.sleep(warmup)
-    if proc.poll() is not None:
-        raise RuntimeError(f"{what} exited early with {proc.returncode}")
-    t0, c0 = time.monotonic(), sum(p.cpu_times()[:2])
-    time.sleep(seconds)
-    t1, c1 = time.monotonic(), sum(p.cpu_times()[:2])
-    return Usage(what, 100.0 * (c1 - c0) / (t1 - t0), peak_rss(proc.pid) / 1e6, t1 - t0)
+    return measure_together({what: proc}, warmup, seconds)[what]
 
 
 def measure_together(procs: dict[str, subprocess.Popen[bytes]], warmup: float,

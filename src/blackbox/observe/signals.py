@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_right
-from collections.abc import Callable, Collection, Hashable, Iterable, Mapping
+from collections.abc import Callable, Collection, Iterable, Mapping
 from dataclasses import dataclass
 from numbers import Real
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
@@ -253,12 +253,23 @@ class SharedGridCell(GridCell):
         self._closed.clear()
 
 
+@dataclass(frozen=True, slots=True)
+class GridKey:
+    """What makes a signal's grid cell: two signals with equal keys have equal cells."""
+
+    signal: SignalRef
+    stamp: str | None
+    fresh: float
+    step: float
+    delay: float
+
+
 @runtime_checkable
 class GridUser(Protocol):
     """An observer that puts signals on a grid of cells (``relation``)."""
 
-    def grid_keys(self) -> Mapping[SignalRef, Hashable]:
-        """Per signal, what makes its cell: two signals with equal keys have equal cells."""
+    def grid_keys(self) -> Mapping[SignalRef, GridKey]:
+        """Per signal, the key of its cell."""
         ...
 
     def use_cells(self, cells: Mapping[SignalRef, GridCell], fed: Collection[SignalRef]
@@ -272,34 +283,27 @@ def share_cells(users: Iterable[GridUser]) -> int:
     and its grid points closed once, not once per relation (a learned robot of ten
     redundant signals has each in five relations). The first observer feeds it. Returns
     how many cells are shared."""
-    readers: dict[Hashable, list[tuple[GridUser, SignalRef]]] = {}
+    users = list(users)
+    groups: dict[GridKey, list[tuple[GridUser, SignalRef]]] = {}
     for user in users:
         for ref, key in user.grid_keys().items():
-            readers.setdefault(key, []).append((user, ref))
-    cells: dict[int, dict[SignalRef, GridCell]] = {}
-    fed: dict[int, list[SignalRef]] = {}
+            groups.setdefault(key, []).append((user, ref))
+    cells: dict[int, dict[SignalRef, GridCell]] = {id(u): {} for u in users}
+    fed: dict[int, list[SignalRef]] = {id(u): [] for u in users}
     shared = 0
-    for group in readers.values():
+    for key, group in groups.items():
         if len(group) < 2:
             continue
         shared += 1
-        first_user, first_ref = group[0]
-        cell = SharedGridCell(*cell_shape(first_user.grid_keys()[first_ref]))
-        for i, (user, ref) in enumerate(group):
-            cells.setdefault(id(user), {})[ref] = cell
-            if i == 0:
-                fed.setdefault(id(user), []).append(ref)
-    for user in {id(u): u for group in readers.values() for u, _ in group}.values():
-        mine = cells.get(id(user))
-        if mine:
-            user.use_cells(mine, fed.get(id(user), ()))
+        cell = SharedGridCell(key.fresh, key.step, key.delay)
+        for user, ref in group:
+            cells[id(user)][ref] = cell
+        first, ref = group[0]
+        fed[id(first)].append(ref)
+    for user in users:
+        if cells[id(user)]:
+            user.use_cells(cells[id(user)], fed[id(user)])
     return shared
-
-
-def cell_shape(key: Hashable) -> tuple[float, float, float]:
-    """``fresh``, ``step`` and ``delay`` of a grid key (its last three members)."""
-    fresh, step, delay = key[-3:]  # type: ignore[index]
-    return fresh, step, delay
 
 
 def wrapped_difference(a: float, b: float) -> float:

@@ -65,7 +65,7 @@ from __future__ import annotations
 import contextlib
 import math
 from collections import deque
-from collections.abc import Collection, Hashable, Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -88,6 +88,7 @@ from blackbox.observe.signals import (
     Cusum,
     CusumSpec,
     GridCell,
+    GridKey,
     SignalReader,
     SignalRef,
     read_signal_ref,
@@ -341,19 +342,13 @@ class RelationObserver(ObserverBase):
             refs.update({t.signal: None for t in r.taps})
         self._refs = tuple(refs)
         self._readers = {ref: SignalReader(ref) for ref in self._refs}
-        self._by_topic: dict[str, list[tuple[SignalReader, GridCell]]] = {}
         self.delay = fresh if delay is None else delay
         self._cells = {ref: GridCell(fresh, step, self.delay) for ref in self._refs}
-        for ref in self._refs:
-            self._by_topic.setdefault(ref.topic, []).append((self._readers[ref],
-                                                            self._cells[ref]))
         depth = 1 + max(max((t.steps for r in relations for t in r.taps), default=0),
                         max(r.target_steps for r in relations))
-        self._fed = list(self._cells.values())
-        """The cells this observer feeds and resets (:meth:`use_cells`)."""
         self._history = {ref: deque([math.nan] * depth, maxlen=depth) for ref in self._refs}
         self._judges = [_Judge(r, self.window_blocks, step * block) for r in relations]
-        self._resolve()
+        self._wire(self._refs)
         self._next: float | None = None
         self._ticks = 0
         self._phased = False
@@ -361,8 +356,16 @@ class RelationObserver(ObserverBase):
         self._undecodable: dict[str, int] = {}
         """Messages per topic since the last evaluation that gave no value to read."""
 
-    def _resolve(self) -> None:
-        """What a tick reads and writes, from the cells and histories."""
+    def _wire(self, feeds: Collection[SignalRef]) -> None:
+        """Which cells each topic's messages feed (those of ``feeds``; another observer
+        feeds the rest) and what a tick reads and writes, from the cells and histories."""
+        self._by_topic: dict[str, list[tuple[SignalReader, GridCell]]] = {
+            ref.topic: [] for ref in self._refs}
+        for ref in self._refs:
+            if ref in feeds:
+                self._by_topic[ref.topic].append((self._readers[ref], self._cells[ref]))
+        self._fed = [self._cells[ref] for ref in self._refs if ref in feeds]
+        """The cells this observer feeds and resets."""
         history = self._history
         self._closing = [(cell.close, history[ref].appendleft)
                          for ref, cell in self._cells.items()]
@@ -373,10 +376,10 @@ class RelationObserver(ObserverBase):
         """Per relation the histories it reads, resolved once (a tick runs 20 times a
         second per observer, and a dictionary look-up per tap per tick showed in profiles)."""
 
-    def grid_keys(self) -> dict[SignalRef, Hashable]:
+    def grid_keys(self) -> dict[SignalRef, GridKey]:
         """What makes each signal's cell (``signals.share_cells``)."""
-        return {ref: (ref, self.stamps.get(ref.topic), self.fresh, self.step, self.delay)
-                for ref in self._refs}
+        return {ref: GridKey(ref, self.stamps.get(ref.topic), self.fresh, self.step,
+                             self.delay) for ref in self._refs}
 
     def use_cells(self, cells: Mapping[SignalRef, GridCell], fed: Collection[SignalRef]
                   ) -> None:
@@ -384,13 +387,7 @@ class RelationObserver(ObserverBase):
         observer feeds the rest, from the same messages)."""
         own = self._cells
         self._cells = {ref: cells.get(ref, own[ref]) for ref in self._refs}
-        feeds = {ref for ref in self._refs if ref not in cells or ref in fed}
-        self._by_topic = {ref.topic: [] for ref in self._refs}
-        for ref in self._refs:
-            if ref in feeds:
-                self._by_topic[ref.topic].append((self._readers[ref], self._cells[ref]))
-        self._fed = [self._cells[ref] for ref in self._refs if ref in feeds]
-        self._resolve()
+        self._wire({ref for ref in self._refs if ref not in cells or ref in fed})
 
     def interest(self) -> Interest:
         """The topics whose cells it feeds: a topic whose cells another observer feeds
